@@ -1,0 +1,1 @@
+//! The baked file format (in progress).

@@ -1,0 +1,1 @@
+//! glTF import (in progress).

@@ -1,0 +1,18 @@
+//! bounce-core: the CPU side of bounce's precomputed radiosity.
+//!
+//! It owns scene import (glTF), voxel simplification into patches, form factors with visibility,
+//! the multi-bounce transport matrix, the baked file format and the bake pipeline that ties them
+//! together. It does not own any GPU code, networking or command-line handling: those live in the
+//! crates that depend on this one.
+//!
+//! Conventions (see DESIGN.md §1): `F[i][j]` is the fraction of energy leaving patch `i` that
+//! arrives at patch `j`; the transport `T` maps initial exitance `B0` to indirect irradiance
+//! `E_ind = T B0`.
+
+pub mod format;
+pub mod import;
+pub mod light;
+pub mod matrix;
+pub mod meta;
+pub mod patch;
+pub mod scene;

@@ -1,0 +1,118 @@
+//! What a baked file says about how it was made: settings, statistics, timings and the import
+//! report. Stored as JSON in the file's metadata section and shown by `bounce inspect`.
+
+use serde::{Deserialize, Serialize};
+
+use crate::light::Light;
+use crate::scene::ImportReport;
+
+/// How many light bounces the transport carries: `k` (a number) or all of them (`"all"`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Bounces {
+    K(u32),
+    All,
+}
+
+impl std::fmt::Display for Bounces {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Bounces::K(k) => write!(f, "{k}"),
+            Bounces::All => f.write_str("all"),
+        }
+    }
+}
+
+impl std::str::FromStr for Bounces {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        if s.eq_ignore_ascii_case("all") {
+            return Ok(Bounces::All);
+        }
+        match s.parse::<u32>() {
+            Ok(k) if k >= 1 => Ok(Bounces::K(k)),
+            _ => Err(format!(
+                "bounces must be a whole number of at least 1 or \"all\", got '{s}'"
+            )),
+        }
+    }
+}
+
+impl Serialize for Bounces {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        match self {
+            Bounces::K(k) => s.serialize_u32(*k),
+            Bounces::All => s.serialize_str("all"),
+        }
+    }
+}
+
+impl<'de> Deserialize<'de> for Bounces {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        #[derive(Deserialize)]
+        #[serde(untagged)]
+        enum Raw {
+            N(u32),
+            S(String),
+        }
+        match Raw::deserialize(d)? {
+            Raw::N(k) if k >= 1 => Ok(Bounces::K(k)),
+            Raw::N(k) => Err(serde::de::Error::custom(format!("bounces {k} < 1"))),
+            Raw::S(s) => s.parse().map_err(serde::de::Error::custom),
+        }
+    }
+}
+
+/// The knobs a bake was run with.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct BakeSettings {
+    /// Requested patch count, when the voxel size was searched for.
+    pub target_patches: Option<u32>,
+    /// Requested voxel size, when given directly.
+    pub requested_voxel_size: Option<f32>,
+    /// Rays cast from each patch for its form-factor row.
+    pub rays_per_patch: u32,
+    pub seed: u64,
+    pub bounces: Bounces,
+}
+
+/// Figures measured during the bake.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct BakeStats {
+    pub patches: usize,
+    pub voxel_size: f32,
+    pub occupied_voxels: usize,
+    pub rays_total: u64,
+    pub row_sum_min: f32,
+    pub row_sum_max: f32,
+    pub row_sum_mean: f32,
+    /// Area-weighted relative reciprocity error of the form factors:
+    /// `Σ|A_i F_ij − A_j F_ji| / Σ(A_i F_ij + A_j F_ji)`.
+    pub reciprocity_error: f32,
+    /// Patches whose rays hit no other patch.
+    pub isolated_patches: usize,
+    pub channels: usize,
+    pub matrix_bytes: u64,
+}
+
+/// Wall time of one bake stage.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct StageTiming {
+    pub stage: String,
+    pub seconds: f64,
+}
+
+/// Everything about a bake that is not the layout or the matrix.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct BakeMeta {
+    /// `bounce-core` version that wrote the file.
+    pub tool_version: String,
+    /// The scene file as given on the command line (file name only, no directories).
+    pub source_name: String,
+    pub source_bytes: u64,
+    pub settings: BakeSettings,
+    pub stats: BakeStats,
+    pub timings: Vec<StageTiming>,
+    pub import_report: ImportReport,
+    /// The scene's own lights (`KHR_lights_punctual`), the default light configuration.
+    pub lights: Vec<Light>,
+}

@@ -1,0 +1,199 @@
+//! Patches: the axis-aligned voxel faces that radiosity runs on, and the layout that maps them back
+//! onto the original surfaces.
+//!
+//! A patch is the face of an occupied voxel that looks into empty space and that original geometry
+//! faces. The layout (grid origin, voxel size, dimensions, per patch its voxel and face) is everything a
+//! client needs to scatter patch irradiance onto its own meshes.
+
+use glam::Vec3;
+use serde::{Deserialize, Serialize};
+
+/// The six face directions of a voxel. The discriminant is the on-disk and on-wire code.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+#[repr(u8)]
+pub enum Face {
+    PosX = 0,
+    NegX = 1,
+    PosY = 2,
+    NegY = 3,
+    PosZ = 4,
+    NegZ = 5,
+}
+
+impl Face {
+    pub const ALL: [Face; 6] = [
+        Face::PosX,
+        Face::NegX,
+        Face::PosY,
+        Face::NegY,
+        Face::PosZ,
+        Face::NegZ,
+    ];
+
+    pub fn from_code(code: u8) -> Option<Face> {
+        Face::ALL.get(code as usize).copied()
+    }
+
+    pub fn code(self) -> u8 {
+        self as u8
+    }
+
+    /// 0 for X, 1 for Y, 2 for Z.
+    pub fn axis(self) -> usize {
+        self as usize / 2
+    }
+
+    /// +1 for the positive faces, −1 for the negative ones.
+    pub fn sign(self) -> f32 {
+        if (self as u8).is_multiple_of(2) { 1.0 } else { -1.0 }
+    }
+
+    pub fn normal(self) -> Vec3 {
+        let mut n = Vec3::ZERO;
+        n[self.axis()] = self.sign();
+        n
+    }
+
+    pub fn from_axis_sign(axis: usize, positive: bool) -> Face {
+        Face::ALL[axis * 2 + usize::from(!positive)]
+    }
+}
+
+/// An axis-aligned rectangle facing one way: the geometry that form factors are computed on.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Quad {
+    pub face: Face,
+    /// Coordinate of the rectangle's plane along `face.axis()`.
+    pub plane: f32,
+    /// Bounds in the two other axes, in the order `(axis + 1) % 3`, `(axis + 2) % 3`.
+    pub lo: [f32; 2],
+    pub hi: [f32; 2],
+}
+
+impl Quad {
+    /// The two in-plane axes, in the order used by `lo` and `hi`.
+    pub fn tangent_axes(&self) -> (usize, usize) {
+        let a = self.face.axis();
+        ((a + 1) % 3, (a + 2) % 3)
+    }
+
+    pub fn area(&self) -> f32 {
+        (self.hi[0] - self.lo[0]) * (self.hi[1] - self.lo[1])
+    }
+
+    pub fn normal(&self) -> Vec3 {
+        self.face.normal()
+    }
+
+    /// The point at in-plane parameters `(s, t)` in `[0, 1]²`.
+    pub fn point(&self, s: f32, t: f32) -> Vec3 {
+        let (u, v) = self.tangent_axes();
+        let mut p = Vec3::ZERO;
+        p[self.face.axis()] = self.plane;
+        p[u] = self.lo[0] + s * (self.hi[0] - self.lo[0]);
+        p[v] = self.lo[1] + t * (self.hi[1] - self.lo[1]);
+        p
+    }
+
+    pub fn center(&self) -> Vec3 {
+        self.point(0.5, 0.5)
+    }
+
+    pub fn aabb_min(&self) -> Vec3 {
+        self.point(0.0, 0.0)
+    }
+
+    pub fn aabb_max(&self) -> Vec3 {
+        self.point(1.0, 1.0)
+    }
+
+    /// Distance along the ray to the rectangle, if the ray crosses it from its front side.
+    /// Back-side hits return `None` here; occlusion by back sides is handled by the caller.
+    #[inline]
+    pub fn intersect(&self, origin: Vec3, dir: Vec3, two_sided: bool) -> Option<f32> {
+        let a = self.face.axis();
+        let d = dir[a];
+        let facing = d * self.face.sign() < 0.0;
+        if d == 0.0 || (!facing && !two_sided) {
+            return None;
+        }
+        let t = (self.plane - origin[a]) / d;
+        if !(t > 0.0) {
+            return None;
+        }
+        let (u, v) = self.tangent_axes();
+        let pu = origin[u] + t * dir[u];
+        let pv = origin[v] + t * dir[v];
+        (pu >= self.lo[0] && pu <= self.hi[0] && pv >= self.lo[1] && pv <= self.hi[1]).then_some(t)
+    }
+}
+
+/// One patch of a baked scene.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Patch {
+    /// Voxel coordinate in the grid.
+    pub voxel: [u32; 3],
+    pub face: Face,
+    /// Area-weighted linear RGB albedo of the original triangles this patch stands for.
+    pub albedo: [f32; 3],
+    /// Area-weighted centroid of those triangles (where references are evaluated).
+    pub centroid: [f32; 3],
+    /// Area-weighted unit normal of those triangles.
+    pub normal: [f32; 3],
+    /// Area of those triangles projected onto the face direction.
+    pub source_area: f32,
+    /// Area-weighted emitted exitance of those triangles (linear RGB), zero for most patches.
+    pub emission: [f32; 3],
+}
+
+/// The voxel grid and its patches, in patch index order.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PatchLayout {
+    /// World position of the grid's minimum corner.
+    pub origin: [f32; 3],
+    /// Edge length of a voxel, world units.
+    pub voxel_size: f32,
+    /// Voxel counts along X, Y, Z.
+    pub dims: [u32; 3],
+    pub patches: Vec<Patch>,
+}
+
+impl PatchLayout {
+    pub fn len(&self) -> usize {
+        self.patches.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.patches.is_empty()
+    }
+
+    /// Area of every patch: one voxel face.
+    pub fn patch_area(&self) -> f32 {
+        self.voxel_size * self.voxel_size
+    }
+
+    /// The rectangle of a voxel face in world space.
+    pub fn face_quad(&self, voxel: [u32; 3], face: Face) -> Quad {
+        let s = self.voxel_size;
+        let o = Vec3::from(self.origin);
+        let a = face.axis();
+        let (u, v) = ((a + 1) % 3, (a + 2) % 3);
+        let lo = o + Vec3::new(voxel[0] as f32, voxel[1] as f32, voxel[2] as f32) * s;
+        let plane = if face.sign() > 0.0 { lo[a] + s } else { lo[a] };
+        Quad {
+            face,
+            plane,
+            lo: [lo[u], lo[v]],
+            hi: [lo[u] + s, lo[v] + s],
+        }
+    }
+
+    pub fn quad(&self, patch: usize) -> Quad {
+        let p = &self.patches[patch];
+        self.face_quad(p.voxel, p.face)
+    }
+
+    pub fn quads(&self) -> Vec<Quad> {
+        (0..self.len()).map(|i| self.quad(i)).collect()
+    }
+}

@@ -1,0 +1,95 @@
+//! The imported scene: world-space triangles with their diffuse material, and the scene's lights.
+//!
+//! This is the boundary between file formats and the lighting pipeline: everything downstream
+//! (voxelisation, the reference path tracer) sees only these flat triangles.
+
+use glam::Vec3;
+use serde::{Deserialize, Serialize};
+
+use crate::light::Light;
+
+/// One world-space triangle with its diffuse material already resolved.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Triangle {
+    pub positions: [Vec3; 3],
+    /// Linear RGB albedo: base-colour factor × vertex colour × the texture averaged over this
+    /// triangle's UV footprint. Each channel in `[0, 1]`.
+    pub albedo: Vec3,
+    /// Linear RGB emitted exitance scale: emissive factor × emissive texture average ×
+    /// `KHR_materials_emissive_strength`.
+    pub emission: Vec3,
+    /// glTF `doubleSided`: the surface reflects light on both sides.
+    pub double_sided: bool,
+    /// Index into [`Scene::materials`] (the glTF material, or the default material).
+    pub material: u32,
+}
+
+impl Triangle {
+    /// Unnormalised normal: its length is twice the area.
+    pub fn cross(&self) -> Vec3 {
+        let [a, b, c] = self.positions;
+        (b - a).cross(c - a)
+    }
+
+    pub fn area(&self) -> f32 {
+        0.5 * self.cross().length()
+    }
+
+    pub fn centroid(&self) -> Vec3 {
+        let [a, b, c] = self.positions;
+        (a + b + c) / 3.0
+    }
+}
+
+/// A material as the scene file names it, kept for reports.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MaterialInfo {
+    pub name: String,
+    pub base_color_factor: [f32; 3],
+    pub has_base_color_texture: bool,
+    pub emission: [f32; 3],
+    pub double_sided: bool,
+}
+
+/// What the importer read, dropped or could not use. Printed after an import and kept in the
+/// baked file, so a surprising bake can be explained later.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct ImportReport {
+    pub meshes: usize,
+    pub primitives: usize,
+    pub triangles: usize,
+    pub lights: usize,
+    /// Primitives skipped, with the reason (e.g. "mesh 'x' primitive 2: mode Lines").
+    pub skipped_primitives: Vec<String>,
+    /// Triangles dropped because their area was zero or not finite.
+    pub degenerate_triangles: usize,
+    /// Textures that could not be used (missing file, undecodable), by name or index.
+    pub missing_textures: Vec<String>,
+    /// Lights skipped (unsupported type or invalid values), with the reason.
+    pub skipped_lights: Vec<String>,
+    /// Anything else worth telling the user.
+    pub warnings: Vec<String>,
+}
+
+/// An imported scene.
+#[derive(Debug, Clone, Default)]
+pub struct Scene {
+    pub triangles: Vec<Triangle>,
+    pub materials: Vec<MaterialInfo>,
+    /// The scene's own `KHR_lights_punctual` lights, placed by their nodes, in world space.
+    pub lights: Vec<Light>,
+    pub report: ImportReport,
+}
+
+impl Scene {
+    /// Axis-aligned bounds of all triangles, or `None` for an empty scene.
+    pub fn bounds(&self) -> Option<(Vec3, Vec3)> {
+        let mut it = self.triangles.iter().flat_map(|t| t.positions);
+        let first = it.next()?;
+        Some(it.fold((first, first), |(lo, hi), p| (lo.min(p), hi.max(p))))
+    }
+
+    pub fn total_area(&self) -> f64 {
+        self.triangles.iter().map(|t| t.area() as f64).sum()
+    }
+}
