@@ -1,1 +1,61 @@
-fn main() {}
+//! `bounce`: the command line of the bounce lighting service.
+//!
+//! This binary owns argument parsing, terminal output and exit codes; the work itself lives in
+//! `bounce-core`. Errors reach the user through `anyhow` with the library's message on top.
+
+mod bake_cmd;
+mod demo;
+mod inspect;
+mod memory;
+mod progress;
+
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+
+#[derive(Parser)]
+#[command(
+    name = "bounce",
+    version,
+    about = "Precomputed-radiosity lighting: bake glTF scenes into transport matrices",
+    long_about = "bounce precomputes diffuse global illumination. `bake` turns a glTF scene into a \
+                  baked file holding a multi-bounce light-transport matrix over voxel patches; \
+                  `inspect` shows what a baked file holds; `demo` bakes the embedded Cornell box."
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Bake a glTF/GLB scene into a transport file.
+    Bake(bake_cmd::BakeArgs),
+    /// Show the header, layout, settings, timings and checks of a baked file.
+    Inspect(inspect::InspectArgs),
+    /// Bake the embedded Cornell box demo scene and inspect the result.
+    Demo(demo::DemoArgs),
+}
+
+fn main() -> ExitCode {
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_env("BOUNCE_LOG")
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn")),
+        )
+        .with_writer(std::io::stderr)
+        .init();
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Bake(args) => bake_cmd::run(&args),
+        Command::Inspect(args) => inspect::run(&args),
+        Command::Demo(args) => demo::run(&args),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}

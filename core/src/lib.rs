@@ -9,10 +9,14 @@
 //! arrives at patch `j`; the transport `T` maps initial exitance `B0` to indirect irradiance
 //! `E_ind = T B0`.
 
+pub mod bake;
 pub mod format;
+pub mod formfactor;
 pub mod import;
 pub mod light;
 pub mod matrix;
 pub mod meta;
 pub mod patch;
 pub mod scene;
+pub mod transport;
+pub mod voxel;

@@ -81,6 +81,8 @@ pub struct BakeStats {
     pub patches: usize,
     pub voxel_size: f32,
     pub occupied_voxels: usize,
+    /// Candidate patches dropped because their probe rays reached no other patch.
+    pub dropped_patches: usize,
     pub rays_total: u64,
     pub row_sum_min: f32,
     pub row_sum_max: f32,

@@ -45,7 +45,11 @@ impl Face {
 
     /// +1 for the positive faces, −1 for the negative ones.
     pub fn sign(self) -> f32 {
-        if (self as u8).is_multiple_of(2) { 1.0 } else { -1.0 }
+        if (self as u8).is_multiple_of(2) {
+            1.0
+        } else {
+            -1.0
+        }
     }
 
     pub fn normal(self) -> Vec3 {
@@ -118,7 +122,7 @@ impl Quad {
             return None;
         }
         let t = (self.plane - origin[a]) / d;
-        if !(t > 0.0) {
+        if t.is_nan() || t <= 0.0 {
             return None;
         }
         let (u, v) = self.tangent_axes();

@@ -1,0 +1,157 @@
+//! `bounce bake`: import, voxelise, trace, transport, write; then a summary.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{Context, Result, bail};
+use bounce_core::bake::{BakeOptions, bake_file};
+use bounce_core::format::Baked;
+use bounce_core::meta::Bounces;
+use bounce_core::voxel::Resolution;
+use clap::Args;
+
+use crate::memory::peak_rss_bytes;
+use crate::progress::TermProgress;
+
+#[derive(Args, Debug)]
+pub struct BakeArgs {
+    /// The scene: a .gltf (with its .bin and textures beside it) or a .glb file.
+    pub scene: PathBuf,
+    /// Where to write the baked file (written atomically: a failed bake leaves no partial file).
+    #[arg(short, long, value_name = "OUT.bounce")]
+    pub out: PathBuf,
+    /// Target patch count; the voxel size is searched so that the count lands near it.
+    #[arg(
+        long,
+        value_name = "N",
+        conflicts_with = "voxel_size",
+        default_value_t = 2000
+    )]
+    pub patches: u32,
+    /// Voxel edge length in scene units, instead of --patches.
+    #[arg(long, value_name = "S")]
+    pub voxel_size: Option<f32>,
+    /// Rays cast from each patch to estimate its form factors.
+    #[arg(long, value_name = "R", default_value_t = 2048)]
+    pub rays: u32,
+    /// Light bounces the transport carries: a number of at least 1, or "all".
+    #[arg(long, value_name = "K|all", default_value = "3")]
+    pub bounces: Bounces,
+    /// Seed of the ray sequences; the same seed gives the same file on any thread count.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Also store the single-bounce form-factor matrix (doubles the file for k > 1).
+    #[arg(long)]
+    pub keep_form_factors: bool,
+    /// No progress bars or stage lines; the summary is still printed.
+    #[arg(short, long)]
+    pub quiet: bool,
+}
+
+impl BakeArgs {
+    pub fn options(&self) -> Result<BakeOptions> {
+        if self.rays == 0 {
+            bail!("--rays must be at least 1");
+        }
+        Ok(BakeOptions {
+            resolution: match self.voxel_size {
+                Some(s) => Resolution::VoxelSize(s),
+                None => Resolution::TargetPatches(self.patches),
+            },
+            rays: self.rays,
+            seed: self.seed,
+            bounces: self.bounces,
+            keep_form_factors: self.keep_form_factors,
+        })
+    }
+}
+
+pub fn run(args: &BakeArgs) -> Result<()> {
+    bake(&args.scene, &args.out, &args.options()?, args.quiet)?;
+    Ok(())
+}
+
+/// Bake `scene` into `out` and print the summary.
+pub fn bake(scene: &Path, out: &Path, options: &BakeOptions, quiet: bool) -> Result<Baked> {
+    let start = Instant::now();
+    let progress = TermProgress::new(quiet);
+    let baked = bake_file(scene, options, &progress)
+        .with_context(|| format!("baking {}", scene.display()))?;
+    let write_start = Instant::now();
+    baked
+        .write_atomic(out)
+        .with_context(|| format!("writing {}", out.display()))?;
+    let write_s = write_start.elapsed().as_secs_f64();
+    if !quiet {
+        eprintln!("{:>14}  {write_s:8.2} s", "write");
+    }
+    let file_bytes = std::fs::metadata(out).map(|m| m.len()).unwrap_or(0);
+    print_summary(&baked, out, file_bytes, start.elapsed().as_secs_f64());
+    Ok(baked)
+}
+
+fn print_summary(baked: &Baked, out: &Path, file_bytes: u64, total_s: f64) {
+    let m = &baked.meta;
+    let s = &m.stats;
+    println!("baked {} ({})", out.display(), human_bytes(file_bytes));
+    println!(
+        "  patches       {} (voxel size {:.4}, grid {}×{}×{}, {} occupied voxels, {} dropped as seeing nothing)",
+        s.patches,
+        s.voxel_size,
+        baked.layout.dims[0],
+        baked.layout.dims[1],
+        baked.layout.dims[2],
+        s.occupied_voxels,
+        s.dropped_patches
+    );
+    println!(
+        "  rays          {} per patch, {} in all",
+        m.settings.rays_per_patch, s.rays_total
+    );
+    println!(
+        "  transport     {} bounce(s), {} channel(s), codec {}, {}",
+        m.settings.bounces,
+        s.channels,
+        baked.transport.codec,
+        human_bytes(s.matrix_bytes)
+    );
+    println!(
+        "  row sums      min {:.4}  max {:.4}  mean {:.4}",
+        s.row_sum_min, s.row_sum_max, s.row_sum_mean
+    );
+    println!(
+        "  reciprocity   {:.2}% (area-weighted, from ray noise)",
+        s.reciprocity_error * 100.0
+    );
+    if s.isolated_patches > 0 {
+        println!(
+            "  isolated      {} patch(es) see no other patch",
+            s.isolated_patches
+        );
+    }
+    let stages: Vec<String> = m
+        .timings
+        .iter()
+        .map(|t| format!("{} {:.2}s", t.stage, t.seconds))
+        .collect();
+    println!("  time          {total_s:.2} s: {}", stages.join(", "));
+    if let Some(peak) = peak_rss_bytes() {
+        println!("  peak memory   {}", human_bytes(peak));
+    }
+    crate::inspect::print_import_report(&m.import_report, m.lights.len());
+}
+
+pub fn human_bytes(b: u64) -> String {
+    const UNITS: [&str; 5] = ["B", "KiB", "MiB", "GiB", "TiB"];
+    let mut v = b as f64;
+    let mut u = 0;
+    while v >= 1024.0 && u + 1 < UNITS.len() {
+        v /= 1024.0;
+        u += 1;
+    }
+    if u == 0 {
+        format!("{b} B")
+    } else {
+        format!("{v:.1} {}", UNITS[u])
+    }
+}

@@ -1,0 +1,187 @@
+//! `bounce inspect`: what a baked file holds, for people (`text`) and tools (`--json`).
+
+use std::path::PathBuf;
+
+use anyhow::{Context, Result};
+use bounce_core::format::{Baked, read_summary};
+use bounce_core::scene::ImportReport;
+use clap::Args;
+use serde_json::json;
+
+use crate::bake_cmd::human_bytes;
+
+#[derive(Args, Debug)]
+pub struct InspectArgs {
+    /// A baked file written by `bounce bake`.
+    pub file: PathBuf,
+    /// Print one JSON object instead of text.
+    #[arg(long)]
+    pub json: bool,
+}
+
+pub fn run(args: &InspectArgs) -> Result<()> {
+    // The container summary reads even when a section is damaged, so show it before failing.
+    let summary =
+        read_summary(&args.file).with_context(|| format!("reading {}", args.file.display()))?;
+    let baked = Baked::read(&args.file).with_context(|| format!("reading {}", args.file.display()));
+    let sections: Vec<_> = summary
+        .sections
+        .iter()
+        .map(|s| {
+            json!({
+                "kind": String::from_utf8_lossy(&s.entry.kind.0),
+                "offset": s.entry.offset,
+                "bytes": s.entry.len,
+                "crc32": format!("{:08x}", s.entry.crc),
+                "checksum_ok": s.crc_ok,
+            })
+        })
+        .collect();
+    let baked = match baked {
+        Ok(b) => b,
+        Err(e) => {
+            if args.json {
+                println!(
+                    "{}",
+                    json!({
+                        "format_version": summary.header.format_version,
+                        "file_bytes": summary.header.file_len,
+                        "sections": sections,
+                        "error": format!("{e:#}"),
+                    })
+                );
+            }
+            return Err(e);
+        }
+    };
+    let m = &baked.meta;
+    let s = &m.stats;
+    let l = &baked.layout;
+    if args.json {
+        let doc = json!({
+            "format_version": summary.header.format_version,
+            "file_bytes": summary.header.file_len,
+            "sections": sections,
+            "source": m.source_name,
+            "source_bytes": m.source_bytes,
+            "tool_version": m.tool_version,
+            "patches": l.len(),
+            "bounces": m.settings.bounces,
+            "channels": baked.transport.channels,
+            "codec": baked.transport.codec,
+            "codec_params": baked.transport.params,
+            "matrix_bytes": baked.transport.payload.len(),
+            "form_factors_stored": baked.form_factors.is_some(),
+            "layout": {
+                "origin": l.origin,
+                "voxel_size": l.voxel_size,
+                "dims": l.dims,
+            },
+            "settings": m.settings,
+            "stats": s,
+            "row_sum_min": s.row_sum_min,
+            "row_sum_max": s.row_sum_max,
+            "row_sum_mean": s.row_sum_mean,
+            "reciprocity_error": s.reciprocity_error,
+            "timings": m.timings,
+            "import_report": m.import_report,
+            "lights": m.lights,
+        });
+        println!("{}", serde_json::to_string_pretty(&doc)?);
+        return Ok(());
+    }
+    println!("{}", args.file.display());
+    println!(
+        "  format        version {}, {}, {} sections",
+        summary.header.format_version,
+        human_bytes(summary.header.file_len),
+        summary.sections.len()
+    );
+    for sec in &summary.sections {
+        println!(
+            "    {}  {:>12} at {:>10}  crc {:08x} {}",
+            String::from_utf8_lossy(&sec.entry.kind.0),
+            human_bytes(sec.entry.len),
+            sec.entry.offset,
+            sec.entry.crc,
+            if sec.crc_ok { "ok" } else { "MISMATCH" }
+        );
+    }
+    println!(
+        "  source        {} ({}), bounce {}",
+        m.source_name,
+        human_bytes(m.source_bytes),
+        m.tool_version
+    );
+    println!(
+        "  layout        {} patches, voxel size {:.4}, grid {}×{}×{} from ({:.3}, {:.3}, {:.3})",
+        l.len(),
+        l.voxel_size,
+        l.dims[0],
+        l.dims[1],
+        l.dims[2],
+        l.origin[0],
+        l.origin[1],
+        l.origin[2]
+    );
+    let requested = match (m.settings.target_patches, m.settings.requested_voxel_size) {
+        (Some(p), _) => format!("--patches {p}"),
+        (_, Some(v)) => format!("--voxel-size {v}"),
+        _ => String::from("-"),
+    };
+    println!(
+        "  settings      {requested}, --rays {}, --bounces {}, --seed {}",
+        m.settings.rays_per_patch, m.settings.bounces, m.settings.seed
+    );
+    println!(
+        "  transport     codec {}, {} channel(s), {}{}",
+        baked.transport.codec,
+        baked.transport.channels,
+        human_bytes(baked.transport.payload.len() as u64),
+        if baked.form_factors.is_some() {
+            " (+ form factors)"
+        } else {
+            ""
+        }
+    );
+    println!(
+        "  checks        row sums {:.4}..{:.4} (mean {:.4}), reciprocity {:.2}%, {} isolated",
+        s.row_sum_min,
+        s.row_sum_max,
+        s.row_sum_mean,
+        s.reciprocity_error * 100.0,
+        s.isolated_patches
+    );
+    let total: f64 = m.timings.iter().map(|t| t.seconds).sum();
+    let stages: Vec<String> = m
+        .timings
+        .iter()
+        .map(|t| format!("{} {:.2}s", t.stage, t.seconds))
+        .collect();
+    println!("  bake time     {total:.2} s: {}", stages.join(", "));
+    print_import_report(&m.import_report, m.lights.len());
+    Ok(())
+}
+
+/// The importer's report, one line per kind of thing skipped.
+pub fn print_import_report(r: &ImportReport, lights: usize) {
+    println!(
+        "  import        {} triangles from {} primitives in {} meshes, {} light(s)",
+        r.triangles, r.primitives, r.meshes, lights
+    );
+    let list = |label: &str, items: &[String]| {
+        if !items.is_empty() {
+            println!("  {label:<13} {}", items.join("; "));
+        }
+    };
+    list("skipped", &r.skipped_primitives);
+    if r.degenerate_triangles > 0 {
+        println!(
+            "  degenerate    {} zero-area triangle(s) dropped",
+            r.degenerate_triangles
+        );
+    }
+    list("textures", &r.missing_textures);
+    list("lights", &r.skipped_lights);
+    list("warnings", &r.warnings);
+}

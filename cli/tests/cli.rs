@@ -1,0 +1,284 @@
+//! End-to-end: the real `bounce` binary on real files.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use bounce_core::format::Baked;
+use serde_json::Value;
+
+fn bounce() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_bounce"))
+}
+
+fn cornell() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/cornell-box/scene.gltf")
+}
+
+fn run(cmd: &mut Command) -> Output {
+    let out = cmd.output().expect("the bounce binary runs");
+    // A panic exits with 101; every failure a user can cause must be a clean error (exit 1).
+    assert_ne!(
+        out.status.code(),
+        Some(101),
+        "bounce panicked:\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    out
+}
+
+fn stderr(out: &Output) -> String {
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+fn inspect_json(file: &Path) -> Value {
+    let out = run(bounce().arg("inspect").arg(file).arg("--json"));
+    assert!(out.status.success(), "{}", stderr(&out));
+    serde_json::from_slice(&out.stdout).expect("inspect --json prints JSON")
+}
+
+#[test]
+fn bake_then_inspect_the_cornell_box() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("cornell.bounce");
+    let out = run(bounce()
+        .args([
+            "bake",
+            "--patches",
+            "400",
+            "--rays",
+            "1024",
+            "--quiet",
+            "-o",
+        ])
+        .arg(&file)
+        .arg(cornell()));
+    assert!(out.status.success(), "{}", stderr(&out));
+    let summary = String::from_utf8_lossy(&out.stdout);
+    assert!(summary.contains("patches"), "{summary}");
+
+    let j = inspect_json(&file);
+    assert_eq!(j["format_version"], 1);
+    assert_eq!(j["bounces"], 3);
+    assert_eq!(j["channels"], 3, "the Cornell box has coloured walls");
+    assert_eq!(j["codec"], "dense-f32");
+    let n = j["patches"].as_u64().unwrap();
+    assert!((300..=500).contains(&n), "{n} patches for a target of 400");
+    assert_eq!(j["matrix_bytes"].as_u64().unwrap(), n * n * 3 * 4);
+    let row_max = j["row_sum_max"].as_f64().unwrap();
+    assert!(row_max <= 1.0 + 1e-5 && row_max > 0.5, "{row_max}");
+    // Per-entry reciprocity is limited by ray noise: 1024 rays over a few hundred visible
+    // patches is a few hits an entry, so tens of per cent here, not a bias.
+    let recip = j["reciprocity_error"].as_f64().unwrap();
+    assert!((0.0..0.3).contains(&recip), "{recip}");
+    assert_eq!(j["import_report"]["triangles"], 32);
+
+    // The same file read by the library: the layout matches the JSON.
+    let baked = Baked::read(&file).unwrap();
+    assert_eq!(baked.layout.len() as u64, n);
+
+    // Text mode says the same things to a person.
+    let out = run(bounce().arg("inspect").arg(&file));
+    assert!(out.status.success());
+    let text = String::from_utf8_lossy(&out.stdout);
+    for word in ["format", "patches", "dense-f32", "row sums", "reciprocity"] {
+        assert!(text.contains(word), "inspect text lacks '{word}':\n{text}");
+    }
+}
+
+#[test]
+fn all_bounces_and_single_bounce() {
+    let dir = tempfile::tempdir().unwrap();
+    for (bounces, channels) in [("all", 3), ("1", 1)] {
+        let file = dir.path().join(format!("b{bounces}.bounce"));
+        let out = run(bounce()
+            .args(["bake", "--patches", "200", "--rays", "128", "-q"])
+            .args(["--bounces", bounces, "-o"])
+            .arg(&file)
+            .arg(cornell()));
+        assert!(out.status.success(), "{}", stderr(&out));
+        let j = inspect_json(&file);
+        let want: Value = if bounces == "all" {
+            "all".into()
+        } else {
+            1.into()
+        };
+        assert_eq!(j["bounces"], want);
+        assert_eq!(j["channels"], channels);
+    }
+}
+
+#[test]
+fn the_thread_count_does_not_change_the_result() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut bakes = Vec::new();
+    for threads in ["1", "2"] {
+        let file = dir.path().join(format!("t{threads}.bounce"));
+        let out = run(bounce()
+            .env("RAYON_NUM_THREADS", threads)
+            .args(["bake", "--patches", "300", "--rays", "128", "-q", "-o"])
+            .arg(&file)
+            .arg(cornell()));
+        assert!(out.status.success(), "{}", stderr(&out));
+        bakes.push(Baked::read(&file).unwrap());
+    }
+    assert_eq!(bakes[0].layout, bakes[1].layout);
+    assert_eq!(bakes[0].transport, bakes[1].transport);
+    // Only timings may differ.
+    assert_eq!(bakes[0].meta.stats, bakes[1].meta.stats);
+}
+
+#[test]
+fn user_errors_read_clearly() {
+    let dir = tempfile::tempdir().unwrap();
+    let out_file = dir.path().join("x.bounce");
+
+    let missing = run(bounce()
+        .args(["bake", "-o"])
+        .arg(&out_file)
+        .arg(dir.path().join("nope.gltf")));
+    assert_eq!(missing.status.code(), Some(1));
+    assert!(
+        stderr(&missing).contains("not found"),
+        "{}",
+        stderr(&missing)
+    );
+
+    let text = dir.path().join("notes.gltf");
+    std::fs::write(&text, "these are not the triangles you are looking for").unwrap();
+    let not_gltf = run(bounce().args(["bake", "-o"]).arg(&out_file).arg(&text));
+    assert_eq!(not_gltf.status.code(), Some(1));
+    assert!(
+        stderr(&not_gltf).contains("not a glTF"),
+        "{}",
+        stderr(&not_gltf)
+    );
+
+    let absurd = run(bounce()
+        .args(["bake", "--patches", "5000000", "-o"])
+        .arg(&out_file)
+        .arg(cornell()));
+    assert_eq!(absurd.status.code(), Some(1));
+    assert!(
+        stderr(&absurd).contains("out of range"),
+        "{}",
+        stderr(&absurd)
+    );
+
+    let zero_rays = run(bounce()
+        .args(["bake", "--rays", "0", "-o"])
+        .arg(&out_file)
+        .arg(cornell()));
+    assert_eq!(zero_rays.status.code(), Some(1));
+
+    let bad_bounces = run(bounce()
+        .args(["bake", "--bounces", "0", "-o"])
+        .arg(&out_file)
+        .arg(cornell()));
+    assert_eq!(bad_bounces.status.code(), Some(2), "clap rejects it");
+    assert!(stderr(&bad_bounces).contains("at least 1"));
+
+    // One open plate: every ray escapes.
+    let plate = dir.path().join("plate.gltf");
+    std::fs::write(&plate, single_plate_gltf()).unwrap();
+    let open = run(bounce()
+        .args(["bake", "--patches", "50", "--rays", "64", "-o"])
+        .arg(&out_file)
+        .arg(&plate));
+    assert_eq!(open.status.code(), Some(1));
+    assert!(
+        stderr(&open).contains("no patch sees another"),
+        "{}",
+        stderr(&open)
+    );
+
+    assert!(!out_file.exists(), "failed bakes leave no file behind");
+}
+
+#[test]
+fn damaged_files_are_refused_cleanly() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("c.bounce");
+    let out = run(bounce()
+        .args(["bake", "--patches", "150", "--rays", "64", "-q", "-o"])
+        .arg(&file)
+        .arg(cornell()));
+    assert!(out.status.success(), "{}", stderr(&out));
+    let bytes = std::fs::read(&file).unwrap();
+
+    let truncated = dir.path().join("truncated.bounce");
+    std::fs::write(&truncated, &bytes[..bytes.len() / 2]).unwrap();
+    let out = run(bounce().arg("inspect").arg(&truncated));
+    assert_eq!(out.status.code(), Some(1));
+    assert!(stderr(&out).contains("truncated"), "{}", stderr(&out));
+
+    let mut flipped = bytes.clone();
+    let k = flipped.len() - 100;
+    flipped[k] ^= 0x40;
+    let damaged = dir.path().join("damaged.bounce");
+    std::fs::write(&damaged, &flipped).unwrap();
+    let out = run(bounce().arg("inspect").arg(&damaged));
+    assert_eq!(out.status.code(), Some(1));
+    assert!(stderr(&out).contains("checksum"), "{}", stderr(&out));
+
+    let out = run(bounce()
+        .arg("inspect")
+        .arg(dir.path().join("absent.bounce")));
+    assert_eq!(out.status.code(), Some(1));
+}
+
+#[test]
+fn every_command_has_help() {
+    for args in [
+        vec!["--help"],
+        vec!["bake", "--help"],
+        vec!["inspect", "--help"],
+        vec!["demo", "--help"],
+    ] {
+        let out = run(bounce().args(&args));
+        assert!(out.status.success(), "{args:?}");
+        assert!(String::from_utf8_lossy(&out.stdout).contains("Usage"));
+    }
+}
+
+/// A 1 × 1 plate facing up, two triangles, as glTF with an embedded buffer.
+fn single_plate_gltf() -> String {
+    let positions: [[f32; 3]; 4] = [[0., 0., 0.], [0., 0., 1.], [1., 0., 1.], [1., 0., 0.]];
+    let indices: [u16; 6] = [0, 1, 2, 0, 2, 3];
+    let mut buf = Vec::new();
+    for p in positions {
+        for c in p {
+            buf.extend_from_slice(&c.to_le_bytes());
+        }
+    }
+    for i in indices {
+        buf.extend_from_slice(&i.to_le_bytes());
+    }
+    let b64 = base64_encode(&buf);
+    format!(
+        r#"{{"asset":{{"version":"2.0"}},"scene":0,"scenes":[{{"nodes":[0]}}],"nodes":[{{"mesh":0}}],
+        "meshes":[{{"primitives":[{{"attributes":{{"POSITION":0}},"indices":1}}]}}],
+        "buffers":[{{"byteLength":{len},"uri":"data:application/octet-stream;base64,{b64}"}}],
+        "bufferViews":[{{"buffer":0,"byteOffset":0,"byteLength":48}},{{"buffer":0,"byteOffset":48,"byteLength":12}}],
+        "accessors":[{{"bufferView":0,"componentType":5126,"count":4,"type":"VEC3","min":[0,0,0],"max":[1,0,1]}},
+                     {{"bufferView":1,"componentType":5123,"count":6,"type":"SCALAR"}}]}}"#,
+        len = buf.len()
+    )
+}
+
+fn base64_encode(bytes: &[u8]) -> String {
+    const T: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+    let mut s = String::new();
+    for c in bytes.chunks(3) {
+        let n = (c[0] as u32) << 16
+            | (*c.get(1).unwrap_or(&0) as u32) << 8
+            | *c.get(2).unwrap_or(&0) as u32;
+        for k in 0..4 {
+            if k <= c.len() {
+                s.push(T[(n >> (18 - 6 * k) & 63) as usize] as char);
+            } else {
+                s.push('=');
+            }
+        }
+    }
+    s
+}

@@ -1,0 +1,256 @@
+//! The bake pipeline: scene → patches → form factors → transport → baked file contents.
+//!
+//! Each stage reports progress through [`Progress`] and its wall time into the file's metadata;
+//! the caller decides how progress is shown and where the file goes.
+
+use std::path::Path;
+use std::time::Instant;
+
+use thiserror::Error;
+
+use crate::format::Baked;
+use crate::formfactor::{self, FormFactorError, RayScene};
+use crate::import::{self, ImportError};
+use crate::matrix::EncodedMatrix;
+use crate::meta::{BakeMeta, BakeSettings, BakeStats, Bounces, StageTiming};
+use crate::scene::Scene;
+use crate::transport::{self, TransportError};
+use crate::voxel::{self, Resolution, VoxelError};
+
+/// Rays per patch of the visibility probe that finds patches seeing nothing.
+pub const PROBE_RAYS: u32 = 64;
+
+/// What a bake is asked to do.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BakeOptions {
+    pub resolution: Resolution,
+    /// Rays per patch for its form-factor row.
+    pub rays: u32,
+    pub seed: u64,
+    pub bounces: Bounces,
+    /// Also store the single-bounce form factors (for baselines and re-deriving `T` later).
+    pub keep_form_factors: bool,
+}
+
+impl Default for BakeOptions {
+    fn default() -> Self {
+        BakeOptions {
+            resolution: Resolution::TargetPatches(2000),
+            rays: 2048,
+            seed: 1,
+            bounces: Bounces::K(3),
+            keep_form_factors: false,
+        }
+    }
+}
+
+/// The stages of a bake, in order.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Stage {
+    Import,
+    Voxelize,
+    Bvh,
+    FormFactors,
+    Transport,
+    Encode,
+}
+
+impl Stage {
+    pub fn name(self) -> &'static str {
+        match self {
+            Stage::Import => "import",
+            Stage::Voxelize => "voxelize",
+            Stage::Bvh => "bvh",
+            Stage::FormFactors => "form factors",
+            Stage::Transport => "transport",
+            Stage::Encode => "encode",
+        }
+    }
+}
+
+/// Receives progress. `advance` is called from worker threads.
+pub trait Progress: Sync {
+    /// A stage starts; `total` is its unit count (rows), 0 when it has no meaningful count.
+    fn begin(&self, stage: Stage, total: u64);
+    fn advance(&self, n: u64);
+    /// The stage ended after `seconds`.
+    fn end(&self, stage: Stage, seconds: f64);
+}
+
+/// Shows nothing.
+pub struct NoProgress;
+
+impl Progress for NoProgress {
+    fn begin(&self, _: Stage, _: u64) {}
+    fn advance(&self, _: u64) {}
+    fn end(&self, _: Stage, _: f64) {}
+}
+
+#[derive(Debug, Error)]
+pub enum BakeError {
+    #[error(transparent)]
+    Import(#[from] ImportError),
+    #[error(transparent)]
+    Voxel(#[from] VoxelError),
+    #[error(transparent)]
+    FormFactor(#[from] FormFactorError),
+    #[error(transparent)]
+    Transport(#[from] TransportError),
+    #[error(
+        "no patch sees another: all {patches} patches send every ray into open space or onto \
+         occluders, so there is no indirect light to precompute (is the scene a single open \
+         surface, or are its normals facing away from each other?)"
+    )]
+    NoInterreflection { patches: usize },
+}
+
+struct Timer<'a> {
+    progress: &'a dyn Progress,
+    timings: Vec<StageTiming>,
+}
+
+impl Timer<'_> {
+    fn run<T>(&mut self, stage: Stage, total: u64, f: impl FnOnce() -> T) -> T {
+        self.progress.begin(stage, total);
+        let start = Instant::now();
+        let out = f();
+        let seconds = start.elapsed().as_secs_f64();
+        self.progress.end(stage, seconds);
+        self.timings.push(StageTiming {
+            stage: stage.name().to_string(),
+            seconds,
+        });
+        out
+    }
+}
+
+/// Import a glTF/GLB file and bake it.
+pub fn bake_file(
+    path: &Path,
+    options: &BakeOptions,
+    progress: &dyn Progress,
+) -> Result<Baked, BakeError> {
+    let mut timer = Timer {
+        progress,
+        timings: Vec::new(),
+    };
+    let scene = timer.run(Stage::Import, 0, || import::import_path(path))?;
+    let source_bytes = std::fs::metadata(path).map(|m| m.len()).unwrap_or(0);
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    bake_with(&scene, &name, source_bytes, options, timer)
+}
+
+/// Bake an already imported scene.
+pub fn bake_scene(
+    scene: &Scene,
+    source_name: &str,
+    options: &BakeOptions,
+    progress: &dyn Progress,
+) -> Result<Baked, BakeError> {
+    let timer = Timer {
+        progress,
+        timings: Vec::new(),
+    };
+    bake_with(scene, source_name, 0, options, timer)
+}
+
+fn bake_with(
+    scene: &Scene,
+    source_name: &str,
+    source_bytes: u64,
+    options: &BakeOptions,
+    mut timer: Timer<'_>,
+) -> Result<Baked, BakeError> {
+    let progress = timer.progress;
+    let advance = |n: u64| progress.advance(n);
+
+    // Patches that see no other patch get no indirect light and give none: drop them while
+    // searching the voxel size, so that --patches counts patches that matter.
+    let drop_isolated = |mut v: voxel::Voxelization| {
+        let probe = RayScene::new(&v.layout.quads(), &v.occluders);
+        let isolated = formfactor::isolated_patches(&probe, PROBE_RAYS, options.seed);
+        v.drop_patches(&isolated);
+        v
+    };
+    let vox = timer
+        .run(Stage::Voxelize, 0, || {
+            voxel::voxelize_refined(scene, options.resolution, &drop_isolated)
+        })
+        .map_err(|e| match e {
+            VoxelError::AllDropped { candidates } => BakeError::NoInterreflection {
+                patches: candidates,
+            },
+            e => BakeError::Voxel(e),
+        })?;
+    let layout = vox.layout;
+    let n = layout.len();
+    let rays = timer.run(Stage::Bvh, 0, || {
+        RayScene::new(&layout.quads(), &vox.occluders)
+    });
+    let f = timer.run(Stage::FormFactors, n as u64, || {
+        formfactor::form_factors(&rays, options.rays, options.seed, &advance)
+    })?;
+    drop(rays);
+    let ff = formfactor::stats(&f, &vec![layout.patch_area(); n]);
+    if ff.isolated == n {
+        return Err(BakeError::NoInterreflection { patches: n });
+    }
+
+    let albedo: Vec<[f32; 3]> = layout.patches.iter().map(|p| p.albedo).collect();
+    let channels = transport::channels_needed(&albedo, options.bounces);
+    let t = timer.run(Stage::Transport, (n * channels) as u64, || {
+        transport::transport(&f, &albedo, options.bounces, &advance)
+    })?;
+
+    let (transport, form_factors) = timer.run(Stage::Encode, 0, || {
+        (
+            EncodedMatrix::encode_dense_f32(&t),
+            options
+                .keep_form_factors
+                .then(|| EncodedMatrix::encode_dense_f32(&f)),
+        )
+    });
+
+    let (target_patches, requested_voxel_size) = match options.resolution {
+        Resolution::TargetPatches(p) => (Some(p), None),
+        Resolution::VoxelSize(s) => (None, Some(s)),
+    };
+    let meta = BakeMeta {
+        tool_version: env!("CARGO_PKG_VERSION").to_string(),
+        source_name: source_name.to_string(),
+        source_bytes,
+        settings: BakeSettings {
+            target_patches,
+            requested_voxel_size,
+            rays_per_patch: options.rays,
+            seed: options.seed,
+            bounces: options.bounces,
+        },
+        stats: BakeStats {
+            patches: n,
+            voxel_size: layout.voxel_size,
+            occupied_voxels: vox.occupied_voxels,
+            dropped_patches: vox.dropped_patches,
+            rays_total: n as u64 * options.rays as u64,
+            row_sum_min: ff.row_sum_min,
+            row_sum_max: ff.row_sum_max,
+            row_sum_mean: ff.row_sum_mean,
+            reciprocity_error: ff.reciprocity_error,
+            isolated_patches: ff.isolated,
+            channels,
+            matrix_bytes: transport.payload.len() as u64,
+        },
+        timings: timer.timings,
+        import_report: scene.report.clone(),
+        lights: scene.lights.clone(),
+    };
+    Ok(Baked {
+        meta,
+        layout,
+        transport,
+        form_factors,
+    })
+}

@@ -1,1 +1,0 @@
-//! The baked file format (in progress).

@@ -1,0 +1,385 @@
+//! bounce's own sections: the bake metadata, the patch layout and the encoded matrices, and the
+//! [`Baked`] value they make together.
+//!
+//! Section contents, offsets relative to the section's start:
+//!
+//! `META`: the [`BakeMeta`] as compact JSON.
+//!
+//! `LAYT`: grid origin f32×3, voxel size f32, dims u32×3, patch count u32 (32 bytes), then per
+//! patch a 68-byte record: voxel u32×3, face code u8 and 3 zero bytes, albedo f32×3, centroid
+//! f32×3, normal f32×3, source area f32, emission f32×3. Every field is 4-byte aligned, so the
+//! records can be viewed in place as a `#[repr(C)]` struct.
+//!
+//! `MTRX` / `FFAC`: codec name (32 bytes, ASCII, zero-padded), rows u32, cols u32, channels u32,
+//! params length u32, payload length u64 (56 bytes), the codec params as JSON, zeros up to the next
+//! multiple of 64, then the payload, which therefore starts 64-byte aligned in the file.
+
+use std::path::Path;
+
+use crate::matrix::EncodedMatrix;
+use crate::meta::BakeMeta;
+use crate::patch::{Face, Patch, PatchLayout};
+
+use super::FormatError;
+use super::container::{
+    self, Container, FieldReader, FileBytes, FileSummary, SECTION_ALIGN, SECTION_OPTIONAL,
+    SectionKind,
+};
+
+/// Bytes of the `LAYT` fields before the patch records.
+pub const LAYOUT_HEADER_LEN: u64 = 32;
+/// Bytes of one patch record in `LAYT`.
+pub const PATCH_RECORD_LEN: u64 = 68;
+/// Bytes of the fixed `MTRX`/`FFAC` fields before the codec params.
+pub const MATRIX_HEADER_LEN: u64 = 56;
+const CODEC_NAME_LEN: usize = 32;
+
+/// Everything a baked file holds.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Baked {
+    pub meta: BakeMeta,
+    pub layout: PatchLayout,
+    /// The transport `T`, `patches × patches`.
+    pub transport: EncodedMatrix,
+    /// The single-bounce form factors `F`, kept when the bake was asked to.
+    pub form_factors: Option<EncodedMatrix>,
+}
+
+impl Baked {
+    /// The file's bytes. Fails, without writing anything, on a value the reader would refuse
+    /// (non-finite numbers, patches outside the grid, a matrix that does not fit the layout), so
+    /// every file written can be read back.
+    pub fn to_bytes(&self) -> Result<Vec<u8>, FormatError> {
+        let n = self.layout.len();
+        let meta = encode_meta(&self.meta)?;
+        let layout = encode_layout(&self.layout)?;
+        let transport = encode_matrix(SectionKind::MTRX, &self.transport, n)?;
+        let form_factors = self
+            .form_factors
+            .as_ref()
+            .map(|m| encode_matrix(SectionKind::FFAC, m, n))
+            .transpose()?;
+        let mut sections: Vec<(SectionKind, u32, &[u8])> = vec![
+            (SectionKind::META, 0, &meta),
+            (SectionKind::LAYT, 0, &layout),
+            (SectionKind::MTRX, 0, &transport),
+        ];
+        if let Some(ff) = &form_factors {
+            sections.push((SectionKind::FFAC, 0, ff));
+        }
+        container::assemble(&sections)
+    }
+
+    /// Parses and validates a whole file. Matrix payloads are located and copied, not decoded.
+    pub fn from_bytes(bytes: &[u8]) -> Result<Baked, FormatError> {
+        let c = Container::parse(bytes)?;
+        c.verify_checksums()?;
+        for e in &c.entries {
+            let known = [
+                SectionKind::META,
+                SectionKind::LAYT,
+                SectionKind::MTRX,
+                SectionKind::FFAC,
+            ]
+            .contains(&e.kind);
+            if !known && !e.is_optional() {
+                return Err(FormatError::UnknownSection { kind: e.kind });
+            }
+            if known && e.flags & !SECTION_OPTIONAL != 0 {
+                return Err(FormatError::UnknownFlags {
+                    kind: e.kind,
+                    flags: e.flags,
+                });
+            }
+        }
+        let required = |kind| {
+            c.entry(kind)
+                .ok_or(FormatError::MissingSection { kind })
+                .and_then(|e| c.section(e))
+        };
+        let meta = decode_meta(required(SectionKind::META)?)?;
+        let layout = decode_layout(required(SectionKind::LAYT)?)?;
+        let n = layout.len();
+        let transport = decode_matrix(SectionKind::MTRX, required(SectionKind::MTRX)?, n)?;
+        let form_factors = match c.entry(SectionKind::FFAC) {
+            Some(e) => Some(decode_matrix(SectionKind::FFAC, c.section(e)?, n)?),
+            None => None,
+        };
+        Ok(Baked {
+            meta,
+            layout,
+            transport,
+            form_factors,
+        })
+    }
+
+    /// Writes the file atomically: a temporary file in the same directory, synced, then renamed
+    /// over `path`. On any failure an existing file at `path` is left as it was.
+    pub fn write_atomic(&self, path: &Path) -> Result<(), FormatError> {
+        let bytes = self.to_bytes()?;
+        container::write_atomic(path, &bytes)
+    }
+
+    /// Memory-maps `path` and parses it.
+    pub fn read(path: &Path) -> Result<Baked, FormatError> {
+        let bytes = FileBytes::open(path)?;
+        Baked::from_bytes(&bytes)
+    }
+}
+
+/// The header and section table of `path`, with each section's checksum verdict, without decoding
+/// the sections: enough for `bounce inspect` to describe even a damaged file.
+pub fn read_summary(path: &Path) -> Result<FileSummary, FormatError> {
+    let bytes = FileBytes::open(path)?;
+    Container::parse(&bytes)?.summary()
+}
+
+impl FileSummary {
+    /// As [`read_summary`], from bytes already in memory.
+    pub fn from_bytes(bytes: &[u8]) -> Result<FileSummary, FormatError> {
+        Container::parse(bytes)?.summary()
+    }
+}
+
+fn encode_meta(meta: &BakeMeta) -> Result<Vec<u8>, FormatError> {
+    let json_err = |error| FormatError::Json {
+        kind: SectionKind::META,
+        error,
+    };
+    let json = serde_json::to_vec(meta).map_err(json_err)?;
+    // serde_json writes a non-finite float as `null`, which the reader then refuses; find that
+    // now rather than in a file nobody can open.
+    decode_meta(&json)?;
+    Ok(json)
+}
+
+fn decode_meta(bytes: &[u8]) -> Result<BakeMeta, FormatError> {
+    serde_json::from_slice(bytes).map_err(|error| FormatError::Json {
+        kind: SectionKind::META,
+        error,
+    })
+}
+
+/// The checks shared by writer and reader, so the writer never produces a file the reader refuses.
+fn validate_layout(layout: &PatchLayout) -> Result<(), FormatError> {
+    let finite = |v: &[f32], what: &dyn Fn() -> String| {
+        if v.iter().all(|x| x.is_finite()) {
+            Ok(())
+        } else {
+            Err(FormatError::NotFinite { what: what() })
+        }
+    };
+    finite(&layout.origin, &|| "grid origin".to_string())?;
+    if !(layout.voxel_size.is_finite() && layout.voxel_size > 0.0) {
+        return Err(FormatError::BadVoxelSize(layout.voxel_size));
+    }
+    for (i, p) in layout.patches.iter().enumerate() {
+        if p.voxel.iter().zip(&layout.dims).any(|(v, d)| v >= d) {
+            return Err(FormatError::VoxelOutsideGrid {
+                patch: i,
+                voxel: p.voxel,
+                dims: layout.dims,
+            });
+        }
+        finite(&p.albedo, &|| format!("patch {i} albedo"))?;
+        finite(&p.centroid, &|| format!("patch {i} centroid"))?;
+        finite(&p.normal, &|| format!("patch {i} normal"))?;
+        finite(&[p.source_area], &|| format!("patch {i} source area"))?;
+        finite(&p.emission, &|| format!("patch {i} emission"))?;
+    }
+    Ok(())
+}
+
+fn encode_layout(layout: &PatchLayout) -> Result<Vec<u8>, FormatError> {
+    validate_layout(layout)?;
+    let count = u32::try_from(layout.len()).map_err(|_| FormatError::TooLarge {
+        what: "patch count",
+        value: layout.len() as u64,
+        max: u64::from(u32::MAX),
+    })?;
+    let mut out =
+        Vec::with_capacity(LAYOUT_HEADER_LEN as usize + layout.len() * PATCH_RECORD_LEN as usize);
+    let f32s = |out: &mut Vec<u8>, v: &[f32]| {
+        for x in v {
+            out.extend_from_slice(&x.to_le_bytes());
+        }
+    };
+    let u32s = |out: &mut Vec<u8>, v: &[u32]| {
+        for x in v {
+            out.extend_from_slice(&x.to_le_bytes());
+        }
+    };
+    f32s(&mut out, &layout.origin);
+    f32s(&mut out, &[layout.voxel_size]);
+    u32s(&mut out, &layout.dims);
+    u32s(&mut out, &[count]);
+    for p in &layout.patches {
+        u32s(&mut out, &p.voxel);
+        out.extend_from_slice(&[p.face.code(), 0, 0, 0]);
+        f32s(&mut out, &p.albedo);
+        f32s(&mut out, &p.centroid);
+        f32s(&mut out, &p.normal);
+        f32s(&mut out, &[p.source_area]);
+        f32s(&mut out, &p.emission);
+    }
+    debug_assert_eq!(
+        out.len() as u64,
+        LAYOUT_HEADER_LEN + u64::from(count) * PATCH_RECORD_LEN
+    );
+    Ok(out)
+}
+
+fn decode_layout(bytes: &[u8]) -> Result<PatchLayout, FormatError> {
+    let mut r = FieldReader::new(bytes, Some(SectionKind::LAYT));
+    let origin = r.f32x3("grid origin")?;
+    let voxel_size = r.f32("voxel size")?;
+    let dims = r.u32x3("grid dims")?;
+    let count = r.u32("patch count")?;
+    let records = r.remaining();
+    // Only a count the section's length accounts for may size an allocation.
+    let have = records.len() as u64;
+    if u64::from(count).checked_mul(PATCH_RECORD_LEN) != Some(have) {
+        return Err(FormatError::PatchCount {
+            count,
+            record: PATCH_RECORD_LEN,
+            have,
+        });
+    }
+    let mut patches = Vec::with_capacity(count as usize);
+    for (i, record) in records.chunks_exact(PATCH_RECORD_LEN as usize).enumerate() {
+        let mut r = FieldReader::new(record, Some(SectionKind::LAYT));
+        let voxel = r.u32x3("patch voxel")?;
+        let [code, pad @ ..] = r.array::<4>("patch face")?;
+        let face = Face::from_code(code).ok_or(FormatError::BadFace { patch: i, code })?;
+        if pad != [0; 3] {
+            return Err(FormatError::NonZeroPadding {
+                what: format!("patch {i}"),
+            });
+        }
+        patches.push(Patch {
+            voxel,
+            face,
+            albedo: r.f32x3("patch albedo")?,
+            centroid: r.f32x3("patch centroid")?,
+            normal: r.f32x3("patch normal")?,
+            source_area: r.f32("patch source area")?,
+            emission: r.f32x3("patch emission")?,
+        });
+    }
+    let layout = PatchLayout {
+        origin,
+        voxel_size,
+        dims,
+        patches,
+    };
+    validate_layout(&layout)?;
+    Ok(layout)
+}
+
+fn valid_codec_name(name: &[u8]) -> bool {
+    (1..=CODEC_NAME_LEN).contains(&name.len()) && name.iter().all(|b| b.is_ascii_graphic())
+}
+
+/// A transport or form-factor matrix must be `patches × patches` with 1 or 3 channels.
+fn check_shape(kind: SectionKind, m: &EncodedMatrix, patches: usize) -> Result<(), FormatError> {
+    let fits = |v: u32| usize::try_from(v).is_ok_and(|v| v == patches);
+    if fits(m.rows) && fits(m.cols) && m.validate_shape().is_ok() {
+        Ok(())
+    } else {
+        Err(FormatError::MatrixShape {
+            kind,
+            rows: m.rows,
+            cols: m.cols,
+            channels: m.channels,
+            patches,
+        })
+    }
+}
+
+fn encode_matrix(
+    kind: SectionKind,
+    m: &EncodedMatrix,
+    patches: usize,
+) -> Result<Vec<u8>, FormatError> {
+    if !valid_codec_name(m.codec.as_bytes()) {
+        return Err(FormatError::BadCodecName {
+            kind,
+            name: m.codec.escape_default().to_string(),
+        });
+    }
+    check_shape(kind, m, patches)?;
+    let params =
+        serde_json::to_vec(&m.params).map_err(|error| FormatError::Json { kind, error })?;
+    let params_len = u32::try_from(params.len()).map_err(|_| FormatError::TooLarge {
+        what: "matrix params",
+        value: params.len() as u64,
+        max: u64::from(u32::MAX),
+    })?;
+    let payload_start = (MATRIX_HEADER_LEN + u64::from(params_len)).next_multiple_of(SECTION_ALIGN);
+    let mut out = Vec::with_capacity(payload_start as usize + m.payload.len());
+    let mut name = [0u8; CODEC_NAME_LEN];
+    name[..m.codec.len()].copy_from_slice(m.codec.as_bytes());
+    out.extend_from_slice(&name);
+    for v in [m.rows, m.cols, m.channels, params_len] {
+        out.extend_from_slice(&v.to_le_bytes());
+    }
+    out.extend_from_slice(&(m.payload.len() as u64).to_le_bytes());
+    out.extend_from_slice(&params);
+    out.resize(payload_start as usize, 0);
+    out.extend_from_slice(&m.payload);
+    Ok(out)
+}
+
+fn decode_matrix(
+    kind: SectionKind,
+    bytes: &[u8],
+    patches: usize,
+) -> Result<EncodedMatrix, FormatError> {
+    let mut r = FieldReader::new(bytes, Some(kind));
+    let name: [u8; CODEC_NAME_LEN] = r.array("codec name")?;
+    let name_len = name.iter().position(|&b| b == 0).unwrap_or(CODEC_NAME_LEN);
+    let (codec, padding) = name.split_at(name_len);
+    if !valid_codec_name(codec) || padding.iter().any(|&b| b != 0) {
+        return Err(FormatError::BadCodecName {
+            kind,
+            name: name.escape_ascii().to_string(),
+        });
+    }
+    let rows = r.u32("rows")?;
+    let cols = r.u32("cols")?;
+    let channels = r.u32("channels")?;
+    let params_len = r.u32("params length")?;
+    let payload_len = r.u64("payload length")?;
+    let params = r.take(u64::from(params_len), "matrix params")?;
+    let padding = r.take(
+        (r.pos() as u64).next_multiple_of(SECTION_ALIGN) - r.pos() as u64,
+        "payload alignment",
+    )?;
+    if padding.iter().any(|&b| b != 0) {
+        return Err(FormatError::NonZeroPadding {
+            what: format!("section '{kind}' before the payload"),
+        });
+    }
+    let payload = r.take(payload_len, "matrix payload")?;
+    if !r.remaining().is_empty() {
+        return Err(FormatError::SectionTooLong {
+            kind,
+            need: r.pos() as u64,
+            have: bytes.len() as u64,
+        });
+    }
+    let params =
+        serde_json::from_slice(params).map_err(|error| FormatError::Json { kind, error })?;
+    let mut m = EncodedMatrix {
+        // Checked above to be printable ASCII, hence UTF-8.
+        codec: String::from_utf8_lossy(codec).into_owned(),
+        rows,
+        cols,
+        channels,
+        params,
+        payload: Vec::new(),
+    };
+    check_shape(kind, &m, patches)?;
+    m.payload = payload.to_vec();
+    Ok(m)
+}

@@ -1,0 +1,514 @@
+//! The container: header, section table, checksums and alignment, knowing nothing about what the
+//! sections hold. Also the little-endian field reader the section decoders share, and the atomic,
+//! memory-mapped file access.
+//!
+//! Parsing validates every offset and length against the file before touching the bytes they name,
+//! with checked arithmetic, so a hostile table can neither panic the reader nor make it allocate
+//! more than the file's own size justifies.
+
+use std::fmt;
+use std::fs::File;
+use std::io::Write;
+use std::ops::Deref;
+use std::path::Path;
+
+use super::{FORMAT_VERSION, FormatError};
+
+/// First 8 bytes of every baked file.
+pub const MAGIC: [u8; 8] = *b"BOUNCE\0B";
+/// Bytes of the fixed header.
+pub const HEADER_LEN: u64 = 32;
+/// Bytes of one section-table entry.
+pub const ENTRY_LEN: u64 = 32;
+/// Every section starts at a multiple of this, so payloads can be used in place (f32 views, GPU
+/// uploads) from a memory map.
+pub const SECTION_ALIGN: u64 = 64;
+/// Section flag: a reader that does not know the section's kind may skip it.
+pub const SECTION_OPTIONAL: u32 = 1;
+
+/// Header bytes the header checksum covers: all but the checksum itself.
+const HEADER_CRC_AT: usize = 28;
+
+/// A section's four-character kind, e.g. `MTRX`.
+#[derive(Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct SectionKind(pub [u8; 4]);
+
+impl SectionKind {
+    pub const META: SectionKind = SectionKind(*b"META");
+    pub const LAYT: SectionKind = SectionKind(*b"LAYT");
+    pub const MTRX: SectionKind = SectionKind(*b"MTRX");
+    pub const FFAC: SectionKind = SectionKind(*b"FFAC");
+}
+
+impl fmt::Display for SectionKind {
+    // Kinds come from files, so anything that is not printable ASCII is escaped.
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}", self.0.escape_ascii())
+    }
+}
+
+impl fmt::Debug for SectionKind {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "SectionKind({self})")
+    }
+}
+
+/// The fixed header, as read from a file.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Header {
+    pub format_version: u32,
+    pub section_count: u32,
+    pub file_len: u64,
+    /// CRC-32 of the header's first 28 bytes and the section table.
+    pub crc: u32,
+}
+
+/// One section-table entry. Offset and length are validated against the file once parsed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SectionEntry {
+    pub kind: SectionKind,
+    pub flags: u32,
+    pub offset: u64,
+    pub len: u64,
+    /// CRC-32 of the section's bytes.
+    pub crc: u32,
+}
+
+impl SectionEntry {
+    pub fn is_optional(&self) -> bool {
+        self.flags & SECTION_OPTIONAL != 0
+    }
+
+    /// End offset; cannot overflow once the entry has been parsed.
+    pub fn end(&self) -> u64 {
+        self.offset.saturating_add(self.len)
+    }
+}
+
+/// What `bounce inspect` shows without decoding the sections.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct FileSummary {
+    pub header: Header,
+    /// In table order.
+    pub sections: Vec<SectionSummary>,
+}
+
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct SectionSummary {
+    pub entry: SectionEntry,
+    /// Whether the section's bytes match its checksum.
+    pub crc_ok: bool,
+}
+
+/// A structurally valid container over borrowed bytes: header and table checked, every section
+/// inside the file, aligned, not overlapping, and nothing but zeros between them. Section
+/// checksums are not yet checked (see [`Container::verify_checksums`]).
+pub(crate) struct Container<'a> {
+    pub header: Header,
+    pub entries: Vec<SectionEntry>,
+    bytes: &'a [u8],
+}
+
+impl<'a> Container<'a> {
+    pub fn parse(bytes: &'a [u8]) -> Result<Self, FormatError> {
+        let actual = bytes.len() as u64;
+        let truncated = |what: &str, end: u64| FormatError::Truncated {
+            what: what.to_string(),
+            end,
+            len: actual,
+        };
+
+        // An empty or cut-short file that starts like ours is truncated; anything else is foreign.
+        let prefix_len = bytes.len().min(MAGIC.len());
+        if bytes.get(..prefix_len) != MAGIC.get(..prefix_len) {
+            return Err(FormatError::BadMagic);
+        }
+        let mut r = FieldReader::new(bytes, None);
+        let header_bytes = r
+            .take(HEADER_LEN, "header")
+            .map_err(|_| truncated("the header", HEADER_LEN))?;
+        let mut h = FieldReader::new(header_bytes, None);
+        let _magic: [u8; 8] = h.array("magic")?;
+        let format_version = h.u32("format version")?;
+        let section_count = h.u32("section count")?;
+        let file_len = h.u64("file length")?;
+        let reserved = h.u32("reserved")?;
+        let crc = h.u32("header checksum")?;
+
+        if format_version != FORMAT_VERSION {
+            return Err(FormatError::UnsupportedVersion {
+                found: format_version,
+                supported: FORMAT_VERSION,
+            });
+        }
+        if file_len > actual {
+            return Err(FormatError::ShortFile {
+                declared: file_len,
+                actual,
+            });
+        }
+        if file_len < actual {
+            return Err(FormatError::LongFile {
+                declared: file_len,
+                actual,
+            });
+        }
+        // Bound the count by what the file can hold before anything is sized by it.
+        let max = (actual - HEADER_LEN) / ENTRY_LEN;
+        if u64::from(section_count) > max {
+            return Err(FormatError::TooManySections {
+                count: section_count,
+                max,
+                file_len: actual,
+            });
+        }
+        let table_len = u64::from(section_count) * ENTRY_LEN;
+        let table = r
+            .take(table_len, "section table")
+            .map_err(|_| truncated("the section table", HEADER_LEN + table_len))?;
+        let table_end = HEADER_LEN + table_len;
+
+        let mut hasher = crc32fast::Hasher::new();
+        hasher.update(header_bytes.get(..HEADER_CRC_AT).unwrap_or_default());
+        hasher.update(table);
+        if hasher.finalize() != crc {
+            return Err(FormatError::HeaderChecksum);
+        }
+        if reserved != 0 {
+            return Err(FormatError::Reserved {
+                what: "the header".to_string(),
+            });
+        }
+        let header = Header {
+            format_version,
+            section_count,
+            file_len,
+            crc,
+        };
+
+        // Bounded by `max` above: at most one entry per 32 bytes of file.
+        let mut entries = Vec::with_capacity(table.len() / ENTRY_LEN as usize);
+        let mut t = FieldReader::new(table, None);
+        for index in 0..section_count {
+            let kind = SectionKind(t.array("section kind")?);
+            let flags = t.u32("section flags")?;
+            let offset = t.u64("section offset")?;
+            let len = t.u64("section length")?;
+            let crc = t.u32("section checksum")?;
+            if t.u32("reserved")? != 0 {
+                return Err(FormatError::Reserved {
+                    what: format!("section table entry {index} ('{kind}')"),
+                });
+            }
+            let end = offset
+                .checked_add(len)
+                .ok_or(FormatError::SectionOverflow { kind, offset, len })?;
+            if offset < table_end {
+                return Err(FormatError::SectionInHeader {
+                    kind,
+                    offset,
+                    table_end,
+                });
+            }
+            if !offset.is_multiple_of(SECTION_ALIGN) {
+                return Err(FormatError::Misaligned { kind, offset });
+            }
+            if end > actual {
+                return Err(truncated(&format!("section '{kind}'"), end));
+            }
+            if entries.iter().any(|e: &SectionEntry| e.kind == kind) {
+                return Err(FormatError::DuplicateSection { kind });
+            }
+            entries.push(SectionEntry {
+                kind,
+                flags,
+                offset,
+                len,
+                crc,
+            });
+        }
+
+        // Walk the sections in file order: each must start at or after the furthest end so far,
+        // and every byte not inside one must be zero (no checksum covers those bytes).
+        let mut by_offset: Vec<&SectionEntry> = entries.iter().collect();
+        by_offset.sort_by_key(|e| (e.offset, e.end()));
+        let mut covered = table_end;
+        let mut last: Option<SectionKind> = None;
+        for e in by_offset {
+            // `last` is set whenever `covered` has moved past the table, where sections start.
+            if e.offset < covered
+                && let Some(first) = last
+            {
+                return Err(FormatError::Overlap {
+                    first,
+                    second: e.kind,
+                });
+            }
+            check_zero(bytes, covered, e.offset)?;
+            if e.end() >= covered {
+                covered = e.end();
+                last = Some(e.kind);
+            }
+        }
+        check_zero(bytes, covered, actual)?;
+
+        Ok(Container {
+            header,
+            entries,
+            bytes,
+        })
+    }
+
+    pub fn entry(&self, kind: SectionKind) -> Option<&SectionEntry> {
+        self.entries.iter().find(|e| e.kind == kind)
+    }
+
+    /// The bytes of a parsed entry.
+    pub fn section(&self, e: &SectionEntry) -> Result<&'a [u8], FormatError> {
+        let range = to_usize(e.offset)..to_usize(e.end());
+        self.bytes.get(range).ok_or_else(|| FormatError::Truncated {
+            what: format!("section '{}'", e.kind),
+            end: e.end(),
+            len: self.bytes.len() as u64,
+        })
+    }
+
+    pub fn section_crc_ok(&self, e: &SectionEntry) -> Result<bool, FormatError> {
+        Ok(crc32fast::hash(self.section(e)?) == e.crc)
+    }
+
+    pub fn verify_checksums(&self) -> Result<(), FormatError> {
+        for e in &self.entries {
+            if !self.section_crc_ok(e)? {
+                return Err(FormatError::SectionChecksum { kind: e.kind });
+            }
+        }
+        Ok(())
+    }
+
+    pub fn summary(&self) -> Result<FileSummary, FormatError> {
+        let sections = self
+            .entries
+            .iter()
+            .map(|e| {
+                Ok(SectionSummary {
+                    entry: *e,
+                    crc_ok: self.section_crc_ok(e)?,
+                })
+            })
+            .collect::<Result<_, FormatError>>()?;
+        Ok(FileSummary {
+            header: self.header,
+            sections,
+        })
+    }
+}
+
+/// `usize::MAX` for values a 32-bit target cannot address, so a later `get` fails cleanly.
+fn to_usize(v: u64) -> usize {
+    usize::try_from(v).unwrap_or(usize::MAX)
+}
+
+fn check_zero(bytes: &[u8], from: u64, to: u64) -> Result<(), FormatError> {
+    if from >= to {
+        return Ok(());
+    }
+    let gap = bytes.get(to_usize(from)..to_usize(to)).unwrap_or_default();
+    match gap.iter().position(|&b| b != 0) {
+        Some(i) => Err(FormatError::StrayByte {
+            offset: from + i as u64,
+        }),
+        None => Ok(()),
+    }
+}
+
+/// Lays sections out after the header and table, each at the next multiple of
+/// [`SECTION_ALIGN`], in the order given. The same input always gives the same bytes.
+pub(crate) fn assemble(sections: &[(SectionKind, u32, &[u8])]) -> Result<Vec<u8>, FormatError> {
+    let too_large = |what, value: usize| FormatError::TooLarge {
+        what,
+        value: value as u64,
+        max: u64::from(u32::MAX),
+    };
+    let count =
+        u32::try_from(sections.len()).map_err(|_| too_large("section count", sections.len()))?;
+    let table_end = HEADER_LEN + u64::from(count) * ENTRY_LEN;
+    let mut offsets = Vec::with_capacity(sections.len());
+    let mut file_len = table_end;
+    for (_, _, bytes) in sections {
+        let offset = file_len.next_multiple_of(SECTION_ALIGN);
+        offsets.push(offset);
+        file_len = offset + bytes.len() as u64;
+    }
+    let capacity = usize::try_from(file_len).map_err(|_| FormatError::TooLarge {
+        what: "file length",
+        value: file_len,
+        max: usize::MAX as u64,
+    })?;
+
+    let mut out = Vec::with_capacity(capacity);
+    out.extend_from_slice(&MAGIC);
+    out.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
+    out.extend_from_slice(&count.to_le_bytes());
+    out.extend_from_slice(&file_len.to_le_bytes());
+    out.extend_from_slice(&0u32.to_le_bytes());
+    out.extend_from_slice(&0u32.to_le_bytes()); // checksum, filled in below
+    for ((kind, flags, bytes), offset) in sections.iter().zip(&offsets) {
+        out.extend_from_slice(&kind.0);
+        out.extend_from_slice(&flags.to_le_bytes());
+        out.extend_from_slice(&offset.to_le_bytes());
+        out.extend_from_slice(&(bytes.len() as u64).to_le_bytes());
+        out.extend_from_slice(&crc32fast::hash(bytes).to_le_bytes());
+        out.extend_from_slice(&0u32.to_le_bytes());
+    }
+    let mut hasher = crc32fast::Hasher::new();
+    hasher.update(&out[..HEADER_CRC_AT]);
+    hasher.update(&out[HEADER_LEN as usize..]);
+    let crc = hasher.finalize();
+    out[HEADER_CRC_AT..HEADER_LEN as usize].copy_from_slice(&crc.to_le_bytes());
+    for ((_, _, bytes), &offset) in sections.iter().zip(&offsets) {
+        out.resize(offset as usize, 0);
+        out.extend_from_slice(bytes);
+    }
+    debug_assert_eq!(out.len() as u64, file_len);
+    Ok(out)
+}
+
+/// Sequential little-endian reads from a slice, each failing with a [`FormatError`] instead of
+/// panicking when the slice is too short.
+pub(crate) struct FieldReader<'a> {
+    bytes: &'a [u8],
+    pos: usize,
+    /// The section being read, for error messages; `None` for the header and table, whose
+    /// lengths are checked before a reader is made.
+    kind: Option<SectionKind>,
+}
+
+impl<'a> FieldReader<'a> {
+    pub fn new(bytes: &'a [u8], kind: Option<SectionKind>) -> Self {
+        FieldReader {
+            bytes,
+            pos: 0,
+            kind,
+        }
+    }
+
+    pub fn pos(&self) -> usize {
+        self.pos
+    }
+
+    pub fn remaining(&self) -> &'a [u8] {
+        self.bytes.get(self.pos..).unwrap_or_default()
+    }
+
+    pub fn take(&mut self, n: u64, what: &'static str) -> Result<&'a [u8], FormatError> {
+        let short = || FormatError::SectionTooShort {
+            kind: self.kind.unwrap_or(SectionKind(*b"????")),
+            what,
+            need: (self.pos as u64).saturating_add(n),
+            have: self.bytes.len() as u64,
+        };
+        let n = usize::try_from(n).map_err(|_| short())?;
+        let end = self.pos.checked_add(n).ok_or_else(short)?;
+        let s = self.bytes.get(self.pos..end).ok_or_else(short)?;
+        self.pos = end;
+        Ok(s)
+    }
+
+    pub fn array<const N: usize>(&mut self, what: &'static str) -> Result<[u8; N], FormatError> {
+        let s = self.take(N as u64, what)?;
+        let mut a = [0u8; N];
+        a.copy_from_slice(s);
+        Ok(a)
+    }
+
+    pub fn u32(&mut self, what: &'static str) -> Result<u32, FormatError> {
+        self.array(what).map(u32::from_le_bytes)
+    }
+
+    pub fn u64(&mut self, what: &'static str) -> Result<u64, FormatError> {
+        self.array(what).map(u64::from_le_bytes)
+    }
+
+    pub fn f32(&mut self, what: &'static str) -> Result<f32, FormatError> {
+        self.array(what).map(f32::from_le_bytes)
+    }
+
+    pub fn f32x3(&mut self, what: &'static str) -> Result<[f32; 3], FormatError> {
+        Ok([self.f32(what)?, self.f32(what)?, self.f32(what)?])
+    }
+
+    pub fn u32x3(&mut self, what: &'static str) -> Result<[u32; 3], FormatError> {
+        Ok([self.u32(what)?, self.u32(what)?, self.u32(what)?])
+    }
+}
+
+/// A read-only view of a whole file: memory-mapped, so large matrices are not copied twice.
+pub(crate) struct FileBytes {
+    map: memmap2::Mmap,
+}
+
+impl FileBytes {
+    pub fn open(path: &Path) -> Result<Self, FormatError> {
+        let file = File::open(path).map_err(|e| FormatError::io("open", path, e))?;
+        let meta = file
+            .metadata()
+            .map_err(|e| FormatError::io("read", path, e))?;
+        if !meta.is_file() {
+            let e = std::io::Error::new(std::io::ErrorKind::InvalidInput, "not a regular file");
+            return Err(FormatError::io("read", path, e));
+        }
+        // SAFETY: the map is only read, and only through the bounds-checked parser. Mapping is
+        // undefined behaviour if another process changes the file meanwhile; bounce never writes a
+        // baked file in place (`write_atomic` renames a new inode over the old path), so a mapped
+        // file keeps its contents even while a new bake replaces it.
+        let map = unsafe { memmap2::Mmap::map(&file) }
+            .map_err(|e| FormatError::io("memory-map", path, e))?;
+        Ok(FileBytes { map })
+    }
+}
+
+impl Deref for FileBytes {
+    type Target = [u8];
+    fn deref(&self) -> &[u8] {
+        &self.map
+    }
+}
+
+/// Writes `bytes` to a temporary file beside `path`, syncs it and renames it over `path`, so
+/// readers see the old file or the new one, never a partial one. On failure the temporary file is
+/// removed and `path` is untouched.
+pub(crate) fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), FormatError> {
+    let dir = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    };
+    let mut prefix = std::ffi::OsString::from(".");
+    prefix.push(path.file_name().unwrap_or_default());
+    prefix.push(".");
+    let mut builder = tempfile::Builder::new();
+    builder.prefix(&prefix).suffix(".tmp");
+    // tempfile's default is owner-only; ask for what `File::create` gives (0o666 less the umask)
+    // so a server running as another user can read the bake.
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        builder.permissions(std::fs::Permissions::from_mode(0o666));
+    }
+    let mut tmp = builder
+        .tempfile_in(dir)
+        .map_err(|e| FormatError::io("create a temporary file in", dir, e))?;
+    tmp.write_all(bytes)
+        .map_err(|e| FormatError::io("write", tmp.path(), e))?;
+    tmp.as_file()
+        .sync_all()
+        .map_err(|e| FormatError::io("sync", tmp.path(), e))?;
+    tmp.persist(path)
+        .map_err(|e| FormatError::io("replace", path, e.error))?;
+    // The rename is only durable once the directory entry is on disk.
+    #[cfg(unix)]
+    File::open(dir)
+        .and_then(|d| d.sync_all())
+        .map_err(|e| FormatError::io("sync directory", dir, e))?;
+    Ok(())
+}

@@ -1,0 +1,166 @@
+//! The baked file: what a bake writes and what the server and `bounce inspect` read.
+//!
+//! This module owns the on-disk bytes and nothing else: the container (header, section table,
+//! checksums, alignment) in [`container`], the encoding of bounce's own sections in [`baked`], the
+//! errors a reader can meet, and atomic writing. Decoding a matrix payload is the codec's job
+//! ([`crate::matrix::EncodedMatrix::decode`]); this module only checks that the payload is where the
+//! file says it is.
+//!
+//! Layout, little-endian throughout:
+//!
+//! | bytes                  | content                                                              |
+//! |------------------------|----------------------------------------------------------------------|
+//! | 0..32                  | header: magic `BOUNCE\0B`, version u32, section count u32, file length u64, reserved u32 (0), CRC-32 u32 of bytes 0..28 and the table |
+//! | 32..32+32·count        | section table, per entry: kind `[u8; 4]`, flags u32, offset u64, length u64, CRC-32 u32, reserved u32 (0) |
+//! | each section's offset  | the section, starting at a multiple of 64; bytes between sections are zero |
+//!
+//! Sections of version 1: `META` (the [`crate::meta::BakeMeta`] as JSON), `LAYT` (the patch layout,
+//! binary), `MTRX` (the transport matrix) and optionally `FFAC` (the single-bounce form factors, same
+//! encoding as `MTRX`). A reader skips sections of unknown kind whose [`SECTION_OPTIONAL`] flag is set
+//! and refuses the file otherwise, so later versions can add sections that old readers may ignore.
+
+mod baked;
+mod container;
+
+use std::path::PathBuf;
+
+use thiserror::Error;
+
+pub use baked::{Baked, LAYOUT_HEADER_LEN, MATRIX_HEADER_LEN, PATCH_RECORD_LEN, read_summary};
+pub use container::{
+    ENTRY_LEN, FileSummary, HEADER_LEN, Header, MAGIC, SECTION_ALIGN, SECTION_OPTIONAL,
+    SectionEntry, SectionKind, SectionSummary,
+};
+
+/// The version this build writes, and the only one it reads.
+pub const FORMAT_VERSION: u32 = 1;
+
+/// Everything that can go wrong reading or writing a baked file.
+///
+/// Messages are meant for people running `bounce`; I/O errors name the file. Errors keep their
+/// cause in the message rather than as a `source`, so a reporter that prints the chain does not
+/// repeat it.
+#[derive(Debug, Error)]
+pub enum FormatError {
+    #[error("cannot {action} {}: {error}", path.display())]
+    Io {
+        action: &'static str,
+        path: PathBuf,
+        error: std::io::Error,
+    },
+    #[error("not a bounce baked file (bad magic)")]
+    BadMagic,
+    #[error("unsupported format version {found} (this build reads {supported})")]
+    UnsupportedVersion { found: u32, supported: u32 },
+    #[error("file truncated: {what} ends at byte {end} but the file has {len} bytes")]
+    Truncated { what: String, end: u64, len: u64 },
+    #[error("file truncated: its header says it has {declared} bytes but it has {actual}")]
+    ShortFile { declared: u64, actual: u64 },
+    #[error("file has {actual} bytes but its header says {declared} (trailing data)")]
+    LongFile { declared: u64, actual: u64 },
+    #[error("header claims {count} sections but a {file_len}-byte file holds at most {max}")]
+    TooManySections { count: u32, max: u64, file_len: u64 },
+    #[error("checksum mismatch in the header or section table")]
+    HeaderChecksum,
+    #[error("checksum mismatch in section '{kind}'")]
+    SectionChecksum { kind: SectionKind },
+    #[error("non-zero reserved field in {what}")]
+    Reserved { what: String },
+    #[error(
+        "section '{kind}' at offset {offset} with length {len} runs past the end of a 64-bit file"
+    )]
+    SectionOverflow {
+        kind: SectionKind,
+        offset: u64,
+        len: u64,
+    },
+    #[error(
+        "section '{kind}' starts at byte {offset}, inside the header and section table (which end at byte {table_end})"
+    )]
+    SectionInHeader {
+        kind: SectionKind,
+        offset: u64,
+        table_end: u64,
+    },
+    #[error("section '{kind}' starts at byte {offset}, which is not a multiple of 64")]
+    Misaligned { kind: SectionKind, offset: u64 },
+    #[error("sections '{first}' and '{second}' overlap")]
+    Overlap {
+        first: SectionKind,
+        second: SectionKind,
+    },
+    #[error("non-zero byte at offset {offset}, outside every section")]
+    StrayByte { offset: u64 },
+    #[error("section '{kind}' appears more than once")]
+    DuplicateSection { kind: SectionKind },
+    #[error("required section '{kind}' is missing")]
+    MissingSection { kind: SectionKind },
+    #[error("unknown required section '{kind}' (written by a newer bounce?)")]
+    UnknownSection { kind: SectionKind },
+    #[error("section '{kind}' has unknown flags {flags:#x}")]
+    UnknownFlags { kind: SectionKind, flags: u32 },
+    #[error("section '{kind}' is too short: {what} needs {need} bytes but the section has {have}")]
+    SectionTooShort {
+        kind: SectionKind,
+        what: &'static str,
+        need: u64,
+        have: u64,
+    },
+    #[error("section '{kind}' has {have} bytes but its contents end at byte {need}")]
+    SectionTooLong {
+        kind: SectionKind,
+        need: u64,
+        have: u64,
+    },
+    #[error(
+        "section 'LAYT' claims {count} patches of {record} bytes but holds {have} bytes of patch records"
+    )]
+    PatchCount { count: u32, record: u64, have: u64 },
+    #[error("patch {patch} has face code {code}")]
+    BadFace { patch: usize, code: u8 },
+    #[error("patch {patch} lies in voxel {voxel:?}, outside the {dims:?} grid")]
+    VoxelOutsideGrid {
+        patch: usize,
+        voxel: [u32; 3],
+        dims: [u32; 3],
+    },
+    #[error("{what} is not finite")]
+    NotFinite { what: String },
+    #[error("voxel size {0} is not a positive finite number")]
+    BadVoxelSize(f32),
+    #[error("{what} has non-zero padding")]
+    NonZeroPadding { what: String },
+    #[error("section '{kind}': codec name '{name}' is not 1 to 32 bytes of printable ASCII")]
+    BadCodecName { kind: SectionKind, name: String },
+    #[error(
+        "section '{kind}': matrix is {rows}x{cols}x{channels} but the layout has {patches} patches (square, 1 or 3 channels)"
+    )]
+    MatrixShape {
+        kind: SectionKind,
+        rows: u32,
+        cols: u32,
+        channels: u32,
+        patches: usize,
+    },
+    #[error("section '{kind}' holds invalid JSON: {error}")]
+    Json {
+        kind: SectionKind,
+        error: serde_json::Error,
+    },
+    #[error("{what} is too large for the format ({value} > {max})")]
+    TooLarge {
+        what: &'static str,
+        value: u64,
+        max: u64,
+    },
+}
+
+impl FormatError {
+    fn io(action: &'static str, path: &std::path::Path, error: std::io::Error) -> Self {
+        FormatError::Io {
+            action,
+            path: path.to_path_buf(),
+            error,
+        }
+    }
+}

@@ -1,0 +1,266 @@
+//! Form factors with visibility, by cosine-weighted quasi-Monte-Carlo rays against a BVH.
+//!
+//! Row `i` of `F` is estimated by shooting `R` rays from patch `i`: origins uniform over the patch,
+//! directions cosine-weighted about its normal, both from one 4-D Owen-scrambled Sobol sequence
+//! (stratified in every 2-D projection). A ray that first hits the front of patch `j` adds `1/R` to
+//! `F_ij`; rays that escape, or hit an occluder or the back of a patch, carry nothing. So every row
+//! sums to at most 1 by construction, and only the row's own index and the seed decide its
+//! samples: rows can be computed in any order, on any number of threads or processes, with
+//! bit-identical results.
+
+use std::ops::Range;
+
+use glam::{Vec3, Vec3A};
+use obvhs::aabb::Aabb;
+use obvhs::bvh2::Bvh2;
+use obvhs::ray::{Ray, RayHit};
+use obvhs::{Boundable, BvhBuildParams};
+use rayon::prelude::*;
+use thiserror::Error;
+
+use crate::matrix::DenseMatrix;
+use crate::patch::Quad;
+
+#[derive(Debug, Error)]
+pub enum FormFactorError {
+    #[error("rays per patch must be at least 1")]
+    NoRays,
+    #[error("row range {start}..{end} is outside 0..{n}")]
+    RowRange { start: usize, end: usize, n: usize },
+}
+
+/// Everything a ray can hit: the patches first (indices `0..patches`), then occluders.
+pub struct RayScene {
+    quads: Vec<Quad>,
+    patches: usize,
+    bvh: Bvh2,
+}
+
+struct QuadBound<'a>(&'a Quad);
+
+impl Boundable for QuadBound<'_> {
+    fn aabb(&self) -> Aabb {
+        Aabb::new(
+            Vec3A::from(self.0.aabb_min()),
+            Vec3A::from(self.0.aabb_max()),
+        )
+    }
+}
+
+impl RayScene {
+    pub fn new(patches: &[Quad], occluders: &[Quad]) -> RayScene {
+        let quads: Vec<Quad> = patches.iter().chain(occluders).copied().collect();
+        let bounds: Vec<QuadBound> = quads.iter().map(QuadBound).collect();
+        // obvhs builds single-threaded without its `parallel` feature, so the tree (and with it
+        // the order ties are broken in) does not depend on the thread count.
+        let bvh = obvhs::bvh2::builder::build_bvh2(
+            &bounds,
+            BvhBuildParams::medium_build(),
+            &mut std::time::Duration::default(),
+        );
+        RayScene {
+            quads,
+            patches: patches.len(),
+            bvh,
+        }
+    }
+
+    pub fn patch_count(&self) -> usize {
+        self.patches
+    }
+
+    pub fn patch(&self, i: usize) -> &Quad {
+        &self.quads[i]
+    }
+
+    /// The first quad the ray hits (either side) and the distance to it.
+    pub fn closest_hit(&self, origin: Vec3, dir: Vec3, t_max: f32) -> Option<(usize, f32)> {
+        if self.quads.is_empty() {
+            return None;
+        }
+        let ray = Ray::new(Vec3A::from(origin), Vec3A::from(dir), 0.0, t_max);
+        let mut hit = RayHit::none();
+        let found = self.bvh.ray_traverse(ray, &mut hit, |_, prim| {
+            let q = &self.quads[self.bvh.primitive_indices[prim] as usize];
+            q.intersect(origin, dir, true).unwrap_or(f32::INFINITY)
+        });
+        found.then(|| {
+            (
+                self.bvh.primitive_indices[hit.primitive_id as usize] as usize,
+                hit.t,
+            )
+        })
+    }
+
+    /// The patch a ray from `origin` reaches, if it reaches one from the front.
+    pub fn patch_hit(&self, origin: Vec3, dir: Vec3) -> Option<usize> {
+        let (k, _) = self.closest_hit(origin, dir, f32::INFINITY)?;
+        (k < self.patches && dir.dot(self.quads[k].normal()) < 0.0).then_some(k)
+    }
+}
+
+/// Per-row seed: a hash of the bake seed and the row, so rows are independent streams.
+fn row_seed(seed: u64, row: usize) -> u32 {
+    // SplitMix64 finaliser.
+    let mut z = seed ^ (row as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    (z ^ (z >> 31)) as u32
+}
+
+/// Cosine-weighted direction about `quad`'s normal from two uniform numbers (Malley's method).
+fn cosine_direction(quad: &Quad, u1: f32, u2: f32) -> Vec3 {
+    let r = u1.sqrt();
+    let phi = std::f32::consts::TAU * u2;
+    let (a, b) = (r * phi.cos(), r * phi.sin());
+    let h = (1.0 - u1).max(0.0).sqrt();
+    let (ua, va) = quad.tangent_axes();
+    let mut d = Vec3::ZERO;
+    d[ua] = a;
+    d[va] = b;
+    d[quad.face.axis()] = h * quad.face.sign();
+    d
+}
+
+/// Hit counts of one row: `counts[j]` rays from `row` reached patch `j`.
+fn trace_row(scene: &RayScene, row: usize, rays: u32, seed: u64, counts: &mut [u32]) {
+    let quad = scene.patch(row);
+    let s = row_seed(seed, row);
+    for k in 0..rays {
+        let [a, b, c, d] = sobol_burley::sample_4d(k, 0, s);
+        // The origin lies exactly on the patch's plane and intersections need t > 0, so the
+        // patch itself and coplanar neighbours are never hit: no epsilon offset to tune.
+        let origin = quad.point(a, b);
+        let dir = cosine_direction(quad, c, d);
+        if let Some(j) = scene.patch_hit(origin, dir) {
+            counts[j] += 1;
+        }
+    }
+}
+
+/// Sobol dimension set of the visibility probe, apart from the one the form factors use, so the
+/// probe's rays are not the first rays of the rows.
+const PROBE_DIMENSION_SET: u32 = 1;
+
+/// Which patches see no other patch in `rays` probe rays. Such a patch can neither receive nor
+/// give indirect light (by reciprocity nothing sees it either), so a bake can drop it. A patch
+/// that sees others through less than about `1/rays` of its hemisphere may be dropped too; the
+/// light it would have exchanged is of that order.
+pub fn isolated_patches(scene: &RayScene, rays: u32, seed: u64) -> Vec<bool> {
+    (0..scene.patch_count())
+        .into_par_iter()
+        .map(|i| {
+            let quad = scene.patch(i);
+            let s = row_seed(seed, i);
+            !(0..rays).any(|k| {
+                let [a, b, c, d] = sobol_burley::sample_4d(k, PROBE_DIMENSION_SET, s);
+                scene
+                    .patch_hit(quad.point(a, b), cosine_direction(quad, c, d))
+                    .is_some()
+            })
+        })
+        .collect()
+}
+
+/// Form-factor rows `rows` (row-major, `rows.len() × n`), with visibility. `progress` is called
+/// with the number of rows finished since the last call.
+pub fn form_factor_rows(
+    scene: &RayScene,
+    rows: Range<usize>,
+    rays: u32,
+    seed: u64,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<Vec<f32>, FormFactorError> {
+    let n = scene.patch_count();
+    if rays == 0 {
+        return Err(FormFactorError::NoRays);
+    }
+    if rows.start > rows.end || rows.end > n {
+        return Err(FormFactorError::RowRange {
+            start: rows.start,
+            end: rows.end,
+            n,
+        });
+    }
+    let mut out = vec![0.0f32; rows.len() * n];
+    let inv = 1.0 / rays as f32;
+    out.par_chunks_mut(n.max(1)).enumerate().for_each_init(
+        || vec![0u32; n],
+        |counts, (k, row_out)| {
+            counts.fill(0);
+            trace_row(scene, rows.start + k, rays, seed, counts);
+            for (o, &c) in row_out.iter_mut().zip(counts.iter()) {
+                *o = c as f32 * inv;
+            }
+            progress(1);
+        },
+    );
+    Ok(out)
+}
+
+/// The whole single-bounce form-factor matrix.
+pub fn form_factors(
+    scene: &RayScene,
+    rays: u32,
+    seed: u64,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<DenseMatrix, FormFactorError> {
+    let n = scene.patch_count();
+    let data = form_factor_rows(scene, 0..n, rays, seed, progress)?;
+    Ok(DenseMatrix {
+        n,
+        channels: 1,
+        data,
+    })
+}
+
+/// Checks of the form-factor invariants, reported by the bake and `bounce inspect`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FormFactorStats {
+    pub row_sum_min: f32,
+    pub row_sum_max: f32,
+    pub row_sum_mean: f32,
+    /// `Σ|A_i F_ij − A_j F_ji| / Σ(A_i F_ij + A_j F_ji)` over all pairs.
+    pub reciprocity_error: f32,
+    /// Rows that reach no patch at all.
+    pub isolated: usize,
+}
+
+pub fn stats(f: &DenseMatrix, areas: &[f32]) -> FormFactorStats {
+    let n = f.n;
+    let m = f.channel(0);
+    let sums: Vec<f64> = m
+        .par_chunks(n.max(1))
+        .map(|r| r.iter().map(|&v| v as f64).sum())
+        .collect();
+    let (num, den) = (0..n)
+        .into_par_iter()
+        .map(|i| {
+            let (mut num, mut den) = (0.0f64, 0.0f64);
+            for j in i + 1..n {
+                let a = areas[i] as f64 * m[i * n + j] as f64;
+                let b = areas[j] as f64 * m[j * n + i] as f64;
+                num += (a - b).abs();
+                den += a + b;
+            }
+            (num, den)
+        })
+        .reduce(|| (0.0, 0.0), |x, y| (x.0 + y.0, x.1 + y.1));
+    let (mut lo, mut hi, mut total) = (f64::INFINITY, 0.0f64, 0.0);
+    for &s in &sums {
+        lo = lo.min(s);
+        hi = hi.max(s);
+        total += s;
+    }
+    FormFactorStats {
+        row_sum_min: if n == 0 { 0.0 } else { lo as f32 },
+        row_sum_max: hi as f32,
+        row_sum_mean: if n == 0 {
+            0.0
+        } else {
+            (total / n as f64) as f32
+        },
+        reciprocity_error: if den > 0.0 { (num / den) as f32 } else { 0.0 },
+        isolated: sums.iter().filter(|&&s| s == 0.0).count(),
+    }
+}

@@ -1,1 +1,0 @@
-//! glTF import (in progress).

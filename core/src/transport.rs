@@ -1,0 +1,378 @@
+//! The multi-bounce transport matrix `T`: indirect irradiance `E_ind = T B0` (DESIGN.md §1).
+//!
+//! `T_k = Σ_{h<k} F (D_ρ F)^h` is evaluated by Horner from the right,
+//! `T_{m+1} = F + T_m (D_ρ F)`, because then every row block of `T` needs only its own rows of
+//! `T_m` and the whole of `G = D_ρ F`: a row range can be computed alone (a sharded bake) and gives
+//! the same bits. `T_∞ = F (I − D_ρ F)^{-1}` comes from one LU factorisation of `I − G` and a
+//! solve per row block (`X (I − G) = F_R`, i.e. `(I − G)ᵀ Xᵀ = F_Rᵀ`), in f64 so that albedos near
+//! 1 stay accurate.
+//!
+//! Blocks are a fixed [`ROW_BLOCK`] rows of the global matrix and each block's products run
+//! sequentially inside faer, so the arithmetic for a row never depends on the thread count or on
+//! which other rows were asked for.
+
+use std::ops::Range;
+
+use faer::linalg::solvers::{PartialPivLu, Solve};
+use faer::{Accum, Mat, MatMut, MatRef, Par};
+use rayon::prelude::*;
+use thiserror::Error;
+
+use crate::matrix::DenseMatrix;
+use crate::meta::Bounces;
+
+/// Rows per block of work; part of the arithmetic's definition (see the module doc).
+pub const ROW_BLOCK: usize = 64;
+
+/// Albedo is clamped below this for the transport: at 1 a closed scene never loses energy and
+/// `I − D_ρ F` is singular.
+pub const MAX_ALBEDO: f32 = 0.999;
+
+#[derive(Debug, Error)]
+pub enum TransportError {
+    #[error("form factors must be one square channel, got {channels} channel(s) of {n}×{n}")]
+    FormFactorShape { n: usize, channels: usize },
+    #[error("{albedos} albedos for {n} patches")]
+    AlbedoCount { albedos: usize, n: usize },
+    #[error("albedo of patch {patch} is not finite")]
+    AlbedoNotFinite { patch: usize },
+    #[error("row range {start}..{end} is outside 0..{n}")]
+    RowRange { start: usize, end: usize, n: usize },
+    #[error("the radiosity system is singular: some closed part of the scene reflects all light")]
+    Singular,
+}
+
+/// How many colour channels the transport needs: one when it does not depend on colour
+/// (a single bounce, or every albedo grey), three otherwise.
+pub fn channels_needed(albedo: &[[f32; 3]], bounces: Bounces) -> usize {
+    let grey = albedo.iter().all(|a| a[0] == a[1] && a[1] == a[2]);
+    if bounces == Bounces::K(1) || grey {
+        1
+    } else {
+        3
+    }
+}
+
+/// The per-channel albedo the transport uses (clamped to `[0, MAX_ALBEDO]`).
+fn channel_albedo(albedo: &[[f32; 3]], c: usize) -> Vec<f32> {
+    albedo.iter().map(|a| a[c].clamp(0.0, MAX_ALBEDO)).collect()
+}
+
+/// The full transport for `bounces`, one or three channels (see [`channels_needed`]).
+pub fn transport(
+    f: &DenseMatrix,
+    albedo: &[[f32; 3]],
+    bounces: Bounces,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<DenseMatrix, TransportError> {
+    let n = f.n;
+    let channels = channels_needed(albedo, bounces);
+    let mut out = DenseMatrix {
+        n,
+        channels,
+        data: Vec::with_capacity(n * n * channels),
+    };
+    for c in 0..channels {
+        out.data
+            .extend(transport_rows(f, albedo, c, bounces, 0..n, progress)?);
+    }
+    Ok(out)
+}
+
+/// Rows `rows` of channel `channel` of the transport, row-major (`rows.len() × n`).
+/// `progress` receives the number of rows finished.
+pub fn transport_rows(
+    f: &DenseMatrix,
+    albedo: &[[f32; 3]],
+    channel: usize,
+    bounces: Bounces,
+    rows: Range<usize>,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<Vec<f32>, TransportError> {
+    let n = f.n;
+    if f.channels != 1 || f.data.len() != n * n {
+        return Err(TransportError::FormFactorShape {
+            n,
+            channels: f.channels,
+        });
+    }
+    if albedo.len() != n {
+        return Err(TransportError::AlbedoCount {
+            albedos: albedo.len(),
+            n,
+        });
+    }
+    if let Some(patch) = albedo.iter().position(|a| !a.iter().all(|v| v.is_finite())) {
+        return Err(TransportError::AlbedoNotFinite { patch });
+    }
+    if rows.start > rows.end || rows.end > n {
+        return Err(TransportError::RowRange {
+            start: rows.start,
+            end: rows.end,
+            n,
+        });
+    }
+    let rho = channel_albedo(albedo, channel);
+    match bounces {
+        Bounces::K(1) => {
+            progress(rows.len() as u64);
+            Ok(f.data[rows.start * n..rows.end * n].to_vec())
+        }
+        Bounces::K(k) => Ok(horner_rows(f, &rho, k, rows, progress)),
+        Bounces::All => infinite_rows(f, &rho, rows, progress),
+    }
+}
+
+/// `G = D_ρ F`: row `j` of `F` scaled by `ρ_j`.
+fn scaled_rows<T: Copy + Send + Sync>(
+    f: &DenseMatrix,
+    rho: &[f32],
+    convert: impl Fn(f32) -> T + Sync,
+) -> Vec<T> {
+    let n = f.n;
+    f.data
+        .par_chunks(n.max(1))
+        .zip(rho.par_iter())
+        .flat_map_iter(|(row, &r)| row.iter().map(|&v| convert(v * r)).collect::<Vec<_>>())
+        .collect()
+}
+
+/// Calls `work` for every global row block that intersects `rows`, in parallel, and returns the
+/// rows asked for. `work(block_rows, out)` fills `out` (`block_rows.len() × n`).
+fn by_blocks(
+    n: usize,
+    rows: Range<usize>,
+    progress: &(dyn Fn(u64) + Sync),
+    work: impl Fn(Range<usize>, &mut [f32]) + Sync,
+) -> Vec<f32> {
+    let first = rows.start / ROW_BLOCK;
+    let last = rows.end.div_ceil(ROW_BLOCK);
+    let blocks: Vec<Vec<f32>> = (first..last)
+        .into_par_iter()
+        .map(|b| {
+            let r = b * ROW_BLOCK..((b + 1) * ROW_BLOCK).min(n);
+            let mut out = vec![0.0f32; r.len() * n];
+            work(r.clone(), &mut out);
+            // Count only the rows that were asked for.
+            progress((r.end.min(rows.end) - r.start.max(rows.start)) as u64);
+            let lo = (rows.start.max(r.start) - r.start) * n;
+            let hi = (rows.end.min(r.end) - r.start) * n;
+            out.truncate(hi);
+            out.drain(..lo);
+            out
+        })
+        .collect();
+    blocks.concat()
+}
+
+fn horner_rows(
+    f: &DenseMatrix,
+    rho: &[f32],
+    k: u32,
+    rows: Range<usize>,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Vec<f32> {
+    let n = f.n;
+    let g = scaled_rows(f, rho, |v| v);
+    let g = MatRef::from_row_major_slice(&g, n, n);
+    by_blocks(n, rows, progress, |r, out| {
+        let f_r = &f.data[r.start * n..r.end * n];
+        let m = r.len();
+        // k ≥ 2 here, so the loop runs and leaves T_k in `out`.
+        let mut x = f_r.to_vec();
+        for _ in 1..k {
+            // out = F_R + X G
+            out.copy_from_slice(f_r);
+            faer::linalg::matmul::matmul(
+                MatMut::from_row_major_slice_mut(out, m, n),
+                Accum::Add,
+                MatRef::from_row_major_slice(&x, m, n),
+                g,
+                1.0f32,
+                Par::Seq,
+            );
+            x.copy_from_slice(out);
+        }
+    })
+}
+
+fn infinite_rows(
+    f: &DenseMatrix,
+    rho: &[f32],
+    rows: Range<usize>,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<Vec<f32>, TransportError> {
+    let n = f.n;
+    let g = scaled_rows(f, rho, |v| v as f64);
+    let a = Mat::<f64>::from_fn(n, n, |i, j| {
+        let d = if i == j { 1.0 } else { 0.0 };
+        d - g[i * n + j]
+    });
+    drop(g);
+    // The factorisation is the one step that is not per row block; it is deterministic for a
+    // given matrix (pivoting by largest magnitude, ties by index), so every shard gets the same.
+    let lu = PartialPivLu::new(a.as_ref());
+    let out = by_blocks(n, rows, progress, |r, out| {
+        let m = r.len();
+        // Xᵀ (column-major n × m) has the same memory as X (row-major m × n).
+        let mut xt = Mat::<f64>::from_fn(n, m, |j, i| f.data[(r.start + i) * n + j] as f64);
+        lu.solve_transpose_in_place(xt.as_mut());
+        for i in 0..m {
+            for j in 0..n {
+                out[i * n + j] = xt[(j, i)] as f32;
+            }
+        }
+    });
+    if out.iter().any(|v| !v.is_finite()) {
+        return Err(TransportError::Singular);
+    }
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn lcg(seed: &mut u64) -> f32 {
+        *seed = seed
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (*seed >> 40) as f32 / (1u64 << 24) as f32
+    }
+
+    /// A random matrix with rows summing to at most 1, like a form-factor matrix.
+    fn random_ff(n: usize, seed: u64) -> DenseMatrix {
+        let mut s = seed;
+        let mut data: Vec<f32> = (0..n * n).map(|_| lcg(&mut s)).collect();
+        for i in 0..n {
+            data[i * n + i] = 0.0;
+            let sum: f32 = data[i * n..(i + 1) * n].iter().sum();
+            let scale = (0.5 + 0.5 * lcg(&mut s)) / sum;
+            data[i * n..(i + 1) * n]
+                .iter_mut()
+                .for_each(|v| *v *= scale);
+        }
+        DenseMatrix {
+            n,
+            channels: 1,
+            data,
+        }
+    }
+
+    fn random_albedo(n: usize, seed: u64) -> Vec<[f32; 3]> {
+        let mut s = seed;
+        (0..n)
+            .map(|_| [lcg(&mut s) * 0.9, lcg(&mut s) * 0.9, lcg(&mut s) * 0.9])
+            .collect()
+    }
+
+    /// `Σ_{h<k} F (D F)^h` by explicit powers, in f64.
+    fn explicit_power_sum(f: &DenseMatrix, rho: &[f32], k: u32) -> Vec<f64> {
+        let n = f.n;
+        let fm = Mat::<f64>::from_fn(n, n, |i, j| f.get(0, i, j) as f64);
+        let dfm = Mat::<f64>::from_fn(n, n, |i, j| rho[i] as f64 * f.get(0, i, j) as f64);
+        let mut power = Mat::<f64>::identity(n, n);
+        let mut sum = Mat::<f64>::zeros(n, n);
+        for _ in 0..k {
+            sum += &fm * &power;
+            power = &power * &dfm;
+        }
+        (0..n * n).map(|idx| sum[(idx / n, idx % n)]).collect()
+    }
+
+    fn no_progress(_: u64) {}
+
+    #[test]
+    fn horner_equals_the_explicit_power_sum() {
+        for (n, k) in [(5, 2), (17, 3), (70, 5), (130, 4)] {
+            let f = random_ff(n, n as u64);
+            let albedo = random_albedo(n, 7);
+            let t = transport(&f, &albedo, Bounces::K(k), &no_progress).unwrap();
+            assert_eq!(t.channels, 3);
+            for c in 0..3 {
+                let rho = channel_albedo(&albedo, c);
+                let want = explicit_power_sum(&f, &rho, k);
+                for (idx, (&got, &want)) in t.channel(c).iter().zip(&want).enumerate() {
+                    assert!(
+                        (got as f64 - want).abs() <= 1e-5 * want.abs() + 1e-7,
+                        "n={n} k={k} c={c} entry {idx}: {got} vs {want}"
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn infinite_bounces_are_the_limit_of_many() {
+        let n = 90;
+        let f = random_ff(n, 3);
+        let albedo = random_albedo(n, 11);
+        let t_inf = transport(&f, &albedo, Bounces::All, &no_progress).unwrap();
+        // ρ ≤ 0.9 and row sums ≤ 1: the tail after 200 bounces is below 0.9^200 ≈ 7e-10.
+        let t_many = transport(&f, &albedo, Bounces::K(200), &no_progress).unwrap();
+        for (a, b) in t_inf.data.iter().zip(&t_many.data) {
+            assert!((a - b).abs() <= 1e-5 * b.abs() + 1e-7, "{a} vs {b}");
+        }
+    }
+
+    #[test]
+    fn one_bounce_is_the_form_factors_in_one_channel() {
+        let f = random_ff(20, 5);
+        let albedo = random_albedo(20, 1);
+        let t = transport(&f, &albedo, Bounces::K(1), &no_progress).unwrap();
+        assert_eq!(t, f);
+        let grey: Vec<[f32; 3]> = (0..20).map(|i| [0.1 * (i % 9) as f32; 3]).collect();
+        assert_eq!(channels_needed(&grey, Bounces::K(3)), 1);
+        assert_eq!(channels_needed(&albedo, Bounces::All), 3);
+    }
+
+    #[test]
+    fn row_ranges_and_thread_counts_give_identical_bits() {
+        let n = 150; // three row blocks, the last one partial
+        let f = random_ff(n, 9);
+        let albedo = random_albedo(n, 2);
+        for bounces in [Bounces::K(3), Bounces::All] {
+            let full = transport_rows(&f, &albedo, 1, bounces, 0..n, &no_progress).unwrap();
+            for range in [0..n, 10..20, 60..140, 149..150, 0..0] {
+                let part =
+                    transport_rows(&f, &albedo, 1, bounces, range.clone(), &no_progress).unwrap();
+                assert_eq!(
+                    part,
+                    full[range.start * n..range.end * n],
+                    "{bounces} {range:?}"
+                );
+            }
+            for threads in [1, 3] {
+                let pool = rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .build()
+                    .unwrap();
+                let t = pool.install(|| {
+                    transport_rows(&f, &albedo, 1, bounces, 0..n, &no_progress).unwrap()
+                });
+                assert_eq!(t, full, "{bounces} with {threads} threads");
+            }
+        }
+    }
+
+    #[test]
+    fn bad_input_is_an_error_not_a_panic() {
+        let f = random_ff(4, 1);
+        let albedo = random_albedo(3, 1);
+        assert!(matches!(
+            transport(&f, &albedo, Bounces::K(2), &no_progress),
+            Err(TransportError::AlbedoCount { .. })
+        ));
+        let mut albedo = random_albedo(4, 1);
+        albedo[2][1] = f32::NAN;
+        assert!(matches!(
+            transport(&f, &albedo, Bounces::All, &no_progress),
+            Err(TransportError::AlbedoNotFinite { patch: 2 })
+        ));
+        let albedo = random_albedo(4, 1);
+        assert!(matches!(
+            transport_rows(&f, &albedo, 0, Bounces::K(2), 2..9, &no_progress),
+            Err(TransportError::RowRange { .. })
+        ));
+    }
+}

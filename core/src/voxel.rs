@@ -1,0 +1,572 @@
+//! Voxel simplification: a scene's triangles become axis-aligned voxel-face patches.
+//!
+//! Every triangle is clipped exactly against the grid planes, so each piece lies in one voxel and
+//! areas are conserved. A voxel is occupied when any piece lands in it. A face of an occupied voxel
+//! becomes a patch when the neighbouring voxel is empty and original geometry in the voxel faces
+//! that way (its area projected on the face direction is not negligible). The remaining exposed
+//! faces become black occluders: the voxel solid still blocks light there, but nothing reflects
+//! from it, which is what a one-sided wall seen from behind does.
+
+use std::collections::HashMap;
+
+use glam::{DVec3, Vec3};
+use thiserror::Error;
+
+use crate::patch::{Face, Patch, PatchLayout, Quad};
+use crate::scene::Scene;
+
+/// The most patches a bake accepts: the dense transport grows as n², and at this size a
+/// three-channel f32 matrix is already 4.8 GB.
+pub const MAX_PATCHES: u32 = 20_000;
+
+/// The most voxels a grid may span (about 8 GB of nothing if it were ever dense; we keep it
+/// sparse, but the count still bounds the clipping work).
+const MAX_GRID_CELLS: u64 = 1 << 34;
+
+/// Pieces whose projected area on a face is below this share of the face do not make a patch:
+/// slivers of a neighbouring surface would otherwise become patches with meaningless albedo.
+const MIN_FACE_COVERAGE: f64 = 1e-3;
+
+/// How the voxel size is chosen.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Resolution {
+    /// Search for a voxel size whose patch count lands near this.
+    TargetPatches(u32),
+    /// Use this voxel edge length (world units).
+    VoxelSize(f32),
+}
+
+#[derive(Debug, Error)]
+pub enum VoxelError {
+    #[error("the scene has no triangles to voxelise")]
+    EmptyScene,
+    #[error(
+        "patch count {0} is out of range: use 1 to {MAX_PATCHES} patches (the dense transport grows as the square of the count)"
+    )]
+    PatchCount(u32),
+    #[error("voxel size {0} is not a positive finite length")]
+    VoxelSize(f32),
+    #[error(
+        "voxel size {size} is too small for a scene of extent {extent:?}: it would need {cells} voxels; \
+         use a larger --voxel-size or --patches"
+    )]
+    GridTooLarge {
+        size: f32,
+        extent: [f32; 3],
+        cells: u64,
+    },
+    #[error(
+        "voxel size {size} gives {patches} patches, more than the {MAX_PATCHES} a bake accepts; \
+         use a larger --voxel-size or --patches"
+    )]
+    TooManyPatches { size: f32, patches: usize },
+    #[error("all {candidates} candidate patches were dropped (none sees another patch)")]
+    AllDropped { candidates: usize },
+    #[error("no patches: no surface of the scene faces open space at voxel size {size}")]
+    NoPatches { size: f32 },
+}
+
+/// The result of voxelisation: the patch layout plus what the form-factor rays need.
+#[derive(Debug, Clone)]
+pub struct Voxelization {
+    pub layout: PatchLayout,
+    /// Exposed voxel faces that are not patches: they block rays and reflect nothing.
+    pub occluders: Vec<Quad>,
+    pub occupied_voxels: usize,
+    /// Candidate patches dropped by a [`Refine`] step (e.g. because they see nothing).
+    pub dropped_patches: usize,
+}
+
+impl Voxelization {
+    /// Drop the patches marked in `drop`: their faces stay as occluders, so they still block
+    /// light, but they carry no row or column of the transport.
+    pub fn drop_patches(&mut self, drop: &[bool]) {
+        let mut kept = Vec::with_capacity(self.layout.patches.len());
+        for (i, p) in self.layout.patches.iter().enumerate() {
+            if drop.get(i).copied().unwrap_or(false) {
+                self.occluders.push(self.layout.face_quad(p.voxel, p.face));
+                self.dropped_patches += 1;
+            } else {
+                kept.push(*p);
+            }
+        }
+        self.layout.patches = kept;
+    }
+}
+
+/// A step applied to every candidate voxelisation before its patches are counted, so that the
+/// voxel-size search aims at the patches that will really be used.
+pub type Refine<'a> = &'a dyn Fn(Voxelization) -> Voxelization;
+
+/// Per voxel, per face direction: sums over the clipped pieces weighted by the piece's area
+/// projected on that direction.
+#[derive(Debug, Clone, Copy, Default)]
+struct FaceAccum {
+    weight: f64,
+    albedo: DVec3,
+    emission: DVec3,
+    centroid: DVec3,
+    normal: DVec3,
+}
+
+#[derive(Debug, Clone, Copy, Default)]
+struct VoxelAccum {
+    faces: [FaceAccum; 6],
+}
+
+/// Voxelise `scene` at the requested resolution.
+pub fn voxelize(scene: &Scene, resolution: Resolution) -> Result<Voxelization, VoxelError> {
+    voxelize_refined(scene, resolution, &|v| v)
+}
+
+/// Voxelise `scene`, applying `refine` to every candidate before its patches are counted.
+pub fn voxelize_refined(
+    scene: &Scene,
+    resolution: Resolution,
+    refine: Refine<'_>,
+) -> Result<Voxelization, VoxelError> {
+    match resolution {
+        Resolution::VoxelSize(size) => {
+            if !(size.is_finite() && size > 0.0) {
+                return Err(VoxelError::VoxelSize(size));
+            }
+            let v = refine(voxelize_at(scene, size)?);
+            if v.layout.is_empty() {
+                return Err(VoxelError::AllDropped {
+                    candidates: v.dropped_patches,
+                });
+            }
+            if v.layout.len() > MAX_PATCHES as usize {
+                return Err(VoxelError::TooManyPatches {
+                    size,
+                    patches: v.layout.len(),
+                });
+            }
+            Ok(v)
+        }
+        Resolution::TargetPatches(n) => {
+            if n == 0 || n > MAX_PATCHES {
+                return Err(VoxelError::PatchCount(n));
+            }
+            search_voxel_size(scene, n, refine)
+        }
+    }
+}
+
+/// Patch count falls roughly as 1/size², so a few multiplicative steps land near the target;
+/// the count is not monotonic in the size (grid alignment changes), so keep the closest seen.
+fn search_voxel_size(
+    scene: &Scene,
+    target: u32,
+    refine: Refine<'_>,
+) -> Result<Voxelization, VoxelError> {
+    let area = scene.total_area();
+    if scene.triangles.is_empty() || area <= 0.0 {
+        return Err(VoxelError::EmptyScene);
+    }
+    // Both sides of a closed surface rarely become patches; half the surface area is a fair start.
+    let mut size = ((area * 0.5) / target as f64).sqrt() as f32;
+    let (lo, hi) = scene.bounds().ok_or(VoxelError::EmptyScene)?;
+    let extent = (hi - lo).max_element().max(f32::MIN_POSITIVE);
+    size = size.clamp(extent * 1e-4, extent);
+    let mut best: Option<Voxelization> = None;
+    let mut best_err = f64::INFINITY;
+    for _ in 0..12 {
+        let v = match voxelize_at(scene, size) {
+            Ok(v) => refine(v),
+            Err(VoxelError::GridTooLarge { .. }) => {
+                size *= 2.0;
+                continue;
+            }
+            Err(VoxelError::NoPatches { .. }) => {
+                size *= 0.5;
+                continue;
+            }
+            Err(e) => return Err(e),
+        };
+        if v.layout.is_empty() {
+            // Every candidate was dropped (e.g. nothing sees anything): finer voxels would only
+            // make more of the same, so stop rather than grow the grid.
+            return Err(VoxelError::AllDropped {
+                candidates: v.dropped_patches,
+            });
+        }
+        let count = v.layout.len() as f64;
+        let err = (count / target as f64).ln().abs();
+        if err < best_err && v.layout.len() <= MAX_PATCHES as usize {
+            best_err = err;
+            best = Some(v);
+        }
+        if err < 0.02 {
+            break;
+        }
+        size *= (count / target as f64).sqrt() as f32;
+    }
+    best.ok_or(VoxelError::NoPatches { size })
+}
+
+/// Voxelise at one voxel size.
+pub fn voxelize_at(scene: &Scene, size: f32) -> Result<Voxelization, VoxelError> {
+    let (lo, hi) = scene.bounds().ok_or(VoxelError::EmptyScene)?;
+    let extent = hi - lo;
+    // One voxel of margin on each side keeps every surface strictly inside the grid, and
+    // centring the grid on the scene keeps axis-aligned walls off the grid planes in the common
+    // case of a scene whose extent is a whole number of voxels.
+    let dims_f = (extent / size).floor() + Vec3::splat(2.0);
+    let cells = dims_f.x as f64 * dims_f.y as f64 * dims_f.z as f64;
+    if !cells.is_finite()
+        || cells > MAX_GRID_CELLS as f64
+        || dims_f.max_element() > u32::MAX as f32 / 2.0
+    {
+        return Err(VoxelError::GridTooLarge {
+            size,
+            extent: extent.to_array(),
+            cells: if cells.is_finite() {
+                cells as u64
+            } else {
+                u64::MAX
+            },
+        });
+    }
+    let dims = [dims_f.x as u32, dims_f.y as u32, dims_f.z as u32];
+    let center = (lo + hi) * 0.5;
+    let origin = center - dims_f * size * 0.5;
+
+    let grid = Grid { origin, size, dims };
+    let mut voxels: HashMap<u64, VoxelAccum> = HashMap::new();
+    let mut stack = Vec::new();
+    for tri in &scene.triangles {
+        let cross = tri.cross();
+        let len = cross.length();
+        if !(len > 0.0 && len.is_finite()) {
+            continue;
+        }
+        let n = (cross / len).as_dvec3();
+        let albedo = tri.albedo.as_dvec3();
+        let emission = tri.emission.as_dvec3();
+        stack.clear();
+        stack.push(Poly::from_slice(&tri.positions));
+        while let Some(poly) = stack.pop() {
+            if let Some((a, b)) = grid.split(&poly) {
+                stack.push(a);
+                stack.push(b);
+                continue;
+            }
+            let (area, centroid) = poly.area_centroid(n);
+            if area.is_nan() || area <= 0.0 {
+                continue;
+            }
+            let key = grid.key(grid.cell_of(centroid));
+            let acc = voxels.entry(key).or_default();
+            for face in Face::ALL {
+                let c = n.dot(face.normal().as_dvec3());
+                let (c, normal) = if c > 0.0 {
+                    (c, n)
+                } else if tri.double_sided && c < 0.0 {
+                    (-c, -n)
+                } else {
+                    continue;
+                };
+                let w = area * c;
+                let f = &mut acc.faces[face as usize];
+                f.weight += w;
+                f.albedo += albedo * w;
+                f.emission += emission * w;
+                f.centroid += centroid * w;
+                f.normal += normal * w;
+            }
+        }
+    }
+
+    let mut keys: Vec<u64> = voxels.keys().copied().collect();
+    keys.sort_unstable();
+    let face_area = size as f64 * size as f64;
+    let mut patches = Vec::new();
+    let mut occluders = Vec::new();
+    let mut layout = PatchLayout {
+        origin: origin.to_array(),
+        voxel_size: size,
+        dims,
+        patches: Vec::new(),
+    };
+    for &key in &keys {
+        let cell = grid.unkey(key);
+        let acc = &voxels[&key];
+        for face in Face::ALL {
+            if grid
+                .neighbour(cell, face)
+                .is_some_and(|nb| voxels.contains_key(&grid.key(nb)))
+            {
+                continue;
+            }
+            let f = &acc.faces[face as usize];
+            if f.weight > MIN_FACE_COVERAGE * face_area {
+                let inv = 1.0 / f.weight;
+                let normal = f.normal.normalize_or(face.normal().as_dvec3());
+                patches.push(Patch {
+                    voxel: cell,
+                    face,
+                    albedo: (f.albedo * inv)
+                        .clamp(DVec3::ZERO, DVec3::ONE)
+                        .as_vec3()
+                        .to_array(),
+                    centroid: (f.centroid * inv).as_vec3().to_array(),
+                    normal: normal.as_vec3().to_array(),
+                    source_area: f.weight as f32,
+                    emission: (f.emission * inv).max(DVec3::ZERO).as_vec3().to_array(),
+                });
+            } else {
+                occluders.push(layout.face_quad(cell, face));
+            }
+        }
+    }
+    if patches.is_empty() {
+        return Err(VoxelError::NoPatches { size });
+    }
+    layout.patches = patches;
+    Ok(Voxelization {
+        layout,
+        occluders,
+        occupied_voxels: keys.len(),
+        dropped_patches: 0,
+    })
+}
+
+struct Grid {
+    origin: Vec3,
+    size: f32,
+    dims: [u32; 3],
+}
+
+impl Grid {
+    fn key(&self, c: [u32; 3]) -> u64 {
+        // z-major so that sorted keys walk the grid in x-fastest order.
+        (c[2] as u64 * self.dims[1] as u64 + c[1] as u64) * self.dims[0] as u64 + c[0] as u64
+    }
+
+    fn unkey(&self, key: u64) -> [u32; 3] {
+        let x = key % self.dims[0] as u64;
+        let yz = key / self.dims[0] as u64;
+        let y = yz % self.dims[1] as u64;
+        let z = yz / self.dims[1] as u64;
+        [x as u32, y as u32, z as u32]
+    }
+
+    fn cell_coord(&self, p: f64, axis: usize) -> u32 {
+        let t = (p - self.origin[axis] as f64) / self.size as f64;
+        (t.floor().max(0.0) as u32).min(self.dims[axis] - 1)
+    }
+
+    fn cell_of(&self, p: DVec3) -> [u32; 3] {
+        [
+            self.cell_coord(p.x, 0),
+            self.cell_coord(p.y, 1),
+            self.cell_coord(p.z, 2),
+        ]
+    }
+
+    fn neighbour(&self, c: [u32; 3], face: Face) -> Option<[u32; 3]> {
+        let a = face.axis();
+        let mut n = c;
+        if face.sign() > 0.0 {
+            n[a] = c[a].checked_add(1).filter(|&v| v < self.dims[a])?;
+        } else {
+            n[a] = c[a].checked_sub(1)?;
+        }
+        Some(n)
+    }
+
+    /// Split a polygon at a grid plane strictly inside its extent, if any. Strictness is what ends
+    /// the recursion: a piece that only touches a plane is never split at it again.
+    fn split(&self, poly: &Poly) -> Option<(Poly, Poly)> {
+        for axis in 0..3 {
+            let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+            for p in poly.points() {
+                lo = lo.min(p[axis]);
+                hi = hi.max(p[axis]);
+            }
+            let o = self.origin[axis] as f64;
+            let s = self.size as f64;
+            let k_lo = ((lo - o) / s).floor() as i64 + 1;
+            let k_hi = ((hi - o) / s).ceil() as i64 - 1;
+            if k_hi < k_lo {
+                continue;
+            }
+            // The middle plane keeps the recursion depth logarithmic in the planes crossed.
+            let k = k_lo + (k_hi - k_lo) / 2;
+            let plane = o + k as f64 * s;
+            if plane > lo && plane < hi {
+                return Some(poly.clip(axis, plane));
+            }
+            for k in k_lo..=k_hi {
+                let plane = o + k as f64 * s;
+                if plane > lo && plane < hi {
+                    return Some(poly.clip(axis, plane));
+                }
+            }
+        }
+        None
+    }
+}
+
+/// A small convex polygon: a triangle clipped by at most six planes has at most nine vertices.
+#[derive(Clone, Copy)]
+struct Poly {
+    pts: [DVec3; 12],
+    len: usize,
+}
+
+impl Poly {
+    fn from_slice(p: &[Vec3; 3]) -> Poly {
+        let mut pts = [DVec3::ZERO; 12];
+        for (d, s) in pts.iter_mut().zip(p) {
+            *d = s.as_dvec3();
+        }
+        Poly { pts, len: 3 }
+    }
+
+    fn points(&self) -> &[DVec3] {
+        &self.pts[..self.len]
+    }
+
+    fn push(&mut self, p: DVec3) {
+        if self.len < self.pts.len() {
+            self.pts[self.len] = p;
+            self.len += 1;
+        }
+    }
+
+    /// Sutherland–Hodgman split into the parts below and above `plane` on `axis`.
+    fn clip(&self, axis: usize, plane: f64) -> (Poly, Poly) {
+        let empty = Poly {
+            pts: [DVec3::ZERO; 12],
+            len: 0,
+        };
+        let (mut below, mut above) = (empty, empty);
+        let pts = self.points();
+        for (k, &a) in pts.iter().enumerate() {
+            let b = pts[(k + 1) % pts.len()];
+            let (da, db) = (a[axis] - plane, b[axis] - plane);
+            if da <= 0.0 {
+                below.push(a);
+            }
+            if da >= 0.0 {
+                above.push(a);
+            }
+            if (da < 0.0 && db > 0.0) || (da > 0.0 && db < 0.0) {
+                let t = da / (da - db);
+                let mut p = a + (b - a) * t;
+                p[axis] = plane;
+                below.push(p);
+                above.push(p);
+            }
+        }
+        (below, above)
+    }
+
+    /// Area and centroid of the (planar, convex) polygon with unit normal `n`.
+    fn area_centroid(&self, n: DVec3) -> (f64, DVec3) {
+        let pts = self.points();
+        if pts.len() < 3 {
+            return (0.0, DVec3::ZERO);
+        }
+        let o = pts[0];
+        let (mut area, mut c) = (0.0, DVec3::ZERO);
+        for k in 1..pts.len() - 1 {
+            let a = 0.5 * (pts[k] - o).cross(pts[k + 1] - o).dot(n);
+            area += a;
+            c += (o + pts[k] + pts[k + 1]) / 3.0 * a;
+        }
+        if area > 0.0 {
+            (area, c / area)
+        } else {
+            (0.0, o)
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::Triangle;
+
+    fn quad_tris(corners: [Vec3; 4], albedo: Vec3) -> [Triangle; 2] {
+        let t = |a, b, c| Triangle {
+            positions: [a, b, c],
+            albedo,
+            emission: Vec3::ZERO,
+            double_sided: false,
+            material: 0,
+        };
+        [
+            t(corners[0], corners[1], corners[2]),
+            t(corners[0], corners[2], corners[3]),
+        ]
+    }
+
+    #[test]
+    fn a_floor_becomes_upward_patches_that_conserve_its_area() {
+        // A 2 × 2 floor facing +Y at y = 0.3.
+        let c = [
+            Vec3::new(0.0, 0.3, 0.0),
+            Vec3::new(0.0, 0.3, 2.0),
+            Vec3::new(2.0, 0.3, 2.0),
+            Vec3::new(2.0, 0.3, 0.0),
+        ];
+        let scene = Scene {
+            triangles: quad_tris(c, Vec3::splat(0.5)).to_vec(),
+            ..Default::default()
+        };
+        let v = voxelize_at(&scene, 0.25).unwrap();
+        assert!(v.layout.patches.iter().all(|p| p.face == Face::PosY));
+        let total: f32 = v.layout.patches.iter().map(|p| p.source_area).sum();
+        assert!((total - 4.0).abs() < 1e-4, "area {total}");
+        // The floor spans 8 × 8 voxel columns (perhaps 9 where the grid is not aligned).
+        assert!((64..=81).contains(&v.layout.len()), "{}", v.layout.len());
+        for p in &v.layout.patches {
+            assert!((p.albedo[0] - 0.5).abs() < 1e-6);
+            assert!((p.centroid[1] - 0.3).abs() < 1e-5);
+            assert!((p.normal[1] - 1.0).abs() < 1e-6);
+        }
+        // The one-sided floor's underside blocks light but is no patch.
+        assert!(v.occluders.iter().any(|q| q.face == Face::NegY));
+    }
+
+    #[test]
+    fn target_patch_count_lands_near_the_target() {
+        let c = [
+            Vec3::new(0.0, 0.0, 0.0),
+            Vec3::new(0.0, 0.0, 3.0),
+            Vec3::new(3.0, 0.0, 3.0),
+            Vec3::new(3.0, 0.0, 0.0),
+        ];
+        let scene = Scene {
+            triangles: quad_tris(c, Vec3::splat(0.5)).to_vec(),
+            ..Default::default()
+        };
+        let v = voxelize(&scene, Resolution::TargetPatches(400)).unwrap();
+        let n = v.layout.len() as f32;
+        assert!((n / 400.0 - 1.0).abs() < 0.15, "got {n} patches");
+    }
+
+    #[test]
+    fn absurd_requests_are_refused() {
+        let scene = Scene::default();
+        assert!(matches!(
+            voxelize(&scene, Resolution::TargetPatches(0)),
+            Err(VoxelError::PatchCount(0))
+        ));
+        assert!(matches!(
+            voxelize(&scene, Resolution::TargetPatches(10_000_000)),
+            Err(VoxelError::PatchCount(_))
+        ));
+        assert!(matches!(
+            voxelize(&scene, Resolution::VoxelSize(f32::NAN)),
+            Err(VoxelError::VoxelSize(_))
+        ));
+        assert!(matches!(
+            voxelize(&scene, Resolution::VoxelSize(1.0)),
+            Err(VoxelError::EmptyScene)
+        ));
+    }
+}

@@ -1,0 +1,1227 @@
+//! The baked file format: exact round trips, the documented layout, and refusal (never a panic or
+//! an outsized allocation) of truncated, corrupted and hostile files.
+
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::cell::Cell;
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+use bounce_core::format::{
+    Baked, ENTRY_LEN, FORMAT_VERSION, FileSummary, FormatError, HEADER_LEN, MAGIC,
+    PATCH_RECORD_LEN, SECTION_ALIGN, SectionKind, read_summary,
+};
+use bounce_core::light::Light;
+use bounce_core::matrix::{DenseMatrix, EncodedMatrix};
+use bounce_core::meta::{BakeMeta, BakeSettings, BakeStats, Bounces, StageTiming};
+use bounce_core::patch::{Face, Patch, PatchLayout};
+use bounce_core::scene::ImportReport;
+use proptest::prelude::*;
+
+// ---------------------------------------------------------------------------------------------
+// Largest single allocation per thread, so tests can show that a file's claims never size an
+// allocation beyond what its length justifies.
+
+struct Tracking;
+
+thread_local! {
+    static LARGEST: Cell<usize> = const { Cell::new(0) };
+}
+
+fn note(size: usize) {
+    let _ = LARGEST.try_with(|c| c.set(c.get().max(size)));
+}
+
+// SAFETY: forwards every call to the system allocator unchanged; only records sizes.
+unsafe impl GlobalAlloc for Tracking {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        note(layout.size());
+        unsafe { System.alloc(layout) }
+    }
+    unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
+        note(layout.size());
+        unsafe { System.alloc_zeroed(layout) }
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        note(new_size);
+        unsafe { System.realloc(ptr, layout, new_size) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        unsafe { System.dealloc(ptr, layout) }
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Tracking = Tracking;
+
+/// Parses `bytes`, returning the result, the largest allocation made and the time taken.
+fn parse_tracked(bytes: &[u8]) -> (Result<Baked, FormatError>, usize, Duration) {
+    LARGEST.with(|c| c.set(0));
+    let start = Instant::now();
+    let result = Baked::from_bytes(bytes);
+    let elapsed = start.elapsed();
+    (result, LARGEST.with(|c| c.get()), elapsed)
+}
+
+/// A hostile file must be refused quickly and without allocating more than its own size.
+fn refuse(bytes: &[u8]) -> FormatError {
+    let (result, largest, elapsed) = parse_tracked(bytes);
+    let err = match result {
+        Ok(_) => panic!("hostile file of {} bytes was accepted", bytes.len()),
+        Err(e) => e,
+    };
+    assert!(
+        largest <= bytes.len() + 4096,
+        "refusing a {}-byte file allocated {largest} bytes at once ({err})",
+        bytes.len()
+    );
+    assert!(
+        elapsed < Duration::from_secs(2),
+        "took {elapsed:?} to refuse ({err})"
+    );
+    err
+}
+
+// ---------------------------------------------------------------------------------------------
+// Sample values.
+
+fn sample_meta() -> BakeMeta {
+    BakeMeta {
+        tool_version: "0.1.0".into(),
+        source_name: "cornell.glb".into(),
+        source_bytes: 123_456,
+        settings: BakeSettings {
+            target_patches: Some(500),
+            requested_voxel_size: None,
+            rays_per_patch: 256,
+            seed: 7,
+            bounces: Bounces::All,
+        },
+        stats: BakeStats {
+            patches: 5,
+            voxel_size: 0.25,
+            occupied_voxels: 3,
+            dropped_patches: 1,
+            rays_total: 1280,
+            row_sum_min: 0.1,
+            row_sum_max: 0.9,
+            row_sum_mean: 0.5,
+            reciprocity_error: 0.012,
+            isolated_patches: 0,
+            channels: 3,
+            matrix_bytes: 300,
+        },
+        timings: vec![StageTiming {
+            stage: "form factors".into(),
+            seconds: 1.25,
+        }],
+        import_report: ImportReport {
+            meshes: 2,
+            primitives: 3,
+            triangles: 40,
+            warnings: vec!["a ünïcode warning".into()],
+            ..Default::default()
+        },
+        lights: vec![Light::Point {
+            position: [0.0, 1.5, 0.0],
+            color: [1.0, 0.9, 0.8],
+            intensity: 10.0,
+            range: None,
+            name: Some("key".into()),
+        }],
+    }
+}
+
+fn sample_layout(n: usize) -> PatchLayout {
+    let patches = (0..n)
+        .map(|i| Patch {
+            voxel: [i as u32 % 4, (i as u32 / 4) % 3, 1],
+            face: Face::ALL[i % 6],
+            albedo: [0.5, 0.25 + i as f32 * 0.01, 0.75],
+            centroid: [i as f32 * 0.3, -1.5, 2.0e-7],
+            normal: Face::ALL[i % 6].normal().to_array(),
+            source_area: 0.0625 * (i + 1) as f32,
+            emission: if i == 0 { [3.0, 2.0, 1.0] } else { [0.0; 3] },
+        })
+        .collect();
+    PatchLayout {
+        origin: [-1.0, 0.0, -0.5],
+        voxel_size: 0.25,
+        dims: [4, 3, 2],
+        patches,
+    }
+}
+
+fn dense(n: usize, channels: usize, seed: f32) -> DenseMatrix {
+    let mut m = DenseMatrix::zeros(n, channels);
+    for (k, v) in m.data.iter_mut().enumerate() {
+        *v = ((k as f32 + seed) * 0.37).sin().abs() / n as f32;
+    }
+    m
+}
+
+fn sample(channels: usize, with_form_factors: bool) -> Baked {
+    let n = 5;
+    Baked {
+        meta: sample_meta(),
+        layout: sample_layout(n),
+        transport: EncodedMatrix::encode_dense_f32(&dense(n, channels, 1.0)),
+        form_factors: with_form_factors.then(|| EncodedMatrix::encode_dense_f32(&dense(n, 1, 2.0))),
+    }
+}
+
+fn sample_bytes() -> Vec<u8> {
+    sample(3, true).to_bytes().expect("sample encodes")
+}
+
+// ---------------------------------------------------------------------------------------------
+// Raw access to the container, written from the layout's description rather than the library's
+// code, so that hand-made files test the documented format.
+
+fn get_u32(b: &[u8], at: usize) -> u32 {
+    u32::from_le_bytes(b[at..at + 4].try_into().unwrap())
+}
+
+fn get_u64(b: &[u8], at: usize) -> u64 {
+    u64::from_le_bytes(b[at..at + 8].try_into().unwrap())
+}
+
+fn put_u32(b: &mut [u8], at: usize, v: u32) {
+    b[at..at + 4].copy_from_slice(&v.to_le_bytes());
+}
+
+fn put_u64(b: &mut [u8], at: usize, v: u64) {
+    b[at..at + 8].copy_from_slice(&v.to_le_bytes());
+}
+
+fn entry_at(i: usize) -> usize {
+    HEADER_LEN as usize + i * ENTRY_LEN as usize
+}
+
+/// Index of the table entry of `kind`.
+fn entry_of(b: &[u8], kind: &[u8; 4]) -> usize {
+    let count = get_u32(b, 12) as usize;
+    (0..count)
+        .find(|&i| &b[entry_at(i)..entry_at(i) + 4] == kind)
+        .unwrap_or_else(|| panic!("no section {}", kind.escape_ascii()))
+}
+
+/// `(offset, len)` of the section of `kind`.
+fn section_of(b: &[u8], kind: &[u8; 4]) -> (usize, usize) {
+    let e = entry_at(entry_of(b, kind));
+    (get_u64(b, e + 8) as usize, get_u64(b, e + 16) as usize)
+}
+
+/// A file made of these sections, laid out as documented, with correct checksums.
+fn raw_file(sections: &[(&[u8; 4], u32, &[u8])]) -> Vec<u8> {
+    let table_end = HEADER_LEN as usize + sections.len() * ENTRY_LEN as usize;
+    let mut b = vec![0u8; table_end];
+    b[..8].copy_from_slice(&MAGIC);
+    put_u32(&mut b, 8, FORMAT_VERSION);
+    put_u32(&mut b, 12, sections.len() as u32);
+    for (i, (kind, flags, bytes)) in sections.iter().enumerate() {
+        let offset = b.len().next_multiple_of(SECTION_ALIGN as usize);
+        b.resize(offset, 0);
+        b.extend_from_slice(bytes);
+        let e = entry_at(i);
+        b[e..e + 4].copy_from_slice(*kind);
+        put_u32(&mut b, e + 4, *flags);
+        put_u64(&mut b, e + 8, offset as u64);
+        put_u64(&mut b, e + 16, bytes.len() as u64);
+    }
+    let len = b.len() as u64;
+    put_u64(&mut b, 16, len);
+    reseal(&mut b);
+    b
+}
+
+/// Recomputes every checksum that the (possibly edited) table lets one compute, so an edit is
+/// seen by the check it targets rather than by a checksum.
+fn reseal(b: &mut [u8]) {
+    if b.len() < HEADER_LEN as usize {
+        return;
+    }
+    let count = get_u32(b, 12) as usize;
+    let table_end = count
+        .checked_mul(ENTRY_LEN as usize)
+        .and_then(|t| t.checked_add(HEADER_LEN as usize))
+        .filter(|&t| t <= b.len());
+    let Some(table_end) = table_end else { return };
+    for i in 0..count {
+        let e = entry_at(i);
+        let (offset, len) = (get_u64(b, e + 8), get_u64(b, e + 16));
+        let end = offset.checked_add(len).filter(|&end| end <= b.len() as u64);
+        if let Some(end) = end {
+            let crc = crc32fast::hash(&b[offset as usize..end as usize]);
+            put_u32(b, e + 24, crc);
+        }
+    }
+    let mut h = crc32fast::Hasher::new();
+    h.update(&b[..28]);
+    h.update(&b[HEADER_LEN as usize..table_end]);
+    let crc = h.finalize();
+    put_u32(b, 28, crc);
+}
+
+/// The sample's sections, for building variants of it.
+fn sample_sections() -> Vec<([u8; 4], Vec<u8>)> {
+    let b = sample_bytes();
+    [b"META", b"LAYT", b"MTRX", b"FFAC"]
+        .into_iter()
+        .map(|k| {
+            let (o, l) = section_of(&b, k);
+            (*k, b[o..o + l].to_vec())
+        })
+        .collect()
+}
+
+fn file_with(replace: &[u8; 4], with: Vec<u8>) -> Vec<u8> {
+    let sections: Vec<_> = sample_sections()
+        .into_iter()
+        .map(|(k, v)| {
+            if &k == replace {
+                (k, with.clone())
+            } else {
+                (k, v)
+            }
+        })
+        .collect();
+    let refs: Vec<(&[u8; 4], u32, &[u8])> =
+        sections.iter().map(|(k, v)| (k, 0, v.as_slice())).collect();
+    raw_file(&refs)
+}
+
+// ---------------------------------------------------------------------------------------------
+// Round trips and the layout on disk.
+
+#[test]
+fn round_trip_through_a_file_is_exact() {
+    let dir = tempfile::tempdir().unwrap();
+    for channels in [1, 3] {
+        for with_ff in [false, true] {
+            let baked = sample(channels, with_ff);
+            let bytes = baked.to_bytes().unwrap();
+            assert_eq!(bytes, baked.to_bytes().unwrap(), "writing is deterministic");
+
+            let path = dir
+                .path()
+                .join(format!("scene-{channels}-{with_ff}.bounce"));
+            baked.write_atomic(&path).unwrap();
+            assert_eq!(std::fs::read(&path).unwrap(), bytes);
+
+            let back = Baked::read(&path).unwrap();
+            assert_eq!(back.meta, baked.meta);
+            assert_eq!(back.layout, baked.layout);
+            assert_eq!(back.transport, baked.transport);
+            assert_eq!(back.form_factors, baked.form_factors);
+            assert_eq!(back, baked);
+            assert_eq!(back.to_bytes().unwrap(), bytes, "re-encoding is bit-exact");
+            assert_eq!(
+                back.transport.decode().unwrap(),
+                dense(5, channels, 1.0),
+                "the payload still decodes to the matrix"
+            );
+        }
+    }
+}
+
+#[test]
+fn round_trip_keeps_float_bits() {
+    let mut baked = sample(1, false);
+    let centroid = [-0.0, f32::MIN_POSITIVE / 8.0, f32::MAX];
+    let albedo = [f32::MIN, 1.0e-45, 0.1];
+    baked.layout.patches[1].centroid = centroid;
+    baked.layout.patches[1].albedo = albedo;
+    let back = Baked::from_bytes(&baked.to_bytes().unwrap()).unwrap();
+    let bits = |v: [f32; 3]| v.map(f32::to_bits);
+    assert_eq!(bits(back.layout.patches[1].centroid), bits(centroid));
+    assert_eq!(bits(back.layout.patches[1].albedo), bits(albedo));
+}
+
+/// `BakeMeta` holds f64 timings; the format promises they come back bit for bit.
+#[test]
+fn meta_floats_round_trip_exactly() {
+    let mut baked = sample(1, false);
+    baked.meta.timings[0].seconds = 26.341909587323226;
+    baked.meta.stats.row_sum_mean = 6.033644e-37;
+    let back = Baked::from_bytes(&baked.to_bytes().unwrap()).unwrap();
+    assert_eq!(
+        back.meta.timings[0].seconds.to_bits(),
+        baked.meta.timings[0].seconds.to_bits(),
+        "serde_json parsed an f64 inexactly: bounce-core needs serde_json's `float_roundtrip` feature"
+    );
+    assert_eq!(back, baked);
+}
+
+#[test]
+fn layout_on_disk_matches_the_documentation() {
+    let baked = sample(3, true);
+    let b = baked.to_bytes().unwrap();
+    assert_eq!(&b[..8], b"BOUNCE\0B");
+    assert_eq!(get_u32(&b, 8), 1);
+    assert_eq!(get_u32(&b, 12), 4);
+    assert_eq!(get_u64(&b, 16), b.len() as u64);
+    let kinds: Vec<&[u8]> = (0..4).map(|i| &b[entry_at(i)..entry_at(i) + 4]).collect();
+    assert_eq!(kinds, [b"META", b"LAYT", b"MTRX", b"FFAC"]);
+    for i in 0..4 {
+        assert_eq!(
+            get_u64(&b, entry_at(i) + 8) % 64,
+            0,
+            "section {i} is 64-byte aligned"
+        );
+    }
+
+    let (meta_at, meta_len) = section_of(&b, b"META");
+    let meta: BakeMeta = serde_json::from_slice(&b[meta_at..meta_at + meta_len]).unwrap();
+    assert_eq!(meta, baked.meta);
+
+    let (layt_at, layt_len) = section_of(&b, b"LAYT");
+    assert_eq!(layt_len as u64, 32 + 5 * PATCH_RECORD_LEN);
+    assert_eq!(get_u32(&b, layt_at + 28), 5, "patch count");
+    let second = layt_at + 32 + PATCH_RECORD_LEN as usize;
+    assert_eq!(get_u32(&b, second), 1, "patch 1 voxel x");
+    assert_eq!(b[second + 12], Face::NegX.code(), "patch 1 face code");
+
+    // The payload sits 64-byte aligned in the file, byte for byte: usable in place from a map.
+    let (mtrx_at, mtrx_len) = section_of(&b, b"MTRX");
+    assert_eq!(&b[mtrx_at..mtrx_at + 9], b"dense-f32");
+    let payload = &baked.transport.payload;
+    let payload_at = mtrx_at + mtrx_len - payload.len();
+    assert_eq!(payload_at % 64, 0);
+    assert_eq!(&b[payload_at..mtrx_at + mtrx_len], payload.as_slice());
+    assert_eq!(get_u64(&b, mtrx_at + 48), payload.len() as u64);
+}
+
+#[test]
+fn summary_lists_sections_and_flags_a_damaged_one() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("s.bounce");
+    sample(3, true).write_atomic(&path).unwrap();
+    let s = read_summary(&path).unwrap();
+    assert_eq!(s.header.format_version, FORMAT_VERSION);
+    assert_eq!(s.header.file_len, std::fs::metadata(&path).unwrap().len());
+    let kinds: Vec<String> = s
+        .sections
+        .iter()
+        .map(|s| s.entry.kind.to_string())
+        .collect();
+    assert_eq!(kinds, ["META", "LAYT", "MTRX", "FFAC"]);
+    assert!(s.sections.iter().all(|s| s.crc_ok));
+
+    let mut b = std::fs::read(&path).unwrap();
+    let (mtrx_at, mtrx_len) = section_of(&b, b"MTRX");
+    b[mtrx_at + mtrx_len - 1] ^= 0x40;
+    let s = FileSummary::from_bytes(&b).unwrap();
+    let ok: Vec<bool> = s.sections.iter().map(|s| s.crc_ok).collect();
+    assert_eq!(ok, [true, true, false, true]);
+    let err = refuse(&b);
+    assert!(
+        matches!(err, FormatError::SectionChecksum { kind } if kind == SectionKind::MTRX),
+        "{err:?}"
+    );
+    assert_eq!(err.to_string(), "checksum mismatch in section 'MTRX'");
+}
+
+// ---------------------------------------------------------------------------------------------
+// Truncation, corruption, garbage.
+
+#[test]
+fn every_truncation_is_refused() {
+    let b = sample_bytes();
+    for len in 0..b.len() {
+        let err = refuse(&b[..len]);
+        if len >= HEADER_LEN as usize {
+            assert!(
+                matches!(err, FormatError::ShortFile { declared, actual }
+                    if declared == b.len() as u64 && actual == len as u64),
+                "{len}: {err:?}"
+            );
+        }
+    }
+    assert!(matches!(refuse(&b[..0]), FormatError::Truncated { .. }));
+    assert_eq!(
+        refuse(&b[..b.len() - 1]).to_string(),
+        format!(
+            "file truncated: its header says it has {} bytes but it has {}",
+            b.len(),
+            b.len() - 1
+        )
+    );
+}
+
+#[test]
+fn truncated_and_empty_files_on_disk_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let b = sample_bytes();
+    for len in [0, 7, 31, 100, b.len() - 1] {
+        let path = dir.path().join(format!("t{len}.bounce"));
+        std::fs::write(&path, &b[..len]).unwrap();
+        assert!(Baked::read(&path).is_err(), "length {len}");
+        assert!(read_summary(&path).is_err(), "length {len}");
+    }
+}
+
+#[test]
+fn trailing_bytes_are_refused() {
+    let mut b = sample_bytes();
+    b.push(0);
+    assert!(matches!(refuse(&b), FormatError::LongFile { .. }));
+}
+
+#[test]
+fn a_flipped_byte_between_sections_is_refused() {
+    let mut b = sample_bytes();
+    let (meta_at, meta_len) = section_of(&b, b"META");
+    let gap = meta_at + meta_len;
+    assert_ne!(gap % 64, 0, "the sample has padding after META");
+    b[gap] = 1;
+    assert!(
+        matches!(refuse(&b), FormatError::StrayByte { offset } if offset == gap as u64),
+        "padding is checked though no checksum covers it"
+    );
+}
+
+#[test]
+fn a_flipped_byte_in_the_table_fails_the_header_checksum() {
+    let mut b = sample_bytes();
+    b[entry_at(1) + 28] ^= 1; // reserved field of LAYT's entry
+    assert!(matches!(refuse(&b), FormatError::HeaderChecksum));
+    reseal(&mut b);
+    assert!(matches!(refuse(&b), FormatError::Reserved { .. }));
+}
+
+/// `PROPTEST_CASES` raises (or lowers) every property's case count for a deeper run.
+fn cases(default: u32) -> ProptestConfig {
+    let cases = std::env::var("PROPTEST_CASES")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(default);
+    ProptestConfig {
+        cases,
+        ..ProptestConfig::default()
+    }
+}
+
+proptest! {
+    #![proptest_config(cases(512))]
+
+    #[test]
+    fn any_flipped_bytes_are_refused(
+        flips in prop::collection::vec((any::<prop::sample::Index>(), 1u8..=255), 1..4)
+    ) {
+        let mut b = sample_bytes();
+        let mut positions = Vec::new();
+        for (at, mask) in flips {
+            let at = at.index(b.len());
+            b[at] ^= mask;
+            positions.push(at);
+        }
+        positions.sort_unstable();
+        positions.dedup();
+        if b != sample_bytes() {
+            let (result, _, _) = parse_tracked(&b);
+            prop_assert!(result.is_err(), "flips at {positions:?} went unnoticed");
+        }
+    }
+
+    #[test]
+    fn garbage_is_refused(mut b in prop::collection::vec(any::<u8>(), 0..2048), magic: bool) {
+        if magic && b.len() >= 8 {
+            b[..8].copy_from_slice(&MAGIC);
+        }
+        let err = refuse(&b);
+        prop_assert!(!err.to_string().is_empty());
+    }
+
+    /// Garbage that passes every checksum reaches the section decoders: they must not panic or
+    /// over-allocate either (the decision itself may go either way).
+    #[test]
+    fn resealed_corruption_never_panics(
+        edits in prop::collection::vec((any::<prop::sample::Index>(), any::<u8>()), 1..8),
+        table_edit in proptest::option::of((0usize..4, 0usize..4, any::<u64>())),
+    ) {
+        let mut b = sample_bytes();
+        let body = HEADER_LEN as usize + 4 * ENTRY_LEN as usize;
+        for (at, v) in edits {
+            let at = body + at.index(b.len() - body);
+            b[at] = v;
+        }
+        if let Some((entry, field, v)) = table_edit {
+            // flags, offset or length of one entry
+            let e = entry_at(entry);
+            match field {
+                0 => put_u32(&mut b, e + 4, v as u32),
+                1 => put_u64(&mut b, e + 8, v),
+                2 => put_u64(&mut b, e + 16, v),
+                _ => put_u64(&mut b, e + 16, v % 4096),
+            }
+        }
+        reseal(&mut b);
+        let (result, largest, _) = parse_tracked(&b);
+        // JSON trees may take a small multiple of their text; nothing may take more.
+        prop_assert!(largest <= 64 * b.len() + 65536, "allocated {largest} for {} bytes", b.len());
+        if let Ok(baked) = result {
+            prop_assert!(baked.to_bytes().is_ok(), "an accepted file re-encodes");
+        }
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Hand-made hostile files: each refused by the check aimed at, fast and without a big allocation.
+
+#[test]
+fn bad_magic() {
+    let mut b = sample_bytes();
+    b[0] = b'b';
+    assert!(matches!(refuse(&b), FormatError::BadMagic));
+    assert_eq!(
+        refuse(&b).to_string(),
+        "not a bounce baked file (bad magic)"
+    );
+    assert!(matches!(refuse(b"{\"lights\": []}"), FormatError::BadMagic));
+    assert!(matches!(refuse(b"PK\x03\x04"), FormatError::BadMagic));
+}
+
+#[test]
+fn future_version() {
+    let mut b = sample_bytes();
+    put_u32(&mut b, 8, 7);
+    reseal(&mut b);
+    let err = refuse(&b);
+    assert!(
+        matches!(
+            err,
+            FormatError::UnsupportedVersion {
+                found: 7,
+                supported: 1
+            }
+        ),
+        "{err:?}"
+    );
+    assert_eq!(
+        err.to_string(),
+        "unsupported format version 7 (this build reads 1)"
+    );
+}
+
+#[test]
+fn section_count_u32_max() {
+    let mut b = sample_bytes();
+    put_u32(&mut b, 12, u32::MAX);
+    reseal(&mut b);
+    let err = refuse(&b);
+    assert!(
+        matches!(
+            err,
+            FormatError::TooManySections {
+                count: u32::MAX,
+                ..
+            }
+        ),
+        "{err:?}"
+    );
+}
+
+#[test]
+fn section_offset_plus_len_overflows() {
+    let mut b = sample_bytes();
+    let e = entry_at(entry_of(&b, b"MTRX"));
+    let offset = get_u64(&b, e + 8);
+    put_u64(&mut b, e + 16, u64::MAX - offset + 1);
+    reseal(&mut b);
+    let err = refuse(&b);
+    assert!(
+        matches!(err, FormatError::SectionOverflow { kind, .. } if kind == SectionKind::MTRX),
+        "{err:?}"
+    );
+}
+
+#[test]
+fn section_past_the_end_of_the_file() {
+    let mut b = sample_bytes();
+    let e = entry_at(entry_of(&b, b"MTRX"));
+    let offset = get_u64(&b, e + 8);
+    put_u64(&mut b, e + 16, 1 << 40);
+    reseal(&mut b);
+    let err = refuse(&b);
+    assert_eq!(
+        err.to_string(),
+        format!(
+            "file truncated: section 'MTRX' ends at byte {} but the file has {} bytes",
+            offset + (1 << 40),
+            b.len()
+        )
+    );
+}
+
+#[test]
+fn overlapping_sections() {
+    let mut b = sample_bytes();
+    let (layt_at, _) = section_of(&b, b"LAYT");
+    let e = entry_at(entry_of(&b, b"META"));
+    let meta_at = get_u64(&b, e + 8);
+    put_u64(&mut b, e + 16, layt_at as u64 - meta_at + 1);
+    reseal(&mut b);
+    let err = refuse(&b);
+    assert!(
+        matches!(err, FormatError::Overlap { first, second }
+            if first == SectionKind::META && second == SectionKind::LAYT),
+        "{err:?}"
+    );
+}
+
+#[test]
+fn section_inside_the_header_and_misaligned_section() {
+    let mut b = sample_bytes();
+    let e = entry_at(entry_of(&b, b"META"));
+    put_u64(&mut b, e + 8, 0);
+    reseal(&mut b);
+    assert!(matches!(refuse(&b), FormatError::SectionInHeader { .. }));
+
+    let mut b = sample_bytes();
+    let e = entry_at(entry_of(&b, b"FFAC"));
+    let (offset, len) = (get_u64(&b, e + 8), get_u64(&b, e + 16));
+    put_u64(&mut b, e + 8, offset + 4);
+    put_u64(&mut b, e + 16, len - 4);
+    reseal(&mut b);
+    assert!(matches!(refuse(&b), FormatError::Misaligned { .. }));
+}
+
+#[test]
+fn duplicate_and_missing_sections() {
+    let sections = sample_sections();
+    let (k, v) = &sections[0];
+    let b = raw_file(&[(k, 0, v), (k, 0, v)]);
+    assert!(
+        matches!(refuse(&b), FormatError::DuplicateSection { kind } if kind == SectionKind::META)
+    );
+
+    let refs: Vec<(&[u8; 4], u32, &[u8])> = sections[..2]
+        .iter()
+        .map(|(k, v)| (k, 0, v.as_slice()))
+        .collect();
+    let err = refuse(&raw_file(&refs));
+    assert!(matches!(err, FormatError::MissingSection { kind } if kind == SectionKind::MTRX));
+    assert_eq!(err.to_string(), "required section 'MTRX' is missing");
+}
+
+#[test]
+fn unknown_sections_are_skipped_only_when_optional() {
+    let sections = sample_sections();
+    let extra = b"written by bounce 2".to_vec();
+    for (flags, accept) in [(1, true), (0, false), (2, false)] {
+        let mut refs: Vec<(&[u8; 4], u32, &[u8])> =
+            sections.iter().map(|(k, v)| (k, 0, v.as_slice())).collect();
+        refs.insert(2, (b"XTRA", flags, &extra));
+        let b = raw_file(&refs);
+        match Baked::from_bytes(&b) {
+            Ok(baked) => {
+                assert!(accept, "flags {flags}");
+                assert_eq!(baked, sample(3, true));
+            }
+            Err(e) => {
+                assert!(!accept, "flags {flags}: {e}");
+                assert!(matches!(e, FormatError::UnknownSection { .. }), "{e:?}");
+            }
+        }
+    }
+
+    // A known section with a flag this version does not define is refused.
+    let refs: Vec<(&[u8; 4], u32, &[u8])> = sections
+        .iter()
+        .map(|(k, v)| (k, if k == b"LAYT" { 4 } else { 0 }, v.as_slice()))
+        .collect();
+    assert!(matches!(
+        refuse(&raw_file(&refs)),
+        FormatError::UnknownFlags { flags: 4, .. }
+    ));
+}
+
+#[test]
+fn layout_claiming_2_pow_31_patches_in_100_bytes() {
+    let (_, layt) = sample_sections().swap_remove(1);
+    let mut section = layt[..100].to_vec();
+    put_u32(&mut section, 28, 1 << 31);
+    let err = refuse(&file_with(b"LAYT", section));
+    assert!(
+        matches!(err, FormatError::PatchCount { count, have: 68, .. } if count == 1 << 31),
+        "{err:?}"
+    );
+}
+
+#[test]
+fn layout_shorter_than_its_header() {
+    let err = refuse(&file_with(b"LAYT", vec![0; 20]));
+    assert!(
+        matches!(err, FormatError::SectionTooShort { kind, .. } if kind == SectionKind::LAYT),
+        "{err:?}"
+    );
+}
+
+/// The sample's LAYT with one byte of patch `patch`'s record (at `field`) rewritten.
+fn layout_with(patch: usize, field: usize, bytes: &[u8]) -> Vec<u8> {
+    let (_, mut layt) = sample_sections().swap_remove(1);
+    let at = 32 + patch * PATCH_RECORD_LEN as usize + field;
+    layt[at..at + bytes.len()].copy_from_slice(bytes);
+    file_with(b"LAYT", layt)
+}
+
+#[test]
+fn bad_face_code() {
+    let err = refuse(&layout_with(3, 12, &[9]));
+    assert!(
+        matches!(err, FormatError::BadFace { patch: 3, code: 9 }),
+        "{err:?}"
+    );
+    assert_eq!(err.to_string(), "patch 3 has face code 9");
+    assert!(matches!(
+        refuse(&layout_with(3, 13, &[1])),
+        FormatError::NonZeroPadding { .. }
+    ));
+}
+
+#[test]
+fn voxel_outside_the_grid() {
+    let err = refuse(&layout_with(2, 8, &3u32.to_le_bytes())); // z = 3 in a grid 2 deep
+    assert!(
+        matches!(err, FormatError::VoxelOutsideGrid { patch: 2, .. }),
+        "{err:?}"
+    );
+}
+
+#[test]
+fn non_finite_floats_and_bad_voxel_size() {
+    let err = refuse(&layout_with(4, 20, &f32::NAN.to_le_bytes())); // albedo g
+    assert!(
+        matches!(&err, FormatError::NotFinite { what } if what == "patch 4 albedo"),
+        "{err:?}"
+    );
+    let err = refuse(&layout_with(0, 52, &f32::INFINITY.to_le_bytes())); // source area
+    assert!(matches!(err, FormatError::NotFinite { .. }), "{err:?}");
+
+    let (_, mut layt) = sample_sections().swap_remove(1);
+    layt[12..16].copy_from_slice(&(-0.25f32).to_le_bytes());
+    assert!(matches!(
+        refuse(&file_with(b"LAYT", layt)),
+        FormatError::BadVoxelSize(_)
+    ));
+}
+
+fn sample_mtrx() -> Vec<u8> {
+    sample_sections().swap_remove(2).1
+}
+
+#[test]
+fn matrix_params_length_huge() {
+    let mut m = sample_mtrx();
+    put_u32(&mut m, 44, u32::MAX);
+    let err = refuse(&file_with(b"MTRX", m));
+    assert!(
+        matches!(err, FormatError::SectionTooShort { kind, what: "matrix params", .. }
+            if kind == SectionKind::MTRX),
+        "{err:?}"
+    );
+}
+
+#[test]
+fn matrix_payload_length_huge_or_short() {
+    let mut m = sample_mtrx();
+    put_u64(&mut m, 48, u64::MAX);
+    let err = refuse(&file_with(b"MTRX", m));
+    assert!(
+        matches!(
+            err,
+            FormatError::SectionTooShort {
+                what: "matrix payload",
+                ..
+            }
+        ),
+        "{err:?}"
+    );
+
+    let mut m = sample_mtrx();
+    let len = get_u64(&m, 48);
+    put_u64(&mut m, 48, len - 4);
+    assert!(matches!(
+        refuse(&file_with(b"MTRX", m)),
+        FormatError::SectionTooLong { .. }
+    ));
+}
+
+#[test]
+fn matrix_not_matching_the_layout() {
+    let mut m = sample_mtrx();
+    put_u32(&mut m, 32, 6); // rows
+    let err = refuse(&file_with(b"MTRX", m));
+    assert!(
+        matches!(
+            err,
+            FormatError::MatrixShape {
+                rows: 6,
+                patches: 5,
+                ..
+            }
+        ),
+        "{err:?}"
+    );
+
+    let mut m = sample_sections().swap_remove(3).1;
+    put_u32(&mut m, 40, 2); // channels
+    let err = refuse(&file_with(b"FFAC", m));
+    assert!(
+        matches!(err, FormatError::MatrixShape { kind, channels: 2, .. } if kind == SectionKind::FFAC),
+        "{err:?}"
+    );
+}
+
+#[test]
+fn matrix_codec_name_and_params_are_checked() {
+    for name in [&b"dense\x01f32"[..], b"", b"dense f32"] {
+        let mut m = sample_mtrx();
+        m[..32].fill(0);
+        m[..name.len()].copy_from_slice(name);
+        let err = refuse(&file_with(b"MTRX", m));
+        assert!(
+            matches!(err, FormatError::BadCodecName { .. }),
+            "{name:?}: {err:?}"
+        );
+    }
+    let mut m = sample_mtrx();
+    m[20] = b'x'; // after the name's terminating zero
+    assert!(matches!(
+        refuse(&file_with(b"MTRX", m)),
+        FormatError::BadCodecName { .. }
+    ));
+
+    let mut m = sample_mtrx();
+    m[56] = b'['; // params "{}" becomes "[}"
+    assert!(matches!(
+        refuse(&file_with(b"MTRX", m)),
+        FormatError::Json { .. }
+    ));
+}
+
+#[test]
+fn meta_that_is_not_bake_metadata() {
+    let err = refuse(&file_with(b"META", b"{\"tool_version\": 3}".to_vec()));
+    assert!(
+        matches!(err, FormatError::Json { kind, .. } if kind == SectionKind::META),
+        "{err:?}"
+    );
+}
+
+// ---------------------------------------------------------------------------------------------
+// The writer refuses what the reader would refuse.
+
+#[test]
+fn writer_refuses_invalid_values() {
+    let check = |b: Baked, ok: fn(&FormatError) -> bool| {
+        let err = b.to_bytes().expect_err("invalid value was written");
+        assert!(ok(&err), "{err:?}");
+    };
+    let mut b = sample(3, false);
+    b.layout.patches[2].normal[1] = f32::NAN;
+    check(b, |e| matches!(e, FormatError::NotFinite { .. }));
+
+    let mut b = sample(3, false);
+    b.layout.patches[0].voxel = [4, 0, 0];
+    check(b, |e| {
+        matches!(e, FormatError::VoxelOutsideGrid { patch: 0, .. })
+    });
+
+    let mut b = sample(3, false);
+    b.layout.voxel_size = 0.0;
+    check(b, |e| matches!(e, FormatError::BadVoxelSize(_)));
+
+    let mut b = sample(3, false);
+    b.layout.patches.pop();
+    check(b, |e| matches!(e, FormatError::MatrixShape { .. }));
+
+    let mut b = sample(3, true);
+    b.form_factors.as_mut().unwrap().channels = 4;
+    check(b, |e| matches!(e, FormatError::MatrixShape { .. }));
+
+    for name in [
+        "x".repeat(33),
+        String::new(),
+        "dense f32".into(),
+        "bc1\0".into(),
+    ] {
+        let mut b = sample(3, false);
+        b.transport.codec = name;
+        check(b, |e| matches!(e, FormatError::BadCodecName { .. }));
+    }
+
+    let mut b = sample(3, false);
+    b.meta.stats.row_sum_max = f32::INFINITY;
+    check(b, |e| matches!(e, FormatError::Json { .. }));
+}
+
+// ---------------------------------------------------------------------------------------------
+// Atomic writes.
+
+fn names(dir: &Path) -> Vec<String> {
+    let mut v: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    v.sort();
+    v
+}
+
+#[test]
+fn write_atomic_replaces_and_leaves_no_temp_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("scene.bounce");
+    sample(1, false).write_atomic(&path).unwrap();
+    sample(3, true).write_atomic(&path).unwrap();
+    assert_eq!(names(dir.path()), ["scene.bounce"]);
+    assert_eq!(Baked::read(&path).unwrap(), sample(3, true));
+}
+
+#[cfg(unix)]
+#[test]
+fn write_atomic_gives_the_permissions_of_a_created_file() {
+    use std::os::unix::fs::PermissionsExt;
+    let dir = tempfile::tempdir().unwrap();
+    let reference = dir.path().join("reference");
+    std::fs::File::create(&reference).unwrap();
+    let path = dir.path().join("scene.bounce");
+    sample(1, false).write_atomic(&path).unwrap();
+    let mode = |p: &Path| std::fs::metadata(p).unwrap().permissions().mode();
+    assert_eq!(mode(&path), mode(&reference));
+}
+
+#[test]
+fn write_atomic_failure_keeps_the_old_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("scene.bounce");
+    sample(3, true).write_atomic(&path).unwrap();
+    let good = std::fs::read(&path).unwrap();
+
+    let mut bad = sample(3, true);
+    bad.layout.patches[0].albedo[0] = f32::NAN;
+    assert!(bad.write_atomic(&path).is_err());
+    assert_eq!(std::fs::read(&path).unwrap(), good);
+    assert_eq!(names(dir.path()), ["scene.bounce"]);
+}
+
+#[test]
+fn write_atomic_onto_a_directory_fails_cleanly() {
+    let dir = tempfile::tempdir().unwrap();
+    let target = dir.path().join("scene.bounce");
+    std::fs::create_dir(&target).unwrap();
+    std::fs::write(target.join("keep"), b"kept").unwrap();
+    let err = sample(1, false).write_atomic(&target).unwrap_err();
+    assert!(matches!(err, FormatError::Io { .. }), "{err:?}");
+    assert!(
+        err.to_string().contains(&*target.to_string_lossy()),
+        "{err}"
+    );
+    assert_eq!(
+        names(dir.path()),
+        ["scene.bounce"],
+        "no temporary file left"
+    );
+    assert_eq!(std::fs::read(target.join("keep")).unwrap(), b"kept");
+}
+
+#[test]
+fn write_atomic_into_a_missing_directory_names_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let missing = dir.path().join("nope");
+    let err = sample(1, false)
+        .write_atomic(&missing.join("scene.bounce"))
+        .unwrap_err();
+    assert!(
+        err.to_string().contains(&*missing.to_string_lossy()),
+        "{err}"
+    );
+}
+
+#[cfg(unix)]
+#[test]
+fn write_atomic_into_a_read_only_directory_keeps_the_old_file() {
+    use std::os::unix::fs::PermissionsExt;
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("scene.bounce");
+    sample(3, true).write_atomic(&path).unwrap();
+    let good = std::fs::read(&path).unwrap();
+    std::fs::set_permissions(dir.path(), std::fs::Permissions::from_mode(0o555)).unwrap();
+    let restore = || std::fs::set_permissions(dir.path(), std::fs::Permissions::from_mode(0o755));
+
+    // Root (as in many containers) ignores directory permissions; nothing to test then.
+    let probe = dir.path().join("probe");
+    if std::fs::write(&probe, b"").is_ok() {
+        std::fs::remove_file(&probe).unwrap();
+        restore().unwrap();
+        eprintln!("skipped: directory permissions are not enforced for this user");
+        return;
+    }
+    let result = sample(1, false).write_atomic(&path);
+    restore().unwrap();
+    let err = result.unwrap_err();
+    assert!(matches!(err, FormatError::Io { .. }), "{err:?}");
+    assert_eq!(std::fs::read(&path).unwrap(), good);
+    assert_eq!(names(dir.path()), ["scene.bounce"]);
+}
+
+#[test]
+fn reading_what_is_not_a_file_names_the_path() {
+    let dir = tempfile::tempdir().unwrap();
+    let missing = dir.path().join("missing.bounce");
+    let err = Baked::read(&missing).unwrap_err();
+    assert!(matches!(err, FormatError::Io { .. }), "{err:?}");
+    assert!(
+        err.to_string().contains(&*missing.to_string_lossy()),
+        "{err}"
+    );
+    let err = Baked::read(dir.path()).unwrap_err();
+    assert!(err.to_string().contains("not a regular file"), "{err}");
+    assert!(read_summary(dir.path()).is_err());
+}
+
+// ---------------------------------------------------------------------------------------------
+// Random values round-trip.
+
+fn finite_f32() -> impl Strategy<Value = f32> {
+    any::<f32>().prop_filter("finite", |x| x.is_finite())
+}
+
+fn f32x3() -> impl Strategy<Value = [f32; 3]> {
+    [finite_f32(), finite_f32(), finite_f32()]
+}
+
+fn arb_layout() -> impl Strategy<Value = PatchLayout> {
+    ([1u32..6, 1u32..6, 1u32..6], f32x3(), 1.0e-6f32..1.0e3).prop_flat_map(
+        |(dims, origin, voxel_size)| {
+            let patch = (
+                [0..dims[0], 0..dims[1], 0..dims[2]],
+                0usize..6,
+                (f32x3(), f32x3(), f32x3(), finite_f32(), f32x3()),
+            )
+                .prop_map(
+                    |(voxel, face, (albedo, centroid, normal, source_area, emission))| Patch {
+                        voxel,
+                        face: Face::ALL[face],
+                        albedo,
+                        centroid,
+                        normal,
+                        source_area,
+                        emission,
+                    },
+                );
+            prop::collection::vec(patch, 0..7).prop_map(move |patches| PatchLayout {
+                origin,
+                voxel_size,
+                dims,
+                patches,
+            })
+        },
+    )
+}
+
+fn arb_params() -> impl Strategy<Value = serde_json::Value> {
+    (
+        any::<i64>(),
+        "[a-z0-9 ]{0,12}",
+        any::<bool>(),
+        prop::collection::vec(any::<u32>(), 0..4),
+        any::<f64>().prop_filter("finite", |x| x.is_finite()),
+    )
+        .prop_map(|(seed, name, sparse, perms, scale)| {
+            serde_json::json!({
+                "seed": seed, "name": name, "sparse": sparse, "perms": perms, "scale": scale
+            })
+        })
+}
+
+fn arb_matrix(n: usize) -> impl Strategy<Value = EncodedMatrix> {
+    (
+        prop::sample::select(vec![
+            "dense-f32",
+            "bc1-sparse",
+            "f16",
+            "abcdefghijklmnopqrstuvwxyz012345",
+        ]),
+        prop::sample::select(vec![1u32, 3]),
+        arb_params(),
+    )
+        .prop_flat_map(move |(codec, channels, params)| {
+            // Codec payloads are opaque here: any bytes, any length the codec might choose.
+            prop::collection::vec(any::<u8>(), 0..(n * n * channels as usize * 4 + 9)).prop_map(
+                move |payload| EncodedMatrix {
+                    codec: codec.to_string(),
+                    rows: n as u32,
+                    cols: n as u32,
+                    channels,
+                    params: params.clone(),
+                    payload,
+                },
+            )
+        })
+}
+
+fn arb_meta() -> impl Strategy<Value = BakeMeta> {
+    (
+        "\\PC{0,16}",
+        any::<u64>(),
+        (finite_f32(), finite_f32(), finite_f32(), finite_f32()),
+        prop::option::of(finite_f32()),
+        any::<u32>(),
+        prop::collection::vec(("[a-z ]{1,10}", 0.0f64..1.0e4), 0..3),
+    )
+        .prop_map(|(source_name, seed, (a, b, c, d), voxel, k, timings)| {
+            let mut meta = sample_meta();
+            meta.source_name = source_name;
+            meta.settings.seed = seed;
+            meta.settings.requested_voxel_size = voxel;
+            meta.settings.bounces = if k == 0 { Bounces::All } else { Bounces::K(k) };
+            meta.stats.row_sum_min = a;
+            meta.stats.row_sum_max = b;
+            meta.stats.reciprocity_error = c;
+            meta.stats.voxel_size = d;
+            meta.timings = timings
+                .into_iter()
+                .map(|(stage, seconds)| StageTiming { stage, seconds })
+                .collect();
+            meta.lights = vec![Light::Spot {
+                position: [a, b, c],
+                direction: [0.0, -1.0, 0.0],
+                color: [1.0, 1.0, 1.0],
+                intensity: d,
+                range: voxel,
+                inner_cone_angle: 0.3,
+                outer_cone_angle: 0.6,
+                name: None,
+            }];
+            meta
+        })
+}
+
+fn arb_baked() -> impl Strategy<Value = Baked> {
+    (arb_layout(), arb_meta()).prop_flat_map(|(layout, meta)| {
+        let n = layout.len();
+        (arb_matrix(n), prop::option::of(arb_matrix(n))).prop_map(
+            move |(transport, form_factors)| Baked {
+                meta: meta.clone(),
+                layout: layout.clone(),
+                transport,
+                form_factors,
+            },
+        )
+    })
+}
+
+proptest! {
+    #![proptest_config(cases(256))]
+
+    #[test]
+    fn random_values_round_trip(baked in arb_baked()) {
+        let bytes = baked.to_bytes().unwrap();
+        let (back, largest, _) = parse_tracked(&bytes);
+        let back = back.unwrap();
+        prop_assert_eq!(&back, &baked);
+        prop_assert_eq!(back.to_bytes().unwrap(), bytes.clone());
+        prop_assert!(largest <= bytes.len(), "allocated {} for a {}-byte file", largest, bytes.len());
+    }
+}
