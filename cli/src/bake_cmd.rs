@@ -6,9 +6,11 @@ use std::time::Instant;
 use anyhow::{Context, Result, bail};
 use bounce_core::bake::{BakeOptions, bake_file};
 use bounce_core::format::Baked;
-use bounce_core::meta::Bounces;
+use bounce_core::meta::{BakeStats, Bounces, StageTiming};
+use bounce_core::rays::Tracer;
 use bounce_core::voxel::Resolution;
 use clap::Args;
+use serde::{Deserialize, Serialize};
 
 use crate::memory::peak_rss_bytes;
 use crate::progress::TermProgress;
@@ -40,12 +42,19 @@ pub struct BakeArgs {
     /// Seed of the ray sequences; the same seed gives the same file on any thread count.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Ray tracer for the form factors: `grid` walks the voxel grid (exact for voxel patches),
+    /// `bvh` uses an obvhs BVH over the patch quads. `bounce bench rays` compares them.
+    #[arg(long, default_value = "grid")]
+    pub tracer: Tracer,
     /// Also store the single-bounce form-factor matrix (doubles the file for k > 1).
     #[arg(long)]
     pub keep_form_factors: bool,
     /// No progress bars or stage lines; the summary is still printed.
     #[arg(short, long)]
     pub quiet: bool,
+    /// Also write the bake's statistics, stage timings and peak memory as JSON here.
+    #[arg(long, value_name = "REPORT.json")]
+    pub report_json: Option<PathBuf>,
 }
 
 impl BakeArgs {
@@ -62,13 +71,37 @@ impl BakeArgs {
             seed: self.seed,
             bounces: self.bounces,
             keep_form_factors: self.keep_form_factors,
+            tracer: self.tracer,
         })
     }
 }
 
 pub fn run(args: &BakeArgs) -> Result<()> {
-    bake(&args.scene, &args.out, &args.options()?, args.quiet)?;
+    let start = Instant::now();
+    let baked = bake(&args.scene, &args.out, &args.options()?, args.quiet)?;
+    if let Some(path) = &args.report_json {
+        let report = BakeReport {
+            wall_seconds: start.elapsed().as_secs_f64(),
+            peak_rss_bytes: peak_rss_bytes(),
+            file_bytes: std::fs::metadata(&args.out).map(|m| m.len()).unwrap_or(0),
+            stats: baked.meta.stats.clone(),
+            timings: baked.meta.timings.clone(),
+        };
+        std::fs::write(path, serde_json::to_vec_pretty(&report)?)
+            .with_context(|| format!("writing {}", path.display()))?;
+    }
     Ok(())
+}
+
+/// What `--report-json` writes, and `bounce bench bake` reads back.
+#[derive(Debug, Serialize, Deserialize)]
+pub struct BakeReport {
+    /// Bake and write, as the process saw it.
+    pub wall_seconds: f64,
+    pub peak_rss_bytes: Option<u64>,
+    pub file_bytes: u64,
+    pub stats: BakeStats,
+    pub timings: Vec<StageTiming>,
 }
 
 /// Bake `scene` into `out` and print the summary.
@@ -82,6 +115,11 @@ pub fn bake(scene: &Path, out: &Path, options: &BakeOptions, quiet: bool) -> Res
         .write_atomic(out)
         .with_context(|| format!("writing {}", out.display()))?;
     let write_s = write_start.elapsed().as_secs_f64();
+    let mut baked = baked;
+    baked.meta.timings.push(StageTiming {
+        stage: "write".to_string(),
+        seconds: write_s,
+    });
     if !quiet {
         eprintln!("{:>14}  {write_s:8.2} s", "write");
     }
@@ -104,9 +142,16 @@ fn print_summary(baked: &Baked, out: &Path, file_bytes: u64, total_s: f64) {
         s.occupied_voxels,
         s.dropped_patches
     );
+    let share = |k: u64| 100.0 * k as f64 / s.rays.total().max(1) as f64;
     println!(
-        "  rays          {} per patch, {} in all",
-        m.settings.rays_per_patch, s.rays_total
+        "  rays          {} per patch, {} in all: {:.1}% reach a patch, {:.1}% escape, \
+         {:.1}% stop on occluders, {:.1}% on back faces",
+        m.settings.rays_per_patch,
+        s.rays_total,
+        share(s.rays.patch),
+        share(s.rays.escaped),
+        share(s.rays.occluder),
+        share(s.rays.back_face)
     );
     println!(
         "  transport     {} bounce(s), {} channel(s), codec {}, {}",

@@ -4,6 +4,7 @@
 //! `bounce-core`. Errors reach the user through `anyhow` with the library's message on top.
 
 mod bake_cmd;
+mod bench;
 mod demo;
 mod inspect;
 mod memory;
@@ -35,9 +36,22 @@ enum Command {
     Inspect(inspect::InspectArgs),
     /// Bake the embedded Cornell box demo scene and inspect the result.
     Demo(demo::DemoArgs),
+    /// Benchmarks: tables (and CSV) comparing variants measured in one run.
+    Bench(bench::BenchArgs),
+}
+
+/// Rust ignores SIGPIPE, so `bounce inspect x | head` would panic on the closed pipe; a command
+/// line tool should instead end quietly, as `cat` does.
+fn restore_sigpipe() {
+    #[cfg(unix)]
+    // SAFETY: called first thing in main, before any thread exists; SIG_DFL is a valid handler.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
 }
 
 fn main() -> ExitCode {
+    restore_sigpipe();
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_env("BOUNCE_LOG")
@@ -50,6 +64,7 @@ fn main() -> ExitCode {
         Command::Bake(args) => bake_cmd::run(&args),
         Command::Inspect(args) => inspect::run(&args),
         Command::Demo(args) => demo::run(&args),
+        Command::Bench(args) => bench::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -13,6 +13,7 @@ use crate::formfactor::{self, FormFactorError, RayScene};
 use crate::import::{self, ImportError};
 use crate::matrix::EncodedMatrix;
 use crate::meta::{BakeMeta, BakeSettings, BakeStats, Bounces, StageTiming};
+use crate::rays::Tracer;
 use crate::scene::Scene;
 use crate::transport::{self, TransportError};
 use crate::voxel::{self, Resolution, VoxelError};
@@ -30,6 +31,7 @@ pub struct BakeOptions {
     pub bounces: Bounces,
     /// Also store the single-bounce form factors (for baselines and re-deriving `T` later).
     pub keep_form_factors: bool,
+    pub tracer: Tracer,
 }
 
 impl Default for BakeOptions {
@@ -40,6 +42,7 @@ impl Default for BakeOptions {
             seed: 1,
             bounces: Bounces::K(3),
             keep_form_factors: false,
+            tracer: Tracer::Grid,
         }
     }
 }
@@ -60,7 +63,7 @@ impl Stage {
         match self {
             Stage::Import => "import",
             Stage::Voxelize => "voxelize",
-            Stage::Bvh => "bvh",
+            Stage::Bvh => "ray scene",
             Stage::FormFactors => "form factors",
             Stage::Transport => "transport",
             Stage::Encode => "encode",
@@ -157,6 +160,24 @@ pub fn bake_scene(
     bake_with(scene, source_name, 0, options, timer)
 }
 
+/// Voxelise `scene` into the patches a bake uses. Patches that see no other patch get no
+/// indirect light and give none, so they are dropped while the voxel size is searched and
+/// `--patches` counts patches that matter.
+pub fn simplify(scene: &Scene, options: &BakeOptions) -> Result<voxel::Voxelization, BakeError> {
+    let drop_isolated = |mut v: voxel::Voxelization| {
+        let probe = RayScene::voxels(&v.layout, &v.occupied, &v.occluders, options.tracer);
+        let isolated = formfactor::isolated_patches(&probe, PROBE_RAYS, options.seed);
+        v.drop_patches(&isolated);
+        v
+    };
+    voxel::voxelize_refined(scene, options.resolution, &drop_isolated).map_err(|e| match e {
+        VoxelError::AllDropped { candidates } => BakeError::NoInterreflection {
+            patches: candidates,
+        },
+        e => BakeError::Voxel(e),
+    })
+}
+
 fn bake_with(
     scene: &Scene,
     source_name: &str,
@@ -167,30 +188,14 @@ fn bake_with(
     let progress = timer.progress;
     let advance = |n: u64| progress.advance(n);
 
-    // Patches that see no other patch get no indirect light and give none: drop them while
-    // searching the voxel size, so that --patches counts patches that matter.
-    let drop_isolated = |mut v: voxel::Voxelization| {
-        let probe = RayScene::new(&v.layout.quads(), &v.occluders);
-        let isolated = formfactor::isolated_patches(&probe, PROBE_RAYS, options.seed);
-        v.drop_patches(&isolated);
-        v
-    };
-    let vox = timer
-        .run(Stage::Voxelize, 0, || {
-            voxel::voxelize_refined(scene, options.resolution, &drop_isolated)
-        })
-        .map_err(|e| match e {
-            VoxelError::AllDropped { candidates } => BakeError::NoInterreflection {
-                patches: candidates,
-            },
-            e => BakeError::Voxel(e),
-        })?;
+    let vox = timer.run(Stage::Voxelize, 0, || simplify(scene, options))?;
     let layout = vox.layout;
     let n = layout.len();
     let rays = timer.run(Stage::Bvh, 0, || {
-        RayScene::new(&layout.quads(), &vox.occluders)
+        RayScene::voxels(&layout, &vox.occupied, &vox.occluders, options.tracer)
     });
-    let f = timer.run(Stage::FormFactors, n as u64, || {
+    let tracer = rays.tracer();
+    let (f, tally) = timer.run(Stage::FormFactors, n as u64, || {
         formfactor::form_factors(&rays, options.rays, options.seed, &advance)
     })?;
     drop(rays);
@@ -228,6 +233,7 @@ fn bake_with(
             rays_per_patch: options.rays,
             seed: options.seed,
             bounces: options.bounces,
+            tracer,
         },
         stats: BakeStats {
             patches: n,
@@ -235,6 +241,7 @@ fn bake_with(
             occupied_voxels: vox.occupied_voxels,
             dropped_patches: vox.dropped_patches,
             rays_total: n as u64 * options.rays as u64,
+            rays: tally,
             row_sum_min: ff.row_sum_min,
             row_sum_max: ff.row_sum_max,
             row_sum_mean: ff.row_sum_mean,

@@ -10,16 +10,13 @@
 
 use std::ops::Range;
 
-use glam::{Vec3, Vec3A};
-use obvhs::aabb::Aabb;
-use obvhs::bvh2::Bvh2;
-use obvhs::ray::{Ray, RayHit};
-use obvhs::{Boundable, BvhBuildParams};
+use glam::Vec3;
 use rayon::prelude::*;
 use thiserror::Error;
 
 use crate::matrix::DenseMatrix;
 use crate::patch::Quad;
+pub use crate::rays::{RayFate, RayScene, RayTally, Tracer};
 
 #[derive(Debug, Error)]
 pub enum FormFactorError {
@@ -27,76 +24,6 @@ pub enum FormFactorError {
     NoRays,
     #[error("row range {start}..{end} is outside 0..{n}")]
     RowRange { start: usize, end: usize, n: usize },
-}
-
-/// Everything a ray can hit: the patches first (indices `0..patches`), then occluders.
-pub struct RayScene {
-    quads: Vec<Quad>,
-    patches: usize,
-    bvh: Bvh2,
-}
-
-struct QuadBound<'a>(&'a Quad);
-
-impl Boundable for QuadBound<'_> {
-    fn aabb(&self) -> Aabb {
-        Aabb::new(
-            Vec3A::from(self.0.aabb_min()),
-            Vec3A::from(self.0.aabb_max()),
-        )
-    }
-}
-
-impl RayScene {
-    pub fn new(patches: &[Quad], occluders: &[Quad]) -> RayScene {
-        let quads: Vec<Quad> = patches.iter().chain(occluders).copied().collect();
-        let bounds: Vec<QuadBound> = quads.iter().map(QuadBound).collect();
-        // obvhs builds single-threaded without its `parallel` feature, so the tree (and with it
-        // the order ties are broken in) does not depend on the thread count.
-        let bvh = obvhs::bvh2::builder::build_bvh2(
-            &bounds,
-            BvhBuildParams::medium_build(),
-            &mut std::time::Duration::default(),
-        );
-        RayScene {
-            quads,
-            patches: patches.len(),
-            bvh,
-        }
-    }
-
-    pub fn patch_count(&self) -> usize {
-        self.patches
-    }
-
-    pub fn patch(&self, i: usize) -> &Quad {
-        &self.quads[i]
-    }
-
-    /// The first quad the ray hits (either side) and the distance to it.
-    pub fn closest_hit(&self, origin: Vec3, dir: Vec3, t_max: f32) -> Option<(usize, f32)> {
-        if self.quads.is_empty() {
-            return None;
-        }
-        let ray = Ray::new(Vec3A::from(origin), Vec3A::from(dir), 0.0, t_max);
-        let mut hit = RayHit::none();
-        let found = self.bvh.ray_traverse(ray, &mut hit, |_, prim| {
-            let q = &self.quads[self.bvh.primitive_indices[prim] as usize];
-            q.intersect(origin, dir, true).unwrap_or(f32::INFINITY)
-        });
-        found.then(|| {
-            (
-                self.bvh.primitive_indices[hit.primitive_id as usize] as usize,
-                hit.t,
-            )
-        })
-    }
-
-    /// The patch a ray from `origin` reaches, if it reaches one from the front.
-    pub fn patch_hit(&self, origin: Vec3, dir: Vec3) -> Option<usize> {
-        let (k, _) = self.closest_hit(origin, dir, f32::INFINITY)?;
-        (k < self.patches && dir.dot(self.quads[k].normal()) < 0.0).then_some(k)
-    }
 }
 
 /// Per-row seed: a hash of the bake seed and the row, so rows are independent streams.
@@ -123,19 +50,23 @@ fn cosine_direction(quad: &Quad, u1: f32, u2: f32) -> Vec3 {
 }
 
 /// Hit counts of one row: `counts[j]` rays from `row` reached patch `j`.
-fn trace_row(scene: &RayScene, row: usize, rays: u32, seed: u64, counts: &mut [u32]) {
+fn trace_row(scene: &RayScene, row: usize, rays: u32, seed: u64, counts: &mut [u32]) -> RayTally {
     let quad = scene.patch(row);
     let s = row_seed(seed, row);
+    let mut tally = RayTally::default();
     for k in 0..rays {
         let [a, b, c, d] = sobol_burley::sample_4d(k, 0, s);
         // The origin lies exactly on the patch's plane and intersections need t > 0, so the
         // patch itself and coplanar neighbours are never hit: no epsilon offset to tune.
         let origin = quad.point(a, b);
         let dir = cosine_direction(quad, c, d);
-        if let Some(j) = scene.patch_hit(origin, dir) {
+        let fate = scene.trace(row, origin, dir);
+        if let RayFate::Patch(j) = fate {
             counts[j] += 1;
         }
+        tally.count(fate);
     }
+    tally
 }
 
 /// Sobol dimension set of the visibility probe, apart from the one the form factors use, so the
@@ -154,9 +85,10 @@ pub fn isolated_patches(scene: &RayScene, rays: u32, seed: u64) -> Vec<bool> {
             let s = row_seed(seed, i);
             !(0..rays).any(|k| {
                 let [a, b, c, d] = sobol_burley::sample_4d(k, PROBE_DIMENSION_SET, s);
-                scene
-                    .patch_hit(quad.point(a, b), cosine_direction(quad, c, d))
-                    .is_some()
+                matches!(
+                    scene.trace(i, quad.point(a, b), cosine_direction(quad, c, d)),
+                    RayFate::Patch(_)
+                )
             })
         })
         .collect()
@@ -171,6 +103,17 @@ pub fn form_factor_rows(
     seed: u64,
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<Vec<f32>, FormFactorError> {
+    form_factor_rows_tallied(scene, rows, rays, seed, progress).map(|(rows, _)| rows)
+}
+
+/// As [`form_factor_rows`], also telling where the rays that reached no patch went.
+pub fn form_factor_rows_tallied(
+    scene: &RayScene,
+    rows: Range<usize>,
+    rays: u32,
+    seed: u64,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<(Vec<f32>, RayTally), FormFactorError> {
     let n = scene.patch_count();
     if rays == 0 {
         return Err(FormFactorError::NoRays);
@@ -184,18 +127,23 @@ pub fn form_factor_rows(
     }
     let mut out = vec![0.0f32; rows.len() * n];
     let inv = 1.0 / rays as f32;
-    out.par_chunks_mut(n.max(1)).enumerate().for_each_init(
-        || vec![0u32; n],
-        |counts, (k, row_out)| {
-            counts.fill(0);
-            trace_row(scene, rows.start + k, rays, seed, counts);
-            for (o, &c) in row_out.iter_mut().zip(counts.iter()) {
-                *o = c as f32 * inv;
-            }
-            progress(1);
-        },
-    );
-    Ok(out)
+    let tally = out
+        .par_chunks_mut(n.max(1))
+        .enumerate()
+        .map_init(
+            || vec![0u32; n],
+            |counts, (k, row_out)| {
+                counts.fill(0);
+                let tally = trace_row(scene, rows.start + k, rays, seed, counts);
+                for (o, &c) in row_out.iter_mut().zip(counts.iter()) {
+                    *o = c as f32 * inv;
+                }
+                progress(1);
+                tally
+            },
+        )
+        .reduce(RayTally::default, |a, b| a + b);
+    Ok((out, tally))
 }
 
 /// The whole single-bounce form-factor matrix.
@@ -204,14 +152,17 @@ pub fn form_factors(
     rays: u32,
     seed: u64,
     progress: &(dyn Fn(u64) + Sync),
-) -> Result<DenseMatrix, FormFactorError> {
+) -> Result<(DenseMatrix, RayTally), FormFactorError> {
     let n = scene.patch_count();
-    let data = form_factor_rows(scene, 0..n, rays, seed, progress)?;
-    Ok(DenseMatrix {
-        n,
-        channels: 1,
-        data,
-    })
+    let (data, tally) = form_factor_rows_tallied(scene, 0..n, rays, seed, progress)?;
+    Ok((
+        DenseMatrix {
+            n,
+            channels: 1,
+            data,
+        },
+        tally,
+    ))
 }
 
 /// Checks of the form-factor invariants, reported by the bake and `bounce inspect`.

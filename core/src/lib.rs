@@ -17,6 +17,7 @@ pub mod light;
 pub mod matrix;
 pub mod meta;
 pub mod patch;
+pub mod rays;
 pub mod scene;
 pub mod transport;
 pub mod voxel;

@@ -73,6 +73,8 @@ pub struct BakeSettings {
     pub rays_per_patch: u32,
     pub seed: u64,
     pub bounces: Bounces,
+    /// The ray tracer that estimated the form factors (`grid` falls back to `bvh` on huge grids).
+    pub tracer: crate::rays::Tracer,
 }
 
 /// Figures measured during the bake.
@@ -84,6 +86,9 @@ pub struct BakeStats {
     /// Candidate patches dropped because their probe rays reached no other patch.
     pub dropped_patches: usize,
     pub rays_total: u64,
+    /// Where the form-factor rays ended.
+    #[serde(default)]
+    pub rays: crate::rays::RayTally,
     pub row_sum_min: f32,
     pub row_sum_max: f32,
     pub row_sum_mean: f32,

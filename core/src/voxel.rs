@@ -27,6 +27,9 @@ const MAX_GRID_CELLS: u64 = 1 << 34;
 /// slivers of a neighbouring surface would otherwise become patches with meaningless albedo.
 const MIN_FACE_COVERAGE: f64 = 1e-3;
 
+/// Clipped pieces smaller than this share of a voxel face are rounding noise, not geometry.
+const MIN_PIECE_AREA: f64 = 1e-6;
+
 /// How the voxel size is chosen.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Resolution {
@@ -73,6 +76,8 @@ pub struct Voxelization {
     /// Exposed voxel faces that are not patches: they block rays and reflect nothing.
     pub occluders: Vec<Quad>,
     pub occupied_voxels: usize,
+    /// Linear indices (`x + dims.x · (y + dims.y · z)`) of the occupied voxels, ascending.
+    pub occupied: Vec<u64>,
     /// Candidate patches dropped by a [`Refine`] step (e.g. because they see nothing).
     pub dropped_patches: usize,
 }
@@ -233,6 +238,7 @@ pub fn voxelize_at(scene: &Scene, size: f32) -> Result<Voxelization, VoxelError>
     let origin = center - dims_f * size * 0.5;
 
     let grid = Grid { origin, size, dims };
+    let face_area = size as f64 * size as f64;
     let mut voxels: HashMap<u64, VoxelAccum> = HashMap::new();
     let mut stack = Vec::new();
     for tri in &scene.triangles {
@@ -253,7 +259,10 @@ pub fn voxelize_at(scene: &Scene, size: f32) -> Result<Voxelization, VoxelError>
                 continue;
             }
             let (area, centroid) = poly.area_centroid(n);
-            if area.is_nan() || area <= 0.0 {
+            // Clipping through a grid edge or corner leaves rounding-error slivers in the
+            // neighbouring voxels; counted, they would mark those voxels occupied and hide
+            // faces that are really open.
+            if area.is_nan() || area <= MIN_PIECE_AREA * face_area {
                 continue;
             }
             let key = grid.key(grid.cell_of(centroid));
@@ -280,7 +289,6 @@ pub fn voxelize_at(scene: &Scene, size: f32) -> Result<Voxelization, VoxelError>
 
     let mut keys: Vec<u64> = voxels.keys().copied().collect();
     keys.sort_unstable();
-    let face_area = size as f64 * size as f64;
     let mut patches = Vec::new();
     let mut occluders = Vec::new();
     let mut layout = PatchLayout {
@@ -328,6 +336,7 @@ pub fn voxelize_at(scene: &Scene, size: f32) -> Result<Voxelization, VoxelError>
         layout,
         occluders,
         occupied_voxels: keys.len(),
+        occupied: keys,
         dropped_patches: 0,
     })
 }
@@ -530,6 +539,53 @@ mod tests {
         }
         // The one-sided floor's underside blocks light but is no patch.
         assert!(v.occluders.iter().any(|q| q.face == Face::NegY));
+    }
+
+    #[test]
+    fn a_tilted_double_sided_plate_records_its_true_normal_on_both_sides() {
+        // A 45° plate whose normal is (1, 1, 0)/√2, double-sided.
+        let c = [
+            Vec3::new(0.0, 1.0, 0.0),
+            Vec3::new(1.0, 0.0, 0.0),
+            Vec3::new(1.0, 0.0, 1.0),
+            Vec3::new(0.0, 1.0, 1.0),
+        ];
+        let mut tris = quad_tris(c, Vec3::new(0.2, 0.4, 0.6));
+        for t in &mut tris {
+            t.double_sided = true;
+            if t.cross().x < 0.0 {
+                t.positions.swap(1, 2);
+            }
+        }
+        let scene = Scene {
+            triangles: tris.to_vec(),
+            ..Default::default()
+        };
+        let v = voxelize_at(&scene, 0.1).unwrap();
+        let s = std::f32::consts::FRAC_1_SQRT_2;
+        let mut area_by_face = [0.0f32; 6];
+        for p in &v.layout.patches {
+            area_by_face[p.face as usize] += p.source_area;
+            let n = Vec3::from(p.normal);
+            // Each patch stands for the side of the plate that faces its direction.
+            let want = if p.face.sign() > 0.0 {
+                Vec3::new(s, s, 0.0)
+            } else {
+                Vec3::new(-s, -s, 0.0)
+            };
+            assert!((n - want).length() < 1e-4, "{:?} normal {n}", p.face);
+            // The centroid lies on the plate.
+            let q = Vec3::from(p.centroid);
+            assert!((q.x + q.y - 1.0).abs() < 1e-4, "{q}");
+            assert_eq!(p.albedo, [0.2, 0.4, 0.6]);
+        }
+        // The plate's √2 area projects to 1 on each of ±X and ±Y (where the faces are exposed;
+        // the staircase hides some faces behind neighbouring voxels, never adds area).
+        for face in [Face::PosX, Face::PosY, Face::NegX, Face::NegY] {
+            let a = area_by_face[face as usize];
+            assert!(a > 0.3 && a <= 1.0 + 1e-4, "{face:?}: {a}");
+        }
+        assert_eq!(area_by_face[Face::PosZ as usize], 0.0);
     }
 
     #[test]

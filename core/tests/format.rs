@@ -95,6 +95,7 @@ fn sample_meta() -> BakeMeta {
             rays_per_patch: 256,
             seed: 7,
             bounces: Bounces::All,
+            tracer: bounce_core::rays::Tracer::Grid,
         },
         stats: BakeStats {
             patches: 5,
@@ -102,6 +103,12 @@ fn sample_meta() -> BakeMeta {
             occupied_voxels: 3,
             dropped_patches: 1,
             rays_total: 1280,
+            rays: bounce_core::rays::RayTally {
+                patch: 1000,
+                escaped: 200,
+                occluder: 50,
+                back_face: 30,
+            },
             row_sum_min: 0.1,
             row_sum_max: 0.9,
             row_sum_mean: 0.5,

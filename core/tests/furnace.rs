@@ -57,7 +57,12 @@ fn white_furnace_k_bounces_and_all() {
             assert!((p.albedo[0] - rho).abs() < 1e-5);
         }
         let rays = RayScene::new(&layout.quads(), &vox.occluders);
-        let f = form_factors(&rays, 1024, 7, &no_progress).unwrap();
+        let (f, tally) = form_factors(&rays, 1024, 7, &no_progress).unwrap();
+        assert_eq!(
+            tally.patch,
+            tally.total(),
+            "a closed box loses no ray: {tally:?}"
+        );
         let st = stats(&f, &vec![layout.patch_area(); n]);
         assert!(st.row_sum_max <= 1.0 + 1e-5, "{st:?}");
         assert!(st.row_sum_min > 0.999, "the voxel box leaks: {st:?}");
