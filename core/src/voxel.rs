@@ -59,8 +59,8 @@ pub enum VoxelError {
         cells: u64,
     },
     #[error(
-        "voxel size {size} gives {patches} patches, more than the {MAX_PATCHES} a bake accepts; \
-         use a larger --voxel-size or --patches"
+        "voxel size {size} gives about {patches} patches, more than the {MAX_PATCHES} a bake \
+         accepts; use a larger --voxel-size or --patches"
     )]
     TooManyPatches { size: f32, patches: usize },
     #[error("all {candidates} candidate patches were dropped (none sees another patch)")]
@@ -179,7 +179,7 @@ fn search_voxel_size(
     for _ in 0..12 {
         let v = match voxelize_at(scene, size) {
             Ok(v) => refine(v),
-            Err(VoxelError::GridTooLarge { .. }) => {
+            Err(VoxelError::GridTooLarge { .. } | VoxelError::TooManyPatches { .. }) => {
                 size *= 2.0;
                 continue;
             }
@@ -213,6 +213,16 @@ fn search_voxel_size(
 /// Voxelise at one voxel size.
 pub fn voxelize_at(scene: &Scene, size: f32) -> Result<Voxelization, VoxelError> {
     let (lo, hi) = scene.bounds().ok_or(VoxelError::EmptyScene)?;
+    // Refuse before clipping: a closed surface of area A makes about A/(2 s²) patches, and the
+    // clipping work and memory grow with that count. The margin leaves room for the candidates
+    // that a refinement step drops again.
+    let estimate = scene.total_area() / (2.0 * size as f64 * size as f64);
+    if estimate > 4.0 * MAX_PATCHES as f64 {
+        return Err(VoxelError::TooManyPatches {
+            size,
+            patches: estimate as usize,
+        });
+    }
     let extent = hi - lo;
     // One voxel of margin on each side keeps every surface strictly inside the grid, and
     // centring the grid on the scene keeps axis-aligned walls off the grid planes in the common
@@ -624,5 +634,22 @@ mod tests {
             voxelize(&scene, Resolution::VoxelSize(1.0)),
             Err(VoxelError::EmptyScene)
         ));
+        // A voxel far too small for the scene is refused before any clipping work.
+        let c = [
+            Vec3::new(0.0, 0.0, 0.0),
+            Vec3::new(0.0, 0.0, 2.0),
+            Vec3::new(2.0, 0.0, 2.0),
+            Vec3::new(2.0, 0.0, 0.0),
+        ];
+        let plate = Scene {
+            triangles: quad_tris(c, Vec3::splat(0.5)).to_vec(),
+            ..Default::default()
+        };
+        let start = std::time::Instant::now();
+        assert!(matches!(
+            voxelize(&plate, Resolution::VoxelSize(1e-4)),
+            Err(VoxelError::TooManyPatches { .. })
+        ));
+        assert!(start.elapsed().as_secs_f32() < 1.0);
     }
 }

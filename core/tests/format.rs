@@ -1072,6 +1072,88 @@ fn write_atomic_into_a_read_only_directory_keeps_the_old_file() {
     assert_eq!(names(dir.path()), ["scene.bounce"]);
 }
 
+/// A matrix of `n` patches whose payload has `len` bytes of a pattern; the format treats payloads
+/// as opaque, so its length need not be what the codec would produce.
+fn opaque_matrix(n: usize, channels: u32, params: serde_json::Value, len: usize) -> EncodedMatrix {
+    EncodedMatrix {
+        codec: "bc1-sparse".into(),
+        rows: n as u32,
+        cols: n as u32,
+        channels,
+        params,
+        payload: (0..len).map(|i| (i * 31 + len) as u8).collect(),
+    }
+}
+
+#[test]
+fn write_atomic_writes_exactly_to_bytes() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("scene.bounce");
+    let mut values = Vec::new();
+    for channels in [1, 3] {
+        for with_ff in [false, true] {
+            values.push(sample(channels, with_ff));
+        }
+    }
+    // Params of every padding before the payload: none (`"abcdef"` ends the header at byte 64),
+    // one byte, and JSON values with no content.
+    let params = [
+        serde_json::json!({}),
+        serde_json::json!(null),
+        serde_json::json!(""),
+        serde_json::json!("abcdef"),
+        serde_json::json!("abcdefg"),
+        serde_json::json!({"seed": 7, "perms": [1, 2, 3]}),
+    ];
+    for (i, params) in params.into_iter().enumerate() {
+        for len in [0, 1, 63, 65, 1000 + i] {
+            let mut b = sample(3, false);
+            b.transport = opaque_matrix(5, 3, params.clone(), len);
+            b.form_factors = (len % 2 == 1).then(|| opaque_matrix(5, 1, params.clone(), len + 7));
+            values.push(b);
+        }
+    }
+    let mut empty = sample(1, true);
+    empty.layout.patches.clear();
+    empty.transport = opaque_matrix(0, 1, serde_json::json!({}), 0);
+    empty.form_factors = Some(opaque_matrix(0, 3, serde_json::json!(null), 3));
+    values.push(empty);
+
+    for (i, baked) in values.iter().enumerate() {
+        let bytes = baked.to_bytes().unwrap();
+        baked.write_atomic(&path).unwrap();
+        assert!(std::fs::read(&path).unwrap() == bytes, "value {i}");
+        assert_eq!(&Baked::read(&path).unwrap(), baked, "value {i}");
+    }
+    assert_eq!(names(dir.path()), ["scene.bounce"]);
+}
+
+/// Writing streams the matrices from where they are: neither a matrix payload nor the whole file
+/// is ever copied into one buffer.
+#[test]
+fn write_atomic_makes_no_copy_of_a_large_matrix() {
+    let n = 2048;
+    let mut baked = sample(3, true);
+    baked.layout = sample_layout(n);
+    // 48 MiB and 16 MiB, the sizes of dense f32 matrices of 2048 patches.
+    baked.transport = opaque_matrix(n, 3, serde_json::json!({"scale": 0.5}), n * n * 12);
+    baked.form_factors = Some(opaque_matrix(n, 1, serde_json::json!({}), n * n * 4));
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("big.bounce");
+
+    LARGEST.with(|c| c.set(0));
+    baked.write_atomic(&path).unwrap();
+    let largest = LARGEST.with(|c| c.get());
+    eprintln!("largest allocation while writing a 64 MiB file: {largest} bytes");
+    assert!(
+        largest < 8 << 20,
+        "writing allocated {largest} bytes at once for a {}-byte payload",
+        baked.transport.payload.len()
+    );
+
+    assert!(std::fs::read(&path).unwrap() == baked.to_bytes().unwrap());
+}
+
 #[test]
 fn reading_what_is_not_a_file_names_the_path() {
     let dir = tempfile::tempdir().unwrap();

@@ -14,6 +14,7 @@
 //! params length u32, payload length u64 (56 bytes), the codec params as JSON, zeros up to the next
 //! multiple of 64, then the payload, which therefore starts 64-byte aligned in the file.
 
+use std::borrow::Cow;
 use std::path::Path;
 
 use crate::matrix::EncodedMatrix;
@@ -22,8 +23,8 @@ use crate::patch::{Face, Patch, PatchLayout};
 
 use super::FormatError;
 use super::container::{
-    self, Container, FieldReader, FileBytes, FileSummary, SECTION_ALIGN, SECTION_OPTIONAL,
-    SectionKind,
+    self, Assembled, Container, FieldReader, FileBytes, FileSummary, SECTION_ALIGN,
+    SECTION_OPTIONAL, Section, SectionKind,
 };
 
 /// Bytes of the `LAYT` fields before the patch records.
@@ -50,24 +51,27 @@ impl Baked {
     /// (non-finite numbers, patches outside the grid, a matrix that does not fit the layout), so
     /// every file written can be read back.
     pub fn to_bytes(&self) -> Result<Vec<u8>, FormatError> {
+        self.assemble()?.to_vec()
+    }
+
+    /// The file laid out, every value validated and every checksum computed, with the matrix
+    /// payloads borrowed rather than copied.
+    fn assemble(&self) -> Result<Assembled<'_>, FormatError> {
         let n = self.layout.len();
-        let meta = encode_meta(&self.meta)?;
-        let layout = encode_layout(&self.layout)?;
-        let transport = encode_matrix(SectionKind::MTRX, &self.transport, n)?;
-        let form_factors = self
-            .form_factors
-            .as_ref()
-            .map(|m| encode_matrix(SectionKind::FFAC, m, n))
-            .transpose()?;
-        let mut sections: Vec<(SectionKind, u32, &[u8])> = vec![
-            (SectionKind::META, 0, &meta),
-            (SectionKind::LAYT, 0, &layout),
-            (SectionKind::MTRX, 0, &transport),
+        let owned = |kind, bytes| Section {
+            kind,
+            flags: 0,
+            pieces: vec![Cow::Owned(bytes)],
+        };
+        let mut sections = vec![
+            owned(SectionKind::META, encode_meta(&self.meta)?),
+            owned(SectionKind::LAYT, encode_layout(&self.layout)?),
+            encode_matrix(SectionKind::MTRX, &self.transport, n)?,
         ];
-        if let Some(ff) = &form_factors {
-            sections.push((SectionKind::FFAC, 0, ff));
+        if let Some(m) = &self.form_factors {
+            sections.push(encode_matrix(SectionKind::FFAC, m, n)?);
         }
-        container::assemble(&sections)
+        Assembled::new(sections)
     }
 
     /// Parses and validates a whole file. Matrix payloads are located and copied, not decoded.
@@ -115,9 +119,11 @@ impl Baked {
 
     /// Writes the file atomically: a temporary file in the same directory, synced, then renamed
     /// over `path`. On any failure an existing file at `path` is left as it was.
+    /// The file is streamed: however large the matrices, no copy of one (or of the file) is made.
     pub fn write_atomic(&self, path: &Path) -> Result<(), FormatError> {
-        let bytes = self.to_bytes()?;
-        container::write_atomic(path, &bytes)
+        // Everything that can refuse the value runs before the temporary file exists.
+        let file = self.assemble()?;
+        container::write_atomic(path, &file)
     }
 
     /// Memory-maps `path` and parses it.
@@ -296,11 +302,12 @@ fn check_shape(kind: SectionKind, m: &EncodedMatrix, patches: usize) -> Result<(
     }
 }
 
-fn encode_matrix(
+/// The section of a matrix: its fixed fields, params and padding built here, its payload borrowed.
+fn encode_matrix<'a>(
     kind: SectionKind,
-    m: &EncodedMatrix,
+    m: &'a EncodedMatrix,
     patches: usize,
-) -> Result<Vec<u8>, FormatError> {
+) -> Result<Section<'a>, FormatError> {
     if !valid_codec_name(m.codec.as_bytes()) {
         return Err(FormatError::BadCodecName {
             kind,
@@ -315,19 +322,22 @@ fn encode_matrix(
         value: params.len() as u64,
         max: u64::from(u32::MAX),
     })?;
-    let payload_start = (MATRIX_HEADER_LEN + u64::from(params_len)).next_multiple_of(SECTION_ALIGN);
-    let mut out = Vec::with_capacity(payload_start as usize + m.payload.len());
+    let mut head = Vec::with_capacity(MATRIX_HEADER_LEN as usize + params.len() + 64);
     let mut name = [0u8; CODEC_NAME_LEN];
     name[..m.codec.len()].copy_from_slice(m.codec.as_bytes());
-    out.extend_from_slice(&name);
+    head.extend_from_slice(&name);
     for v in [m.rows, m.cols, m.channels, params_len] {
-        out.extend_from_slice(&v.to_le_bytes());
+        head.extend_from_slice(&v.to_le_bytes());
     }
-    out.extend_from_slice(&(m.payload.len() as u64).to_le_bytes());
-    out.extend_from_slice(&params);
-    out.resize(payload_start as usize, 0);
-    out.extend_from_slice(&m.payload);
-    Ok(out)
+    head.extend_from_slice(&(m.payload.len() as u64).to_le_bytes());
+    head.extend_from_slice(&params);
+    // Sections start aligned, so an aligned offset in the section is one in the file.
+    head.extend_from_slice(container::padding_to_align(head.len() as u64));
+    Ok(Section {
+        kind,
+        flags: 0,
+        pieces: vec![Cow::Owned(head), Cow::Borrowed(&m.payload)],
+    })
 }
 
 fn decode_matrix(

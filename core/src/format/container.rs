@@ -6,9 +6,10 @@
 //! with checked arithmetic, so a hostile table can neither panic the reader nor make it allocate
 //! more than the file's own size justifies.
 
+use std::borrow::Cow;
 use std::fmt;
 use std::fs::File;
-use std::io::Write;
+use std::io::{BufWriter, Write};
 use std::ops::Deref;
 use std::path::Path;
 
@@ -26,6 +27,8 @@ pub const SECTION_ALIGN: u64 = 64;
 /// Section flag: a reader that does not know the section's kind may skip it.
 pub const SECTION_OPTIONAL: u32 = 1;
 
+/// Where the header holds the file length, which is known only once the sections are placed.
+const FILE_LEN_AT: usize = 16;
 /// Header bytes the header checksum covers: all but the checksum itself.
 const HEADER_CRC_AT: usize = 28;
 
@@ -322,56 +325,124 @@ fn check_zero(bytes: &[u8], from: u64, to: u64) -> Result<(), FormatError> {
     }
 }
 
-/// Lays sections out after the header and table, each at the next multiple of
-/// [`SECTION_ALIGN`], in the order given. The same input always gives the same bytes.
-pub(crate) fn assemble(sections: &[(SectionKind, u32, &[u8])]) -> Result<Vec<u8>, FormatError> {
-    let too_large = |what, value: usize| FormatError::TooLarge {
-        what,
-        value: value as u64,
-        max: u64::from(u32::MAX),
-    };
-    let count =
-        u32::try_from(sections.len()).map_err(|_| too_large("section count", sections.len()))?;
-    let table_end = HEADER_LEN + u64::from(count) * ENTRY_LEN;
-    let mut offsets = Vec::with_capacity(sections.len());
-    let mut file_len = table_end;
-    for (_, _, bytes) in sections {
-        let offset = file_len.next_multiple_of(SECTION_ALIGN);
-        offsets.push(offset);
-        file_len = offset + bytes.len() as u64;
-    }
-    let capacity = usize::try_from(file_len).map_err(|_| FormatError::TooLarge {
-        what: "file length",
-        value: file_len,
-        max: usize::MAX as u64,
-    })?;
+/// One section to write, as pieces whose concatenation is its bytes: a matrix payload is one
+/// borrowed piece, so writing never copies it.
+pub(crate) struct Section<'a> {
+    pub kind: SectionKind,
+    pub flags: u32,
+    pub pieces: Vec<Cow<'a, [u8]>>,
+}
 
-    let mut out = Vec::with_capacity(capacity);
-    out.extend_from_slice(&MAGIC);
-    out.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
-    out.extend_from_slice(&count.to_le_bytes());
-    out.extend_from_slice(&file_len.to_le_bytes());
-    out.extend_from_slice(&0u32.to_le_bytes());
-    out.extend_from_slice(&0u32.to_le_bytes()); // checksum, filled in below
-    for ((kind, flags, bytes), offset) in sections.iter().zip(&offsets) {
-        out.extend_from_slice(&kind.0);
-        out.extend_from_slice(&flags.to_le_bytes());
-        out.extend_from_slice(&offset.to_le_bytes());
-        out.extend_from_slice(&(bytes.len() as u64).to_le_bytes());
-        out.extend_from_slice(&crc32fast::hash(bytes).to_le_bytes());
-        out.extend_from_slice(&0u32.to_le_bytes());
+impl Section<'_> {
+    fn len(&self) -> u64 {
+        self.pieces.iter().map(|p| p.len() as u64).sum()
     }
-    let mut hasher = crc32fast::Hasher::new();
-    hasher.update(&out[..HEADER_CRC_AT]);
-    hasher.update(&out[HEADER_LEN as usize..]);
-    let crc = hasher.finalize();
-    out[HEADER_CRC_AT..HEADER_LEN as usize].copy_from_slice(&crc.to_le_bytes());
-    for ((_, _, bytes), &offset) in sections.iter().zip(&offsets) {
-        out.resize(offset as usize, 0);
-        out.extend_from_slice(bytes);
+
+    fn crc(&self) -> u32 {
+        let mut hasher = crc32fast::Hasher::new();
+        for p in &self.pieces {
+            hasher.update(p);
+        }
+        hasher.finalize()
     }
-    debug_assert_eq!(out.len() as u64, file_len);
-    Ok(out)
+}
+
+/// A whole file, laid out but not written: the header and table in memory, sections as pieces.
+/// [`Assembled::write_to`] is the only code that emits a file's bytes, whether into memory or
+/// onto disk, so the two cannot differ.
+pub(crate) struct Assembled<'a> {
+    /// Header and section table, checksums filled in.
+    head: Vec<u8>,
+    /// In table order, each with its offset.
+    sections: Vec<(u64, Section<'a>)>,
+    file_len: u64,
+}
+
+/// Enough zeros for any gap [`Assembled::write_to`] has to fill.
+static ZEROS: [u8; SECTION_ALIGN as usize] = [0; SECTION_ALIGN as usize];
+
+/// Zero bytes that bring `at` up to the next multiple of [`SECTION_ALIGN`].
+pub(crate) fn padding_to_align(at: u64) -> &'static [u8] {
+    &ZEROS[..(at.next_multiple_of(SECTION_ALIGN) - at) as usize]
+}
+
+impl<'a> Assembled<'a> {
+    /// Lays sections out after the header and table, each at the next multiple of
+    /// [`SECTION_ALIGN`], in the order given. The same input always gives the same bytes.
+    /// Checksums every section here, so nothing is left to fail once writing starts but I/O.
+    pub fn new(sections: Vec<Section<'a>>) -> Result<Self, FormatError> {
+        let count = u32::try_from(sections.len()).map_err(|_| FormatError::TooLarge {
+            what: "section count",
+            value: sections.len() as u64,
+            max: u64::from(u32::MAX),
+        })?;
+        let table_end = HEADER_LEN + u64::from(count) * ENTRY_LEN;
+        let mut head = Vec::with_capacity(table_end as usize);
+        head.extend_from_slice(&MAGIC);
+        head.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
+        head.extend_from_slice(&count.to_le_bytes());
+        head.extend_from_slice(&0u64.to_le_bytes()); // file length, filled in below
+        head.extend_from_slice(&0u32.to_le_bytes());
+        head.extend_from_slice(&0u32.to_le_bytes()); // checksum, filled in below
+        let mut file_len = table_end;
+        let mut placed = Vec::with_capacity(sections.len());
+        for s in sections {
+            let offset = file_len.next_multiple_of(SECTION_ALIGN);
+            let len = s.len();
+            // Cannot overflow: every piece is in memory at once.
+            file_len = offset + len;
+            head.extend_from_slice(&s.kind.0);
+            head.extend_from_slice(&s.flags.to_le_bytes());
+            head.extend_from_slice(&offset.to_le_bytes());
+            head.extend_from_slice(&len.to_le_bytes());
+            head.extend_from_slice(&s.crc().to_le_bytes());
+            head.extend_from_slice(&0u32.to_le_bytes());
+            placed.push((offset, s));
+        }
+        head[FILE_LEN_AT..FILE_LEN_AT + 8].copy_from_slice(&file_len.to_le_bytes());
+        let mut hasher = crc32fast::Hasher::new();
+        hasher.update(&head[..HEADER_CRC_AT]);
+        hasher.update(&head[HEADER_LEN as usize..]);
+        let crc = hasher.finalize();
+        head[HEADER_CRC_AT..HEADER_LEN as usize].copy_from_slice(&crc.to_le_bytes());
+        Ok(Assembled {
+            head,
+            sections: placed,
+            file_len,
+        })
+    }
+
+    /// Writes the file from its start. Large pieces go to `w` as they are, so a `BufWriter`
+    /// passes them straight through rather than copying them into its buffer.
+    pub fn write_to(&self, w: &mut impl Write) -> std::io::Result<()> {
+        w.write_all(&self.head)?;
+        let mut at = self.head.len() as u64;
+        for (offset, s) in &self.sections {
+            w.write_all(padding_to_align(at))?;
+            debug_assert_eq!(at.next_multiple_of(SECTION_ALIGN), *offset);
+            for p in &s.pieces {
+                w.write_all(p)?;
+            }
+            at = offset + s.len();
+        }
+        debug_assert_eq!(at, self.file_len);
+        Ok(())
+    }
+
+    pub fn to_vec(&self) -> Result<Vec<u8>, FormatError> {
+        let capacity = usize::try_from(self.file_len).map_err(|_| FormatError::TooLarge {
+            what: "file length",
+            value: self.file_len,
+            max: usize::MAX as u64,
+        })?;
+        let mut out = Vec::with_capacity(capacity);
+        // Writing into a Vec only fails by running out of memory, which aborts instead.
+        if let Err(e) = self.write_to(&mut out) {
+            unreachable!("writing into memory failed: {e}");
+        }
+        debug_assert_eq!(out.len() as u64, self.file_len);
+        Ok(out)
+    }
 }
 
 /// Sequential little-endian reads from a slice, each failing with a [`FormatError`] instead of
@@ -475,10 +546,13 @@ impl Deref for FileBytes {
     }
 }
 
-/// Writes `bytes` to a temporary file beside `path`, syncs it and renames it over `path`, so
+/// Size of the buffer the small pieces of a file are gathered in before they reach the disk.
+const WRITE_BUFFER: usize = 1 << 20;
+
+/// Writes `file` to a temporary file beside `path`, syncs it and renames it over `path`, so
 /// readers see the old file or the new one, never a partial one. On failure the temporary file is
 /// removed and `path` is untouched.
-pub(crate) fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), FormatError> {
+pub(crate) fn write_atomic(path: &Path, file: &Assembled<'_>) -> Result<(), FormatError> {
     let dir = match path.parent() {
         Some(p) if !p.as_os_str().is_empty() => p,
         _ => Path::new("."),
@@ -495,11 +569,15 @@ pub(crate) fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), FormatError>
         use std::os::unix::fs::PermissionsExt;
         builder.permissions(std::fs::Permissions::from_mode(0o666));
     }
-    let mut tmp = builder
+    let tmp = builder
         .tempfile_in(dir)
         .map_err(|e| FormatError::io("create a temporary file in", dir, e))?;
-    tmp.write_all(bytes)
+    let mut w = BufWriter::with_capacity(WRITE_BUFFER, tmp.as_file());
+    // Flushed explicitly: dropping a BufWriter would swallow the last write's error.
+    file.write_to(&mut w)
+        .and_then(|()| w.flush())
         .map_err(|e| FormatError::io("write", tmp.path(), e))?;
+    drop(w);
     tmp.as_file()
         .sync_all()
         .map_err(|e| FormatError::io("sync", tmp.path(), e))?;
