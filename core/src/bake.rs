@@ -100,11 +100,12 @@ pub enum BakeError {
     #[error(transparent)]
     Transport(#[from] TransportError),
     #[error(
-        "no patch sees another: all {patches} patches send every ray into open space or onto \
-         occluders, so there is no indirect light to precompute (is the scene a single open \
-         surface, or are its normals facing away from each other?)"
+        "no patch sees another: all {patches} patches (down to voxel size {voxel_size}) send \
+         every ray into open space or onto occluders, so there is no indirect light to \
+         precompute (is the scene a single open surface, are its normals facing away from each \
+         other, or are its details smaller than the voxels? try a smaller --voxel-size)"
     )]
-    NoInterreflection { patches: usize },
+    NoInterreflection { patches: usize, voxel_size: f32 },
 }
 
 struct Timer<'a> {
@@ -171,8 +172,9 @@ pub fn simplify(scene: &Scene, options: &BakeOptions) -> Result<voxel::Voxelizat
         v
     };
     voxel::voxelize_refined(scene, options.resolution, &drop_isolated).map_err(|e| match e {
-        VoxelError::AllDropped { candidates } => BakeError::NoInterreflection {
+        VoxelError::AllDropped { candidates, size } => BakeError::NoInterreflection {
             patches: candidates,
+            voxel_size: size,
         },
         e => BakeError::Voxel(e),
     })
@@ -201,7 +203,10 @@ fn bake_with(
     drop(rays);
     let ff = formfactor::stats(&f, &vec![layout.patch_area(); n]);
     if ff.isolated == n {
-        return Err(BakeError::NoInterreflection { patches: n });
+        return Err(BakeError::NoInterreflection {
+            patches: n,
+            voxel_size: layout.voxel_size,
+        });
     }
 
     let albedo: Vec<[f32; 3]> = layout.patches.iter().map(|p| p.albedo).collect();

@@ -63,8 +63,10 @@ pub enum VoxelError {
          accepts; use a larger --voxel-size or --patches"
     )]
     TooManyPatches { size: f32, patches: usize },
-    #[error("all {candidates} candidate patches were dropped (none sees another patch)")]
-    AllDropped { candidates: usize },
+    #[error(
+        "all {candidates} candidate patches at voxel size {size} were dropped (none sees another)"
+    )]
+    AllDropped { candidates: usize, size: f32 },
     #[error("no patches: no surface of the scene faces open space at voxel size {size}")]
     NoPatches { size: f32 },
 }
@@ -139,6 +141,7 @@ pub fn voxelize_refined(
             if v.layout.is_empty() {
                 return Err(VoxelError::AllDropped {
                     candidates: v.dropped_patches,
+                    size,
                 });
             }
             if v.layout.len() > MAX_PATCHES as usize {
@@ -158,8 +161,11 @@ pub fn voxelize_refined(
     }
 }
 
-/// Patch count falls roughly as 1/size², so a few multiplicative steps land near the target;
-/// the count is not monotonic in the size (grid alignment changes), so keep the closest seen.
+/// Patch count falls roughly as 1/size², so the first steps scale the size by
+/// `sqrt(count / target)`. The count is not monotonic (grid alignment; surfaces that merge into
+/// one voxel layer at coarse sizes and separate at finer ones), so every result also narrows a
+/// bracket `[too fine, too coarse]`, and a step that would leave the bracket bisects it in log
+/// space instead. The closest count seen wins.
 fn search_voxel_size(
     scene: &Scene,
     target: u32,
@@ -174,40 +180,62 @@ fn search_voxel_size(
     let (lo, hi) = scene.bounds().ok_or(VoxelError::EmptyScene)?;
     let extent = (hi - lo).max_element().max(f32::MIN_POSITIVE);
     size = size.clamp(extent * 1e-4, extent);
+    // Sizes known to give too many patches (or too big a grid) and too few (or none).
+    let mut too_fine = 0.0f32;
+    let mut too_coarse = f32::INFINITY;
     let mut best: Option<Voxelization> = None;
     let mut best_err = f64::INFINITY;
-    for _ in 0..12 {
-        let v = match voxelize_at(scene, size) {
-            Ok(v) => refine(v),
+    let mut all_dropped = None;
+    for _ in 0..16 {
+        let wanted = match voxelize_at(scene, size).map(refine) {
             Err(VoxelError::GridTooLarge { .. } | VoxelError::TooManyPatches { .. }) => {
-                size *= 2.0;
-                continue;
-            }
-            Err(VoxelError::NoPatches { .. }) => {
-                size *= 0.5;
-                continue;
+                too_fine = too_fine.max(size);
+                size * 2.0
             }
             Err(e) => return Err(e),
+            Ok(v) if v.layout.is_empty() => {
+                // Every candidate was dropped (nothing sees anything); finer voxels may
+                // separate surfaces that one voxel layer merged.
+                all_dropped = Some((v.dropped_patches, size));
+                too_coarse = too_coarse.min(size);
+                size * 0.5
+            }
+            Ok(v) => {
+                let count = v.layout.len() as f64;
+                let err = (count / target as f64).ln().abs();
+                if count > target as f64 {
+                    too_fine = too_fine.max(size);
+                } else {
+                    too_coarse = too_coarse.min(size);
+                }
+                let next = size * (count / target as f64).sqrt() as f32;
+                if err < best_err && v.layout.len() <= MAX_PATCHES as usize {
+                    best_err = err;
+                    best = Some(v);
+                }
+                if err < 0.02 {
+                    break;
+                }
+                next
+            }
         };
-        if v.layout.is_empty() {
-            // Every candidate was dropped (e.g. nothing sees anything): finer voxels would only
-            // make more of the same, so stop rather than grow the grid.
-            return Err(VoxelError::AllDropped {
-                candidates: v.dropped_patches,
-            });
+        let inside = wanted > too_fine && wanted < too_coarse;
+        size = if inside {
+            wanted
+        } else if too_fine > 0.0 && too_coarse.is_finite() {
+            (too_fine * too_coarse).sqrt()
+        } else {
+            wanted
+        };
+        if too_coarse.is_finite() && too_coarse / too_fine.max(f32::MIN_POSITIVE) < 1.001 {
+            break; // the bracket has closed: no size in between gives anything new
         }
-        let count = v.layout.len() as f64;
-        let err = (count / target as f64).ln().abs();
-        if err < best_err && v.layout.len() <= MAX_PATCHES as usize {
-            best_err = err;
-            best = Some(v);
-        }
-        if err < 0.02 {
-            break;
-        }
-        size *= (count / target as f64).sqrt() as f32;
     }
-    best.ok_or(VoxelError::NoPatches { size })
+    match (best, all_dropped) {
+        (Some(v), _) => Ok(v),
+        (None, Some((candidates, size))) => Err(VoxelError::AllDropped { candidates, size }),
+        (None, None) => Err(VoxelError::NoPatches { size }),
+    }
 }
 
 /// Voxelise at one voxel size.
