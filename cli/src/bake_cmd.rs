@@ -174,12 +174,10 @@ fn print_summary(baked: &Baked, out: &Path, file_bytes: u64, total_s: f64) {
             s.isolated_patches
         );
     }
-    let stages: Vec<String> = m
-        .timings
-        .iter()
-        .map(|t| format!("{} {:.2}s", t.stage, t.seconds))
-        .collect();
-    println!("  time          {total_s:.2} s: {}", stages.join(", "));
+    println!(
+        "  time          {total_s:.2} s: {}",
+        crate::inspect::stage_list(&m.timings)
+    );
     if let Some(peak) = peak_rss_bytes() {
         println!("  peak memory   {}", human_bytes(peak));
     }

@@ -52,7 +52,8 @@ impl Default for BakeOptions {
 pub enum Stage {
     Import,
     Voxelize,
-    Bvh,
+    /// Building what rays are traced against (the voxel grid or a BVH).
+    RayScene,
     FormFactors,
     Transport,
     Encode,
@@ -63,7 +64,7 @@ impl Stage {
         match self {
             Stage::Import => "import",
             Stage::Voxelize => "voxelize",
-            Stage::Bvh => "ray scene",
+            Stage::RayScene => "ray scene",
             Stage::FormFactors => "form factors",
             Stage::Transport => "transport",
             Stage::Encode => "encode",
@@ -193,7 +194,7 @@ fn bake_with(
     let vox = timer.run(Stage::Voxelize, 0, || simplify(scene, options))?;
     let layout = vox.layout;
     let n = layout.len();
-    let rays = timer.run(Stage::Bvh, 0, || {
+    let rays = timer.run(Stage::RayScene, 0, || {
         RayScene::voxels(&layout, &vox.occupied, &vox.occluders, options.tracer)
     });
     let tracer = rays.tracer();

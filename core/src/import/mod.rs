@@ -388,12 +388,7 @@ impl Importer<'_> {
             return;
         };
         let index = light_ref.light.value();
-        let lights = json
-            .extensions
-            .as_ref()
-            .and_then(|e| e.khr_lights_punctual.as_ref())
-            .map(|l| l.lights.as_slice())
-            .unwrap_or_default();
+        let lights = document_lights(json);
         let Some(light) = lights.get(index) else {
             self.scene.report.skipped_lights.push(format!(
                 "{}: light {index} does not exist ({} defined)",
@@ -423,12 +418,7 @@ impl Importer<'_> {
 
     fn finish(mut self) -> Result<Scene, ImportError> {
         let json = self.document.as_json();
-        let lights = json
-            .extensions
-            .as_ref()
-            .and_then(|e| e.khr_lights_punctual.as_ref())
-            .map(|l| l.lights.as_slice())
-            .unwrap_or_default();
+        let lights = document_lights(json);
         for (i, light) in lights.iter().enumerate() {
             if !self.placed_lights.contains(&i) {
                 let name = light.name.as_deref().unwrap_or("unnamed");
@@ -583,4 +573,15 @@ fn scene_label(scene: &gltf::Scene<'_>) -> String {
 /// the author meant.
 fn mirrors(world: &Mat4) -> bool {
     Mat3::from_mat4(*world).determinant() < 0.0
+}
+
+/// The `KHR_lights_punctual` lights the document defines (placed by nodes or not).
+fn document_lights(
+    json: &gltf::json::Root,
+) -> &[gltf::json::extensions::scene::khr_lights_punctual::Light] {
+    json.extensions
+        .as_ref()
+        .and_then(|e| e.khr_lights_punctual.as_ref())
+        .map(|l| l.lights.as_slice())
+        .unwrap_or_default()
 }
