@@ -6,6 +6,7 @@ use std::time::Instant;
 use anyhow::{Context, Result, bail};
 use bounce_core::bake::{BakeOptions, bake_file};
 use bounce_core::format::Baked;
+use bounce_core::formfactor::MAX_RAYS;
 use bounce_core::meta::{BakeStats, Bounces, StageTiming};
 use bounce_core::rays::Tracer;
 use bounce_core::voxel::Resolution;
@@ -59,8 +60,8 @@ pub struct BakeArgs {
 
 impl BakeArgs {
     pub fn options(&self) -> Result<BakeOptions> {
-        if self.rays == 0 {
-            bail!("--rays must be at least 1");
+        if self.rays == 0 || self.rays > MAX_RAYS {
+            bail!("--rays must be from 1 to {MAX_RAYS}, got {}", self.rays);
         }
         Ok(BakeOptions {
             resolution: match self.voxel_size {

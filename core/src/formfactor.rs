@@ -1,4 +1,4 @@
-//! Form factors with visibility, by cosine-weighted quasi-Monte-Carlo rays against a BVH.
+//! Form factors with visibility, by cosine-weighted quasi-Monte-Carlo rays (traced by [`crate::rays`]).
 //!
 //! Row `i` of `F` is estimated by shooting `R` rays from patch `i`: origins uniform over the patch,
 //! directions cosine-weighted about its normal, both from one 4-D Owen-scrambled Sobol sequence
@@ -22,9 +22,14 @@ pub use crate::rays::{RayFate, RayScene, RayTally, Tracer};
 pub enum FormFactorError {
     #[error("rays per patch must be at least 1")]
     NoRays,
+    #[error("{0} rays per patch is more than the {MAX_RAYS} the sample sequence provides")]
+    TooManyRays(u32),
     #[error("row range {start}..{end} is outside 0..{n}")]
     RowRange { start: usize, end: usize, n: usize },
 }
+
+/// The Owen-scrambled Sobol sequence (`sobol_burley`) has 2^16 points a seed.
+pub const MAX_RAYS: u32 = 1 << 16;
 
 /// Per-row seed: a hash of the bake seed and the row, so rows are independent streams.
 fn row_seed(seed: u64, row: usize) -> u32 {
@@ -117,6 +122,9 @@ pub fn form_factor_rows_tallied(
     let n = scene.patch_count();
     if rays == 0 {
         return Err(FormFactorError::NoRays);
+    }
+    if rays > MAX_RAYS {
+        return Err(FormFactorError::TooManyRays(rays));
     }
     if rows.start > rows.end || rows.end > n {
         return Err(FormFactorError::RowRange {

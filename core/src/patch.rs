@@ -111,8 +111,8 @@ impl Quad {
         self.point(1.0, 1.0)
     }
 
-    /// Distance along the ray to the rectangle, if the ray crosses it from its front side.
-    /// Back-side hits return `None` here; occlusion by back sides is handled by the caller.
+    /// Distance along the ray to the rectangle, if the ray crosses it at `t > 0`: from its front
+    /// side only, or from either side when `two_sided` (occlusion tests need back sides too).
     #[inline]
     pub fn intersect(&self, origin: Vec3, dir: Vec3, two_sided: bool) -> Option<f32> {
         let a = self.face.axis();

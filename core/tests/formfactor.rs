@@ -1,6 +1,6 @@
 //! Form factors against Howell's analytic catalogue (DESIGN.md §1) and their invariants.
 
-use bounce_core::formfactor::{RayScene, form_factor_rows, stats};
+use bounce_core::formfactor::{FormFactorError, MAX_RAYS, RayScene, form_factor_rows, stats};
 use bounce_core::matrix::DenseMatrix;
 use bounce_core::patch::{Face, Quad};
 
@@ -123,6 +123,21 @@ fn reciprocity_holds_between_unequal_patches() {
     let s = stats(&f, &areas);
     assert!(s.reciprocity_error < 0.01, "{s:?}");
     assert!(s.row_sum_max <= 1.0);
+}
+
+#[test]
+fn ray_counts_beyond_the_sequence_are_refused() {
+    let (a, b) = parallel_unit_squares();
+    let scene = RayScene::new(&[a, b], &[]);
+    assert!(form_factor_rows(&scene, 0..1, MAX_RAYS, 1, &no_progress).is_ok());
+    assert!(matches!(
+        form_factor_rows(&scene, 0..1, MAX_RAYS + 1, 1, &no_progress),
+        Err(FormFactorError::TooManyRays(_))
+    ));
+    assert!(matches!(
+        form_factor_rows(&scene, 0..1, 0, 1, &no_progress),
+        Err(FormFactorError::NoRays)
+    ));
 }
 
 #[test]
