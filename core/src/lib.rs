@@ -10,6 +10,7 @@
 //! `E_ind = T B0`.
 
 pub mod bake;
+pub mod codec;
 pub mod format;
 pub mod formfactor;
 pub mod import;

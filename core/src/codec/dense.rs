@@ -1,0 +1,211 @@
+//! Dense codecs: `dense-f32` (exact, the reference every other codec is measured against) and
+//! `dense-f16` (half the bytes; IEEE half keeps about 3 significant digits over a wide range, and
+//! transport entries below its subnormal range round to zero).
+//!
+//! [`DenseOp`] is also the decoded form other codecs reuse: a dense f32 matrix per channel.
+
+use half::f16;
+use rayon::prelude::*;
+
+use super::{Codec, CodecError, MatrixOp, batch_len};
+use crate::matrix::{DenseMatrix, EncodedMatrix};
+
+pub const DENSE_F16: &str = "dense-f16";
+
+/// The exact codec.
+pub struct DenseF32;
+
+impl Codec for DenseF32 {
+    fn name(&self) -> &'static str {
+        crate::matrix::DENSE_F32
+    }
+    fn encode(&self, t: &DenseMatrix) -> Result<EncodedMatrix, CodecError> {
+        Ok(EncodedMatrix::encode_dense_f32(t))
+    }
+}
+
+/// IEEE half precision, little-endian, same order as `dense-f32`.
+pub struct DenseF16;
+
+impl Codec for DenseF16 {
+    fn name(&self) -> &'static str {
+        DENSE_F16
+    }
+    fn encode(&self, t: &DenseMatrix) -> Result<EncodedMatrix, CodecError> {
+        let mut payload = Vec::with_capacity(t.data.len() * 2);
+        for &v in &t.data {
+            payload.extend_from_slice(&f16::from_f32(v).to_le_bytes());
+        }
+        Ok(EncodedMatrix {
+            codec: DENSE_F16.to_string(),
+            rows: t.n as u32,
+            cols: t.n as u32,
+            channels: t.channels as u32,
+            params: serde_json::json!({}),
+            payload,
+        })
+    }
+}
+
+pub(super) fn decode_f16(m: &EncodedMatrix) -> Result<DenseOp, CodecError> {
+    let n = m.rows as usize;
+    let channels = m.channels as usize;
+    let expected = n
+        .checked_mul(n)
+        .and_then(|v| v.checked_mul(channels))
+        .and_then(|v| v.checked_mul(2));
+    if expected != Some(m.payload.len()) {
+        return Err(CodecError::Corrupt {
+            codec: DENSE_F16.to_string(),
+            reason: format!(
+                "payload has {} bytes for a {n}×{n}×{channels} half matrix",
+                m.payload.len()
+            ),
+        });
+    }
+    let data: Vec<f32> = m
+        .payload
+        .chunks_exact(2)
+        .map(|b| f16::from_le_bytes([b[0], b[1]]).to_f32())
+        .collect();
+    if data.iter().any(|v| !v.is_finite()) {
+        return Err(CodecError::Corrupt {
+            codec: DENSE_F16.to_string(),
+            reason: "non-finite entry".to_string(),
+        });
+    }
+    Ok(DenseOp(DenseMatrix { n, channels, data }))
+}
+
+/// A dense f32 matrix ready for products.
+pub struct DenseOp(pub DenseMatrix);
+
+impl From<DenseMatrix> for DenseOp {
+    fn from(m: DenseMatrix) -> Self {
+        DenseOp(m)
+    }
+}
+
+impl MatrixOp for DenseOp {
+    fn n(&self) -> usize {
+        self.0.n
+    }
+
+    fn channels(&self) -> usize {
+        self.0.channels
+    }
+
+    fn matvec_batch(&self, x: &[[f32; 3]], out: &mut [[f32; 3]]) -> Result<(), CodecError> {
+        let n = self.0.n;
+        let batch = batch_len(n, x, out)?;
+        let m = &self.0;
+        // Rows in parallel; every light set of the batch shares the row's one pass over memory,
+        // which is what makes batching pay.
+        let rows: Vec<[f32; 3]> = (0..n)
+            .into_par_iter()
+            .flat_map_iter(|i| {
+                let rows: Vec<&[f32]> = (0..m.channels)
+                    .map(|c| &m.channel(c)[i * n..(i + 1) * n])
+                    .collect();
+                (0..batch).map(move |k| {
+                    let xs = &x[k * n..(k + 1) * n];
+                    let mut acc = [0.0f32; 3];
+                    for (c, a) in acc.iter_mut().enumerate() {
+                        let row = rows[c.min(rows.len() - 1)];
+                        *a = row.iter().zip(xs).map(|(&t, xj)| t * xj[c]).sum();
+                    }
+                    acc
+                })
+            })
+            .collect();
+        for (i, per_set) in rows.chunks_exact(batch).enumerate() {
+            for (k, v) in per_set.iter().enumerate() {
+                out[k * n + i] = *v;
+            }
+        }
+        Ok(())
+    }
+
+    fn to_dense(&self) -> DenseMatrix {
+        self.0.clone()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::codec::{by_name, decode};
+
+    fn sample_matrix(n: usize, channels: usize) -> DenseMatrix {
+        let mut s = 12345u64;
+        let data = (0..n * n * channels)
+            .map(|_| {
+                s = s.wrapping_mul(6364136223846793005).wrapping_add(1);
+                let u = (s >> 40) as f32 / (1u64 << 24) as f32;
+                // Transport-like: many small entries over several decades.
+                (u * 20.0 - 18.0).exp2() * 0.01
+            })
+            .collect();
+        DenseMatrix { n, channels, data }
+    }
+
+    #[test]
+    fn matvec_equals_decode_then_dense_matvec_for_every_dense_codec() {
+        for channels in [1, 3] {
+            let t = sample_matrix(37, channels);
+            let x: Vec<[f32; 3]> = (0..37 * 4)
+                .map(|k| [k as f32 * 0.1, 1.0, (k % 7) as f32])
+                .collect();
+            for name in ["dense-f32", "dense-f16"] {
+                let enc = by_name(name).unwrap().encode(&t).unwrap();
+                assert_eq!(enc.codec, name);
+                let op = decode(&enc).unwrap();
+                let dense = op.to_dense();
+                let mut got = vec![[0.0; 3]; x.len()];
+                op.matvec_batch(&x, &mut got).unwrap();
+                for k in 0..4 {
+                    for i in 0..37 {
+                        for c in 0..3 {
+                            let cc = c.min(channels - 1);
+                            let want: f64 = (0..37)
+                                .map(|j| dense.get(cc, i, j) as f64 * x[k * 37 + j][c] as f64)
+                                .sum();
+                            let g = got[k * 37 + i][c] as f64;
+                            assert!((g - want).abs() <= 1e-5 * want.abs() + 1e-9, "{name}");
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn f16_keeps_three_digits_and_f32_is_exact() {
+        let t = sample_matrix(20, 3);
+        let exact = decode(&DenseF32.encode(&t).unwrap()).unwrap().to_dense();
+        assert_eq!(exact, t);
+        let half = decode(&DenseF16.encode(&t).unwrap()).unwrap().to_dense();
+        for (&a, &b) in t.data.iter().zip(&half.data) {
+            // Normal halves are within 2^-11 relative; smaller values lose precision gradually.
+            if a >= 6.2e-5 {
+                assert!((a - b).abs() <= a * 4.9e-4, "{a} -> {b}");
+            } else {
+                assert!((a - b).abs() <= 6e-8, "{a} -> {b}");
+            }
+        }
+    }
+
+    #[test]
+    fn bad_batches_and_payloads_are_errors() {
+        let t = sample_matrix(5, 1);
+        let op = decode(&DenseF16.encode(&t).unwrap()).unwrap();
+        let mut out = vec![[0.0; 3]; 7];
+        assert!(op.matvec_batch(&[[0.0; 3]; 7], &mut out).is_err());
+        let mut enc = DenseF16.encode(&t).unwrap();
+        enc.payload.pop();
+        assert!(decode(&enc).is_err());
+        enc.codec = "dense-f99".into();
+        assert!(matches!(decode(&enc), Err(CodecError::Unknown { .. })));
+        assert!(by_name("nope").is_err());
+    }
+}

@@ -1,0 +1,90 @@
+//! Transport-matrix codecs behind one interface: encode an exact `T` into an [`EncodedMatrix`]
+//! (what the baked file stores), and decode that into a [`MatrixOp`] that multiplies a batch of
+//! light vectors on the CPU. GPU engines read the same encoded bytes (issue 5); this module owns
+//! only the CPU side and the exact building blocks.
+//!
+//! Vectors are RGB per patch: a batch of `b` light configurations is `b × n` `[f32; 3]`, light
+//! set `k` at `x[k * n..(k + 1) * n]`. A one-channel (colourless) matrix applies the same matrix to
+//! all three colours.
+
+pub mod bc;
+pub mod dense;
+pub mod error;
+pub mod transform;
+
+use thiserror::Error;
+
+use crate::matrix::{DenseMatrix, EncodedMatrix, MatrixError};
+
+#[derive(Debug, Error)]
+pub enum CodecError {
+    #[error("unknown codec '{name}' (known: {known})")]
+    Unknown { name: String, known: String },
+    #[error(transparent)]
+    Matrix(#[from] MatrixError),
+    #[error("codec '{codec}': {reason}")]
+    Corrupt { codec: String, reason: String },
+    #[error("batch of {got} values is not a multiple of the {n} patches")]
+    Batch { got: usize, n: usize },
+}
+
+/// A matrix decoded for products.
+pub trait MatrixOp: Send + Sync {
+    fn n(&self) -> usize;
+    fn channels(&self) -> usize;
+    /// `out[k·n + i][c] = Σ_j M_c(i, j) · x[k·n + j][c]` for every light set `k` of the batch.
+    fn matvec_batch(&self, x: &[[f32; 3]], out: &mut [[f32; 3]]) -> Result<(), CodecError>;
+    /// The decoded matrix in patch order, for error measurement.
+    fn to_dense(&self) -> DenseMatrix;
+}
+
+/// An encoder of exact transport matrices.
+pub trait Codec: Send + Sync {
+    /// The name stored in the file and given to `--codec`.
+    fn name(&self) -> &'static str;
+    fn encode(&self, t: &DenseMatrix) -> Result<EncodedMatrix, CodecError>;
+}
+
+/// Every codec this build knows, in the order benchmarks list them.
+pub fn all() -> Vec<Box<dyn Codec>> {
+    vec![Box::new(dense::DenseF32), Box::new(dense::DenseF16)]
+}
+
+pub fn by_name(name: &str) -> Result<Box<dyn Codec>, CodecError> {
+    all()
+        .into_iter()
+        .find(|c| c.name() == name)
+        .ok_or_else(|| CodecError::Unknown {
+            name: name.to_string(),
+            known: all()
+                .iter()
+                .map(|c| c.name())
+                .collect::<Vec<_>>()
+                .join(", "),
+        })
+}
+
+/// Decode a stored matrix for products, whichever codec wrote it.
+pub fn decode(m: &EncodedMatrix) -> Result<Box<dyn MatrixOp>, CodecError> {
+    m.validate_shape()?;
+    match m.codec.as_str() {
+        crate::matrix::DENSE_F32 => Ok(Box::new(dense::DenseOp::from(m.decode()?))),
+        dense::DENSE_F16 => Ok(Box::new(dense::decode_f16(m)?)),
+        other => Err(CodecError::Unknown {
+            name: other.to_string(),
+            known: all()
+                .iter()
+                .map(|c| c.name())
+                .collect::<Vec<_>>()
+                .join(", "),
+        }),
+    }
+}
+
+/// Check a batch's length against the matrix.
+pub(crate) fn batch_len(n: usize, x: &[[f32; 3]], out: &[[f32; 3]]) -> Result<usize, CodecError> {
+    if n == 0 || !x.len().is_multiple_of(n) || out.len() != x.len() {
+        return Err(CodecError::Batch { got: x.len(), n });
+    }
+    Ok(x.len() / n)
+}
