@@ -47,7 +47,7 @@ impl Codec for DenseF16 {
     }
 }
 
-pub(super) fn decode_f16(m: &EncodedMatrix) -> Result<DenseOp, CodecError> {
+pub(super) fn decode_f16(m: &EncodedMatrix) -> Result<Dense<f16>, CodecError> {
     let n = m.rows as usize;
     let channels = m.channels as usize;
     let expected = n
@@ -63,10 +63,10 @@ pub(super) fn decode_f16(m: &EncodedMatrix) -> Result<DenseOp, CodecError> {
             ),
         });
     }
-    let data: Vec<f32> = m
+    let data: Vec<f16> = m
         .payload
         .chunks_exact(2)
-        .map(|b| f16::from_le_bytes([b[0], b[1]]).to_f32())
+        .map(|b| f16::from_le_bytes([b[0], b[1]]))
         .collect();
     if data.iter().any(|v| !v.is_finite()) {
         return Err(CodecError::Corrupt {
@@ -74,45 +74,81 @@ pub(super) fn decode_f16(m: &EncodedMatrix) -> Result<DenseOp, CodecError> {
             reason: "non-finite entry".to_string(),
         });
     }
-    Ok(DenseOp(DenseMatrix { n, channels, data }))
+    Ok(Dense { n, channels, data })
 }
 
-/// A dense f32 matrix ready for products.
-pub struct DenseOp(pub DenseMatrix);
+/// A stored entry type the dense product reads directly (so `dense-f16` products read half the
+/// bytes, which is the point of the codec).
+pub trait Entry: Copy + Send + Sync {
+    fn value(self) -> f32;
+}
+
+impl Entry for f32 {
+    #[inline]
+    fn value(self) -> f32 {
+        self
+    }
+}
+
+impl Entry for f16 {
+    #[inline]
+    fn value(self) -> f32 {
+        self.to_f32()
+    }
+}
+
+/// A dense matrix ready for products: `data[c·n·n + i·n + j]`, as [`DenseMatrix`].
+pub struct Dense<T> {
+    pub n: usize,
+    pub channels: usize,
+    pub data: Vec<T>,
+}
+
+/// The exact decoded form.
+pub type DenseOp = Dense<f32>;
 
 impl From<DenseMatrix> for DenseOp {
     fn from(m: DenseMatrix) -> Self {
-        DenseOp(m)
+        Dense {
+            n: m.n,
+            channels: m.channels,
+            data: m.data,
+        }
     }
 }
 
-impl MatrixOp for DenseOp {
+impl<T: Entry> Dense<T> {
+    fn row(&self, c: usize, i: usize) -> &[T] {
+        let n = self.n;
+        &self.data[c * n * n + i * n..c * n * n + (i + 1) * n]
+    }
+}
+
+impl<T: Entry> MatrixOp for Dense<T> {
     fn n(&self) -> usize {
-        self.0.n
+        self.n
     }
 
     fn channels(&self) -> usize {
-        self.0.channels
+        self.channels
     }
 
     fn matvec_batch(&self, x: &[[f32; 3]], out: &mut [[f32; 3]]) -> Result<(), CodecError> {
-        let n = self.0.n;
+        let n = self.n;
         let batch = batch_len(n, x, out)?;
-        let m = &self.0;
+        let m = self;
         // Rows in parallel; every light set of the batch shares the row's one pass over memory,
         // which is what makes batching pay.
         let rows: Vec<[f32; 3]> = (0..n)
             .into_par_iter()
             .flat_map_iter(|i| {
-                let rows: Vec<&[f32]> = (0..m.channels)
-                    .map(|c| &m.channel(c)[i * n..(i + 1) * n])
-                    .collect();
+                let rows: Vec<&[T]> = (0..m.channels).map(|c| m.row(c, i)).collect();
                 (0..batch).map(move |k| {
                     let xs = &x[k * n..(k + 1) * n];
                     let mut acc = [0.0f32; 3];
                     for (c, a) in acc.iter_mut().enumerate() {
                         let row = rows[c.min(rows.len() - 1)];
-                        *a = row.iter().zip(xs).map(|(&t, xj)| t * xj[c]).sum();
+                        *a = row.iter().zip(xs).map(|(&t, xj)| t.value() * xj[c]).sum();
                     }
                     acc
                 })
@@ -127,7 +163,11 @@ impl MatrixOp for DenseOp {
     }
 
     fn to_dense(&self) -> DenseMatrix {
-        self.0.clone()
+        DenseMatrix {
+            n: self.n,
+            channels: self.channels,
+            data: self.data.iter().map(|v| v.value()).collect(),
+        }
     }
 }
 

@@ -142,8 +142,8 @@ mod tests {
         assert!((e.max - 0.09375).abs() < 1e-6 && e.sum > 0.0, "{e:?}");
 
         let b0: Vec<[f32; 3]> = (0..n * 2).map(|i| [1.0, i as f32, 0.5]).collect();
-        let exact = DenseOp(t);
-        let scaled = DenseOp(t2);
+        let exact = DenseOp::from(t);
+        let scaled = DenseOp::from(t2);
         let r = irradiance_errors(&exact, &exact, &b0).unwrap();
         assert_eq!(r.rel_l2, 0.0);
         let r = irradiance_errors(&exact, &scaled, &b0).unwrap();

@@ -10,6 +10,7 @@
 pub mod bc;
 pub mod dense;
 pub mod error;
+pub mod logblock;
 pub mod transform;
 
 use thiserror::Error;
@@ -47,7 +48,12 @@ pub trait Codec: Send + Sync {
 
 /// Every codec this build knows, in the order benchmarks list them.
 pub fn all() -> Vec<Box<dyn Codec>> {
-    vec![Box::new(dense::DenseF32), Box::new(dense::DenseF16)]
+    vec![
+        Box::new(dense::DenseF32),
+        Box::new(dense::DenseF16),
+        Box::new(logblock::LogBlock::bc1()),
+        Box::new(logblock::LogBlock::bc4()),
+    ]
 }
 
 pub fn by_name(name: &str) -> Result<Box<dyn Codec>, CodecError> {
@@ -70,6 +76,8 @@ pub fn decode(m: &EncodedMatrix) -> Result<Box<dyn MatrixOp>, CodecError> {
     match m.codec.as_str() {
         crate::matrix::DENSE_F32 => Ok(Box::new(dense::DenseOp::from(m.decode()?))),
         dense::DENSE_F16 => Ok(Box::new(dense::decode_f16(m)?)),
+        "bc1" => Ok(Box::new(logblock::decode(m, logblock::Blocks::Bc1)?)),
+        "bc4" => Ok(Box::new(logblock::decode(m, logblock::Blocks::Bc4)?)),
         other => Err(CodecError::Unknown {
             name: other.to_string(),
             known: all()
