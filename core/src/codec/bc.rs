@@ -133,28 +133,7 @@ pub fn decode_bc1_block(block: &[u8; 8]) -> [[u8; 3]; 16] {
 pub fn decode_bc1(blocks: &[u8], width: usize, height: usize) -> Vec<[u8; 3]> {
     debug_assert!(width.is_multiple_of(4) && height.is_multiple_of(4));
     debug_assert_eq!(blocks.len(), encoded_len(width, height));
-    let mut out = vec![[0u8; 3]; width * height];
-    let bw = width / 4;
-    if bw == 0 {
-        return out;
-    }
-    out.par_chunks_mut(width * 4)
-        .zip(blocks.par_chunks(bw * BLOCK_BYTES))
-        .for_each(|(rows, src)| {
-            if rows.len() < width * 4 {
-                return;
-            }
-            for (bx, chunk) in src.chunks_exact(BLOCK_BYTES).enumerate() {
-                let Ok(block) = <&[u8; 8]>::try_from(chunk) else {
-                    continue;
-                };
-                let texels = decode_bc1_block(block);
-                for (i, t) in texels.iter().enumerate() {
-                    rows[(i / 4) * width + bx * 4 + i % 4] = *t;
-                }
-            }
-        });
-    out
+    decode_image(blocks, width, height, [0u8; 3], decode_bc1_block)
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -206,7 +185,19 @@ pub fn decode_bc4_block(block: &[u8; 8]) -> [u8; 16] {
 pub fn decode_bc4(blocks: &[u8], width: usize, height: usize) -> Vec<u8> {
     debug_assert!(width.is_multiple_of(4) && height.is_multiple_of(4));
     debug_assert_eq!(blocks.len(), encoded_len(width, height));
-    let mut out = vec![0u8; width * height];
+    decode_image(blocks, width, height, 0u8, decode_bc4_block)
+}
+
+/// Decode a row-major grid of 4×4 blocks with `decode_block`; the shared half of the BC1 and
+/// BC4 image decoders. Missing blocks stay `zero`, extra bytes are ignored.
+fn decode_image<T: Copy + Send + Sync>(
+    blocks: &[u8],
+    width: usize,
+    height: usize,
+    zero: T,
+    decode_block: impl Fn(&[u8; 8]) -> [T; 16] + Sync,
+) -> Vec<T> {
+    let mut out = vec![zero; width * height];
     let bw = width / 4;
     if bw == 0 {
         return out;
@@ -221,8 +212,7 @@ pub fn decode_bc4(blocks: &[u8], width: usize, height: usize) -> Vec<u8> {
                 let Ok(block) = <&[u8; 8]>::try_from(chunk) else {
                     continue;
                 };
-                let texels = decode_bc4_block(block);
-                for (i, t) in texels.iter().enumerate() {
+                for (i, t) in decode_block(block).iter().enumerate() {
                     rows[(i / 4) * width + bx * 4 + i % 4] = *t;
                 }
             }

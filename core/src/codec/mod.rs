@@ -60,14 +60,18 @@ pub fn by_name(name: &str) -> Result<Box<dyn Codec>, CodecError> {
     all()
         .into_iter()
         .find(|c| c.name() == name)
-        .ok_or_else(|| CodecError::Unknown {
-            name: name.to_string(),
-            known: all()
-                .iter()
-                .map(|c| c.name())
-                .collect::<Vec<_>>()
-                .join(", "),
-        })
+        .ok_or_else(|| unknown(name))
+}
+
+fn unknown(name: &str) -> CodecError {
+    CodecError::Unknown {
+        name: name.to_string(),
+        known: all()
+            .iter()
+            .map(|c| c.name())
+            .collect::<Vec<_>>()
+            .join(", "),
+    }
 }
 
 /// Decode a stored matrix for products, whichever codec wrote it.
@@ -78,14 +82,7 @@ pub fn decode(m: &EncodedMatrix) -> Result<Box<dyn MatrixOp>, CodecError> {
         dense::DENSE_F16 => Ok(Box::new(dense::decode_f16(m)?)),
         "bc1" => Ok(Box::new(logblock::decode(m, logblock::Blocks::Bc1)?)),
         "bc4" => Ok(Box::new(logblock::decode(m, logblock::Blocks::Bc4)?)),
-        other => Err(CodecError::Unknown {
-            name: other.to_string(),
-            known: all()
-                .iter()
-                .map(|c| c.name())
-                .collect::<Vec<_>>()
-                .join(", "),
-        }),
+        other => Err(unknown(other)),
     }
 }
 
