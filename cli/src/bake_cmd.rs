@@ -4,7 +4,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
-use bounce_core::bake::{BakeOptions, bake_file};
+use bounce_core::bake::{BakeOptions, CodecRequest, bake_file};
 use bounce_core::format::Baked;
 use bounce_core::formfactor::MAX_RAYS;
 use bounce_core::meta::{BakeStats, Bounces, StageTiming};
@@ -47,6 +47,16 @@ pub struct BakeArgs {
     /// `bvh` uses an obvhs BVH over the patch quads. `bounce bench rays` compares them.
     #[arg(long, default_value = "grid")]
     pub tracer: Tracer,
+    /// How the transport is stored: dense-f32 (exact), dense-f16, bc1 (the thesis codec), bc4,
+    /// or auto (the smallest whose indirect-irradiance error stays within --max-error).
+    #[arg(long, value_name = "NAME|auto", default_value = "dense-f32")]
+    pub codec: String,
+    /// For --codec auto: the largest relative L2 error of the indirect irradiance allowed.
+    #[arg(long, value_name = "E", default_value_t = 0.02)]
+    pub max_error: f64,
+    /// Share of entries bc1/bc4 keep exactly (the thesis used 0.04).
+    #[arg(long, value_name = "S", default_value_t = 0.04)]
+    pub sparse_share: f64,
     /// Also store the single-bounce form-factor matrix (doubles the file for k > 1).
     #[arg(long)]
     pub keep_form_factors: bool,
@@ -73,6 +83,14 @@ impl BakeArgs {
             bounces: self.bounces,
             keep_form_factors: self.keep_form_factors,
             tracer: self.tracer,
+            codec: if self.codec == "auto" {
+                CodecRequest::Auto {
+                    max_error: self.max_error,
+                }
+            } else {
+                CodecRequest::Named(self.codec.clone())
+            },
+            sparse_share: self.sparse_share,
         })
     }
 }
@@ -161,6 +179,13 @@ fn print_summary(baked: &Baked, out: &Path, file_bytes: u64, total_s: f64) {
         baked.transport.codec,
         human_bytes(s.matrix_bytes)
     );
+    if baked.transport.codec != bounce_core::matrix::DENSE_F32 {
+        println!(
+            "  codec error   {:.3e} relative L2 of indirect irradiance over {} probe light sets",
+            s.codec_eind_rel_l2,
+            bounce_core::bake::PROBE_LIGHT_SETS
+        );
+    }
     println!(
         "  row sums      min {:.4}  max {:.4}  mean {:.4}",
         s.row_sum_min, s.row_sum_max, s.row_sum_mean

@@ -108,6 +108,35 @@ fn all_bounces_and_single_bounce() {
 }
 
 #[test]
+fn bake_with_a_codec_or_auto() {
+    let dir = tempfile::tempdir().unwrap();
+    for (codec, want) in [("bc1", "bc1"), ("dense-f16", "dense-f16"), ("auto", "bc1")] {
+        let file = dir.path().join(format!("{codec}.bounce"));
+        let out = run(bounce()
+            .args(["bake", "--patches", "200", "--rays", "256", "-q"])
+            .args(["--codec", codec, "--max-error", "0.05", "-o"])
+            .arg(&file)
+            .arg(cornell()));
+        assert!(out.status.success(), "{}", stderr(&out));
+        let j = inspect_json(&file);
+        assert_eq!(j["codec"], want, "--codec {codec}");
+        let err = j["stats"]["codec_eind_rel_l2"].as_f64().unwrap();
+        assert!(err < 0.05, "{codec}: {err}");
+        assert_eq!(j["settings"]["codec"], codec);
+    }
+    let unknown = run(bounce()
+        .args(["bake", "--codec", "bc7", "-o"])
+        .arg(dir.path().join("x.bounce"))
+        .arg(cornell()));
+    assert_eq!(unknown.status.code(), Some(1));
+    assert!(
+        stderr(&unknown).contains("unknown codec 'bc7'"),
+        "{}",
+        stderr(&unknown)
+    );
+}
+
+#[test]
 fn the_thread_count_does_not_change_the_result() {
     let dir = tempfile::tempdir().unwrap();
     let mut bakes = Vec::new();

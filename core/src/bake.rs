@@ -8,10 +8,12 @@ use std::time::Instant;
 
 use thiserror::Error;
 
+use crate::codec::error::{irradiance_errors, probe_light_sets};
+use crate::codec::{self, CodecError};
 use crate::format::Baked;
 use crate::formfactor::{self, FormFactorError, RayScene};
 use crate::import::{self, ImportError};
-use crate::matrix::EncodedMatrix;
+use crate::matrix::{DENSE_F32, EncodedMatrix};
 use crate::meta::{BakeMeta, BakeSettings, BakeStats, Bounces, StageTiming};
 use crate::rays::Tracer;
 use crate::scene::Scene;
@@ -32,7 +34,23 @@ pub struct BakeOptions {
     /// Also store the single-bounce form factors (for baselines and re-deriving `T` later).
     pub keep_form_factors: bool,
     pub tracer: Tracer,
+    /// How the transport is stored.
+    pub codec: CodecRequest,
+    /// Share of entries the thesis-family codecs keep exactly.
+    pub sparse_share: f64,
 }
+
+/// Which codec stores the transport.
+#[derive(Debug, Clone, PartialEq)]
+pub enum CodecRequest {
+    /// This codec (`dense-f32`, `dense-f16`, `bc1`, `bc4`).
+    Named(String),
+    /// The smallest codec whose `E_ind` relative L2 error stays within `max_error`.
+    Auto { max_error: f64 },
+}
+
+/// Light configurations the bake measures codec error with (see `codec::error::probe_light_sets`).
+pub const PROBE_LIGHT_SETS: usize = 8;
 
 impl Default for BakeOptions {
     fn default() -> Self {
@@ -43,6 +61,8 @@ impl Default for BakeOptions {
             bounces: Bounces::K(3),
             keep_form_factors: false,
             tracer: Tracer::Grid,
+            codec: CodecRequest::Named(DENSE_F32.to_string()),
+            sparse_share: 0.04,
         }
     }
 }
@@ -100,6 +120,10 @@ pub enum BakeError {
     FormFactor(#[from] FormFactorError),
     #[error(transparent)]
     Transport(#[from] TransportError),
+    #[error(transparent)]
+    Codec(#[from] CodecError),
+    #[error("{0}")]
+    Options(String),
     #[error(
         "no patch sees another: all {patches} patches (down to voxel size {voxel_size}) send \
          every ray into open space or onto occluders, so there is no indirect light to \
@@ -135,6 +159,7 @@ pub fn bake_file(
     options: &BakeOptions,
     progress: &dyn Progress,
 ) -> Result<Baked, BakeError> {
+    check_codec_options(options)?;
     let mut timer = Timer {
         progress,
         timings: Vec::new(),
@@ -155,6 +180,7 @@ pub fn bake_scene(
     options: &BakeOptions,
     progress: &dyn Progress,
 ) -> Result<Baked, BakeError> {
+    check_codec_options(options)?;
     let timer = Timer {
         progress,
         timings: Vec::new(),
@@ -179,6 +205,52 @@ pub fn simplify(scene: &Scene, options: &BakeOptions) -> Result<voxel::Voxelizat
         },
         e => BakeError::Voxel(e),
     })
+}
+
+/// Refuse bad codec options before any expensive work.
+fn check_codec_options(options: &BakeOptions) -> Result<(), BakeError> {
+    if !(0.0..=1.0).contains(&options.sparse_share) {
+        return Err(BakeError::Options(format!(
+            "--sparse-share must be between 0 and 1, got {}",
+            options.sparse_share
+        )));
+    }
+    match &options.codec {
+        CodecRequest::Named(name) => {
+            codec::configured(name, options.sparse_share)?;
+        }
+        CodecRequest::Auto { max_error } => {
+            if !(max_error.is_finite() && *max_error > 0.0) {
+                return Err(BakeError::Options(format!(
+                    "--max-error must be a positive number, got {max_error}"
+                )));
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Store `t` with the requested codec; also returns its `E_ind` error against `t` over `probe`.
+fn encode_transport(
+    t: &crate::matrix::DenseMatrix,
+    probe: &[[f32; 3]],
+    options: &BakeOptions,
+) -> Result<(EncodedMatrix, f64), BakeError> {
+    match &options.codec {
+        CodecRequest::Named(name) if name == DENSE_F32 => {
+            Ok((EncodedMatrix::encode_dense_f32(t), 0.0))
+        }
+        CodecRequest::Named(name) => {
+            let enc = codec::configured(name, options.sparse_share)?.encode(t)?;
+            let exact = codec::dense::DenseOp::from(t.clone());
+            let err = irradiance_errors(&exact, codec::decode(&enc)?.as_ref(), probe)?.rel_l2;
+            Ok((enc, err))
+        }
+        CodecRequest::Auto { max_error } => {
+            let choice = codec::choose(t, probe, *max_error, options.sparse_share)?;
+            Ok((choice.encoded, choice.rel_l2))
+        }
+    }
 }
 
 fn bake_with(
@@ -216,14 +288,12 @@ fn bake_with(
         transport::transport(&f, &albedo, options.bounces, &advance)
     })?;
 
-    let (transport, form_factors) = timer.run(Stage::Encode, 0, || {
-        (
-            EncodedMatrix::encode_dense_f32(&t),
-            options
-                .keep_form_factors
-                .then(|| EncodedMatrix::encode_dense_f32(&f)),
-        )
-    });
+    let probe = probe_light_sets(&layout, PROBE_LIGHT_SETS);
+    let (transport, codec_err) =
+        timer.run(Stage::Encode, 0, || encode_transport(&t, &probe, options))?;
+    let form_factors = options
+        .keep_form_factors
+        .then(|| EncodedMatrix::encode_dense_f32(&f));
 
     let (target_patches, requested_voxel_size) = match options.resolution {
         Resolution::TargetPatches(p) => (Some(p), None),
@@ -240,6 +310,15 @@ fn bake_with(
             seed: options.seed,
             bounces: options.bounces,
             tracer,
+            codec: match &options.codec {
+                CodecRequest::Named(name) => name.clone(),
+                CodecRequest::Auto { .. } => "auto".to_string(),
+            },
+            sparse_share: options.sparse_share,
+            max_error: match options.codec {
+                CodecRequest::Auto { max_error } => Some(max_error),
+                CodecRequest::Named(_) => None,
+            },
         },
         stats: BakeStats {
             patches: n,
@@ -255,6 +334,7 @@ fn bake_with(
             isolated_patches: ff.isolated,
             channels,
             matrix_bytes: transport.payload.len() as u64,
+            codec_eind_rel_l2: codec_err,
         },
         timings: timer.timings,
         import_report: scene.report.clone(),

@@ -75,6 +75,23 @@ pub struct BakeSettings {
     pub bounces: Bounces,
     /// The ray tracer that estimated the form factors (`grid` falls back to `bvh` on huge grids).
     pub tracer: crate::rays::Tracer,
+    /// The codec asked for: a codec name, or `auto` (the smallest within `max_error`).
+    #[serde(default = "default_codec")]
+    pub codec: String,
+    /// Share of entries the thesis-family codecs keep exactly.
+    #[serde(default = "default_sparse_share")]
+    pub sparse_share: f64,
+    /// For `auto`: the largest `E_ind` relative L2 error allowed.
+    #[serde(default)]
+    pub max_error: Option<f64>,
+}
+
+fn default_codec() -> String {
+    crate::matrix::DENSE_F32.to_string()
+}
+
+fn default_sparse_share() -> f64 {
+    0.04
 }
 
 /// Figures measured during the bake.
@@ -99,6 +116,10 @@ pub struct BakeStats {
     pub isolated_patches: usize,
     pub channels: usize,
     pub matrix_bytes: u64,
+    /// `E_ind` relative L2 error of the stored matrix against the exact one, over the probe light
+    /// sets of `codec::error::probe_light_sets` (0 for `dense-f32`).
+    #[serde(default)]
+    pub codec_eind_rel_l2: f64,
 }
 
 /// Wall time of one bake stage.

@@ -99,6 +99,35 @@ fn errors_are_bounded_and_ordered_as_expected() {
 }
 
 #[test]
+fn auto_picks_the_smallest_codec_within_the_error_budget() {
+    let (t, layout) = cornell();
+    let b0 = probe_light_sets(layout, 8);
+    for max_error in [1e-9, 1e-4, 1e-3, 0.05] {
+        let choice = bounce_core::codec::choose(t, &b0, max_error, 0.04).unwrap();
+        assert_eq!(choice.candidates.len(), all().len());
+        let within: Vec<_> = choice
+            .candidates
+            .iter()
+            .filter(|(_, _, err)| *err <= max_error)
+            .collect();
+        match within.iter().min_by_key(|(_, bytes, _)| *bytes) {
+            Some((name, bytes, err)) => {
+                assert_eq!(
+                    &choice.encoded.codec, name,
+                    "{max_error}: {:?}",
+                    choice.candidates
+                );
+                assert_eq!(choice.encoded.payload.len(), *bytes);
+                assert_eq!(choice.rel_l2, *err);
+            }
+            // Nothing lossy fits: the exact matrix, never something over budget.
+            None => assert_eq!(choice.encoded.codec, "dense-f32"),
+        }
+        assert!(choice.rel_l2 <= max_error);
+    }
+}
+
+#[test]
 fn damaged_payloads_are_refused_not_trusted() {
     let (t, _) = cornell();
     for codec in [LogBlock::bc1(), LogBlock::bc4()] {

@@ -96,6 +96,9 @@ fn sample_meta() -> BakeMeta {
             seed: 7,
             bounces: Bounces::All,
             tracer: bounce_core::rays::Tracer::Grid,
+            codec: "bc1".to_string(),
+            sparse_share: 0.04,
+            max_error: Some(0.02),
         },
         stats: BakeStats {
             patches: 5,
@@ -116,6 +119,7 @@ fn sample_meta() -> BakeMeta {
             isolated_patches: 0,
             channels: 3,
             matrix_bytes: 300,
+            codec_eind_rel_l2: 1.5e-3,
         },
         timings: vec![StageTiming {
             stage: "form factors".into(),

@@ -74,6 +74,65 @@ fn unknown(name: &str) -> CodecError {
     }
 }
 
+/// A codec by name with the knobs a bake gives it.
+pub fn configured(name: &str, sparse_share: f64) -> Result<Box<dyn Codec>, CodecError> {
+    let with_share = |base: logblock::LogBlock| -> Box<dyn Codec> {
+        Box::new(logblock::LogBlock {
+            sparse_share,
+            ..base
+        })
+    };
+    match name {
+        "bc1" => Ok(with_share(logblock::LogBlock::bc1())),
+        "bc4" => Ok(with_share(logblock::LogBlock::bc4())),
+        other => by_name(other),
+    }
+}
+
+/// What [`choose`] picked and why.
+#[derive(Debug, Clone)]
+pub struct Choice {
+    pub encoded: EncodedMatrix,
+    /// `E_ind` relative L2 error of `encoded` against the exact matrix.
+    pub rel_l2: f64,
+    /// Every candidate tried: name, bytes, error.
+    pub candidates: Vec<(String, usize, f64)>,
+}
+
+/// The smallest encoding whose `E_ind` error over `b0` stays within `max_error`; the exact
+/// `dense-f32` when none does.
+pub fn choose(
+    exact: &DenseMatrix,
+    b0: &[[f32; 3]],
+    max_error: f64,
+    sparse_share: f64,
+) -> Result<Choice, CodecError> {
+    let exact_op = dense::DenseOp::from(exact.clone());
+    let mut best: Option<(EncodedMatrix, f64)> = None;
+    let mut candidates = Vec::new();
+    for codec in all() {
+        let codec = configured(codec.name(), sparse_share)?;
+        let enc = codec.encode(exact)?;
+        let op = decode(&enc)?;
+        let err = error::irradiance_errors(&exact_op, op.as_ref(), b0)?.rel_l2;
+        let bytes = enc.payload.len();
+        candidates.push((enc.codec.clone(), bytes, err));
+        let better = best.as_ref().is_none_or(|(b, _)| bytes < b.payload.len());
+        if err <= max_error && better {
+            best = Some((enc, err));
+        }
+    }
+    let (encoded, rel_l2) = match best {
+        Some(b) => b,
+        None => (EncodedMatrix::encode_dense_f32(exact), 0.0),
+    };
+    Ok(Choice {
+        encoded,
+        rel_l2,
+        candidates,
+    })
+}
+
 /// Decode a stored matrix for products, whichever codec wrote it.
 pub fn decode(m: &EncodedMatrix) -> Result<Box<dyn MatrixOp>, CodecError> {
     m.validate_shape()?;
