@@ -9,7 +9,7 @@ use bounce_core::format::Baked;
 use bounce_core::formfactor::MAX_RAYS;
 use bounce_core::meta::{BakeStats, Bounces, StageTiming};
 use bounce_core::rays::Tracer;
-use bounce_core::voxel::Resolution;
+use bounce_core::voxel::{PatchOrder, Resolution};
 use clap::Args;
 use serde::{Deserialize, Serialize};
 
@@ -57,6 +57,10 @@ pub struct BakeArgs {
     /// Share of entries bc1/bc4 keep exactly (the thesis used 0.04).
     #[arg(long, value_name = "S", default_value_t = 0.04)]
     pub sparse_share: f64,
+    /// Patch numbering (rows and columns of the transport): voxel scan order, or Morton
+    /// (Z-order), which keeps nearby patches at nearby indices.
+    #[arg(long, value_name = "scan|morton", default_value = "scan")]
+    pub patch_order: PatchOrder,
     /// Also store the single-bounce form-factor matrix (doubles the file for k > 1).
     #[arg(long)]
     pub keep_form_factors: bool,
@@ -91,6 +95,7 @@ impl BakeArgs {
                 CodecRequest::Named(self.codec.clone())
             },
             sparse_share: self.sparse_share,
+            patch_order: self.patch_order,
         })
     }
 }

@@ -137,6 +137,30 @@ fn bake_with_a_codec_or_auto() {
 }
 
 #[test]
+fn morton_order_numbers_the_same_patches_differently() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut layouts = Vec::new();
+    for order in ["scan", "morton"] {
+        let file = dir.path().join(format!("{order}.bounce"));
+        let out = run(bounce()
+            .args(["bake", "--patches", "300", "--rays", "64", "-q"])
+            .args(["--patch-order", order, "-o"])
+            .arg(&file)
+            .arg(cornell()));
+        assert!(out.status.success(), "{}", stderr(&out));
+        assert_eq!(inspect_json(&file)["settings"]["patch_order"], order);
+        layouts.push(Baked::read(&file).unwrap().layout.patches);
+    }
+    assert_ne!(layouts[0], layouts[1]);
+    let key = |p: &bounce_core::patch::Patch| (p.voxel, p.face);
+    let mut a: Vec<_> = layouts[0].iter().map(key).collect();
+    let mut b: Vec<_> = layouts[1].iter().map(key).collect();
+    a.sort();
+    b.sort();
+    assert_eq!(a, b);
+}
+
+#[test]
 fn the_thread_count_does_not_change_the_result() {
     let dir = tempfile::tempdir().unwrap();
     let mut bakes = Vec::new();

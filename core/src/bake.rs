@@ -38,6 +38,8 @@ pub struct BakeOptions {
     pub codec: CodecRequest,
     /// Share of entries the thesis-family codecs keep exactly.
     pub sparse_share: f64,
+    /// The order patches (rows and columns of `T`) are numbered in.
+    pub patch_order: voxel::PatchOrder,
 }
 
 /// Which codec stores the transport.
@@ -63,6 +65,7 @@ impl Default for BakeOptions {
             tracer: Tracer::Grid,
             codec: CodecRequest::Named(DENSE_F32.to_string()),
             sparse_share: 0.04,
+            patch_order: voxel::PatchOrder::Scan,
         }
     }
 }
@@ -198,13 +201,17 @@ pub fn simplify(scene: &Scene, options: &BakeOptions) -> Result<voxel::Voxelizat
         v.drop_patches(&isolated);
         v
     };
-    voxel::voxelize_refined(scene, options.resolution, &drop_isolated).map_err(|e| match e {
-        VoxelError::AllDropped { candidates, size } => BakeError::NoInterreflection {
-            patches: candidates,
-            voxel_size: size,
+    let mut vox = voxel::voxelize_refined(scene, options.resolution, &drop_isolated).map_err(
+        |e| match e {
+            VoxelError::AllDropped { candidates, size } => BakeError::NoInterreflection {
+                patches: candidates,
+                voxel_size: size,
+            },
+            e => BakeError::Voxel(e),
         },
-        e => BakeError::Voxel(e),
-    })
+    )?;
+    vox.layout.reorder(options.patch_order);
+    Ok(vox)
 }
 
 /// Refuse bad codec options before any expensive work.
@@ -315,6 +322,7 @@ fn bake_with(
                 CodecRequest::Auto { .. } => "auto".to_string(),
             },
             sparse_share: options.sparse_share,
+            patch_order: options.patch_order,
             max_error: match options.codec {
                 CodecRequest::Auto { max_error } => Some(max_error),
                 CodecRequest::Named(_) => None,

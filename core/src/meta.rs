@@ -84,6 +84,13 @@ pub struct BakeSettings {
     /// For `auto`: the largest `E_ind` relative L2 error allowed.
     #[serde(default)]
     pub max_error: Option<f64>,
+    /// The order patches are numbered in.
+    #[serde(default = "default_patch_order")]
+    pub patch_order: crate::voxel::PatchOrder,
+}
+
+fn default_patch_order() -> crate::voxel::PatchOrder {
+    crate::voxel::PatchOrder::Scan
 }
 
 fn default_codec() -> String {

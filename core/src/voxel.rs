@@ -101,6 +101,70 @@ impl Voxelization {
     }
 }
 
+/// The order patches are numbered in, which is the order of the transport's rows and columns.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum PatchOrder {
+    /// Voxel scan order: x fastest, then y, then z; faces in code order within a voxel.
+    Scan,
+    /// Z-order (Morton) of the voxel coordinates: nearby patches get nearby indices along all
+    /// three axes, so nearby rows and columns of `T` tend to be similar (the thesis' reordering,
+    /// for free at bake time).
+    Morton,
+}
+
+impl std::str::FromStr for PatchOrder {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "scan" => Ok(PatchOrder::Scan),
+            "morton" => Ok(PatchOrder::Morton),
+            _ => Err(format!("patch order must be 'scan' or 'morton', got '{s}'")),
+        }
+    }
+}
+
+impl std::fmt::Display for PatchOrder {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            PatchOrder::Scan => "scan",
+            PatchOrder::Morton => "morton",
+        })
+    }
+}
+
+/// Spread the low 21 bits of `v` to every third bit.
+fn spread3(v: u32) -> u64 {
+    let mut x = u64::from(v) & 0x1f_ffff;
+    x = (x | x << 32) & 0x1f_0000_0000_ffff;
+    x = (x | x << 16) & 0x1f_0000_ff00_00ff;
+    x = (x | x << 8) & 0x100f_00f0_0f00_f00f;
+    x = (x | x << 4) & 0x10c3_0c30_c30c_30c3;
+    x = (x | x << 2) & 0x1249_2492_4924_9249;
+    x
+}
+
+/// Morton code of a voxel (grids up to 2^21 voxels a side).
+pub fn morton(voxel: [u32; 3]) -> u64 {
+    spread3(voxel[0]) | spread3(voxel[1]) << 1 | spread3(voxel[2]) << 2
+}
+
+impl PatchLayout {
+    /// Renumber the patches in `order`. Ties (the faces of one voxel) keep face-code order.
+    pub fn reorder(&mut self, order: PatchOrder) {
+        if order == PatchOrder::Morton {
+            self.patches
+                .sort_by_key(|p| (morton(p.voxel), p.face.code()));
+        } else {
+            let dims = self.dims.map(u64::from);
+            self.patches.sort_by_key(|p| {
+                let v = p.voxel.map(u64::from);
+                ((v[2] * dims[1] + v[1]) * dims[0] + v[0], p.face.code())
+            });
+        }
+    }
+}
+
 /// A step applied to every candidate voxelisation before its patches are counted, so that the
 /// voxel-size search aims at the patches that will really be used.
 pub type Refine<'a> = &'a dyn Fn(Voxelization) -> Voxelization;
@@ -624,6 +688,39 @@ mod tests {
             assert!(a > 0.3 && a <= 1.0 + 1e-4, "{face:?}: {a}");
         }
         assert_eq!(area_by_face[Face::PosZ as usize], 0.0);
+    }
+
+    #[test]
+    fn morton_order_interleaves_the_axes_and_keeps_every_patch() {
+        assert_eq!(morton([1, 0, 0]), 1);
+        assert_eq!(morton([0, 1, 0]), 2);
+        assert_eq!(morton([0, 0, 1]), 4);
+        assert_eq!(morton([3, 3, 3]), 63);
+        assert_eq!(morton([0x1f_ffff, 0, 0]), 0x1249_2492_4924_9249);
+        let c = [
+            Vec3::new(0.0, 0.0, 0.0),
+            Vec3::new(0.0, 0.0, 2.0),
+            Vec3::new(2.0, 0.0, 2.0),
+            Vec3::new(2.0, 0.0, 0.0),
+        ];
+        let scene = Scene {
+            triangles: quad_tris(c, Vec3::splat(0.5)).to_vec(),
+            ..Default::default()
+        };
+        let v = voxelize_at(&scene, 0.25).unwrap();
+        let mut m = v.layout.clone();
+        m.reorder(PatchOrder::Morton);
+        assert_ne!(
+            m.patches, v.layout.patches,
+            "a 9×9 floor is not already in Morton order"
+        );
+        let codes: Vec<u64> = m.patches.iter().map(|p| morton(p.voxel)).collect();
+        assert!(codes.windows(2).all(|w| w[0] <= w[1]));
+        m.reorder(PatchOrder::Scan);
+        assert_eq!(
+            m.patches, v.layout.patches,
+            "scan order is the voxeliser's own"
+        );
     }
 
     #[test]

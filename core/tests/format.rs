@@ -99,6 +99,7 @@ fn sample_meta() -> BakeMeta {
             codec: "bc1".to_string(),
             sparse_share: 0.04,
             max_error: Some(0.02),
+            patch_order: bounce_core::voxel::PatchOrder::Morton,
         },
         stats: BakeStats {
             patches: 5,
