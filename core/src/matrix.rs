@@ -78,20 +78,25 @@ pub const DENSE_F32: &str = "dense-f32";
 pub struct DenseF32Params {}
 
 impl EncodedMatrix {
-    /// The exact codec: little-endian f32, channel-major then row-major.
-    pub fn encode_dense_f32(m: &DenseMatrix) -> EncodedMatrix {
-        let mut payload = Vec::with_capacity(m.bytes());
-        for v in &m.data {
-            payload.extend_from_slice(&v.to_le_bytes());
-        }
+    /// A parameterless encoding of `m`'s shape: the dense codecs' header.
+    pub fn dense(codec: &str, m: &DenseMatrix, payload: Vec<u8>) -> EncodedMatrix {
         EncodedMatrix {
-            codec: DENSE_F32.to_string(),
+            codec: codec.to_string(),
             rows: m.n as u32,
             cols: m.n as u32,
             channels: m.channels as u32,
             params: serde_json::json!({}),
             payload,
         }
+    }
+
+    /// The exact codec: little-endian f32, channel-major then row-major.
+    pub fn encode_dense_f32(m: &DenseMatrix) -> EncodedMatrix {
+        let mut payload = Vec::with_capacity(m.bytes());
+        for v in &m.data {
+            payload.extend_from_slice(&v.to_le_bytes());
+        }
+        EncodedMatrix::dense(DENSE_F32, m, payload)
     }
 
     /// Bytes the dense matrix would take; checked arithmetic so a hostile header cannot overflow.

@@ -36,14 +36,7 @@ impl Codec for DenseF16 {
         for &v in &t.data {
             payload.extend_from_slice(&f16::from_f32(v).to_le_bytes());
         }
-        Ok(EncodedMatrix {
-            codec: DENSE_F16.to_string(),
-            rows: t.n as u32,
-            cols: t.n as u32,
-            channels: t.channels as u32,
-            params: serde_json::json!({}),
-            payload,
-        })
+        Ok(EncodedMatrix::dense(DENSE_F16, t, payload))
     }
 }
 
