@@ -311,6 +311,42 @@ pub(super) fn decode(m: &EncodedMatrix, blocks: Blocks) -> Result<LogBlockOp, Co
 }
 
 impl LogBlockOp {
+    /// Which block format the image is in.
+    pub fn blocks(&self) -> Blocks {
+        self.blocks
+    }
+
+    /// Side of the (square, padded to a multiple of 4) block image.
+    pub fn width(&self) -> usize {
+        self.width
+    }
+
+    /// `row_perm[k]`: the matrix row stored in image row `k`.
+    pub fn row_perm(&self) -> &[u32] {
+        &self.row_perm
+    }
+
+    /// `col_perm[l]`: the matrix column stored in image column `l`.
+    pub fn col_perm(&self) -> &[u32] {
+        &self.col_perm
+    }
+
+    /// `lut()[c][q]`: the value code `q` stands for in channel `c` (code 0 is exactly zero).
+    pub fn lut(&self) -> &[[f32; 256]] {
+        &self.lut
+    }
+
+    /// The entries kept exactly, in matrix (not image) order; added to the block product.
+    pub fn sparse(&self) -> &SparsePart {
+        &self.sparse
+    }
+
+    /// The raw blocks: BC1, one `width × width` image of 8-byte blocks in row-major block order;
+    /// BC4, one such image per channel, one after another.
+    pub fn raw_blocks(&self) -> &[u8] {
+        &self.raw
+    }
+
     /// Codes of image rows `4·strip .. 4·strip + 4`, per channel: `[channel][row][column]`.
     fn strip(&self, strip: usize) -> Vec<[Vec<u8>; 4]> {
         let w = self.width;
