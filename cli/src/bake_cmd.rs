@@ -48,15 +48,17 @@ pub struct BakeArgs {
     #[arg(long, default_value = "grid")]
     pub tracer: Tracer,
     /// How the transport is stored: dense-f32 (exact), dense-f16, bc1 (the thesis codec), bc4,
+    /// log8 (bc1's codes without blocks), bc1-resid (BC1 plus residual-chosen f16 corrections),
     /// or auto (the smallest whose indirect-irradiance error stays within --max-error).
     #[arg(long, value_name = "NAME|auto", default_value = "dense-f32")]
     pub codec: String,
     /// For --codec auto: the largest relative L2 error of the indirect irradiance allowed.
     #[arg(long, value_name = "E", default_value_t = 0.02)]
     pub max_error: f64,
-    /// Share of entries bc1/bc4 keep exactly (the thesis used 0.04).
-    #[arg(long, value_name = "S", default_value_t = 0.04)]
-    pub sparse_share: f64,
+    /// Share of entries bc1/bc4/log8/bc1-resid keep exactly [default: 0.04 for bc1, bc4, log8 as the
+    /// thesis; 0.08 for bc1-resid].
+    #[arg(long, value_name = "S")]
+    pub sparse_share: Option<f64>,
     /// Patch numbering (rows and columns of the transport): voxel scan order, or Morton
     /// (Z-order), which keeps nearby patches at nearby indices.
     #[arg(long, value_name = "scan|morton", default_value = "scan")]

@@ -8,13 +8,8 @@ use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use bounce_core::bake::{BakeOptions, simplify};
-use bounce_core::codec::error::{entry_errors, irradiance_errors, probe_light_sets};
-use bounce_core::codec::logblock::LogBlock;
-use bounce_core::codec::{self, Codec};
-use bounce_core::format::Baked;
 use bounce_core::formfactor::{RayScene, Tracer, form_factors};
 use bounce_core::import::import_path;
-use bounce_core::matrix::DENSE_F32;
 use bounce_core::meta::Bounces;
 use bounce_core::voxel::Resolution;
 use clap::{Args, Subcommand};
@@ -34,23 +29,9 @@ pub enum BenchWhat {
     /// Form-factor ray tracing: the voxel-grid tracer against the obvhs BVH on the same patches.
     Rays(BenchRaysArgs),
     /// Every codec on one baked (dense-f32) transport: bytes, encode and product time, entry and
-    /// indirect-irradiance error, side by side; plus the thesis codec at 0, 1 and 2 reorder passes.
-    Codecs(BenchCodecsArgs),
-}
-
-#[derive(Args, Debug)]
-pub struct BenchCodecsArgs {
-    /// A file from `bounce bake` (its transport must be the exact dense-f32).
-    pub baked: PathBuf,
-    /// Light configurations in each product batch and in the error measurement.
-    #[arg(long, default_value_t = 8)]
-    pub batch: usize,
-    /// Timed products per codec; the table shows the median.
-    #[arg(long, default_value_t = 5)]
-    pub repeat: usize,
-    /// Write the table as CSV here too.
-    #[arg(long, value_name = "OUT.csv")]
-    pub csv: Option<PathBuf>,
+    /// indirect-irradiance error, side by side; the thesis' reordering table (0, 1, 2 passes, from
+    /// the bake's patch order and from a shuffled one); optionally a sparse-share sweep; a plot.
+    Codecs(crate::bench_codecs::BenchCodecsArgs),
 }
 
 #[derive(Args, Debug)]
@@ -90,7 +71,7 @@ pub fn run(args: &BenchArgs) -> Result<()> {
     match &args.what {
         BenchWhat::Bake(a) => bench_bake(a),
         BenchWhat::Rays(a) => bench_rays(a),
-        BenchWhat::Codecs(a) => bench_codecs(a),
+        BenchWhat::Codecs(a) => crate::bench_codecs::run(a),
     }
 }
 
@@ -277,92 +258,8 @@ fn bench_rays(args: &BenchRaysArgs) -> Result<()> {
     emit(&header, &rows, args.csv.as_deref())
 }
 
-fn bench_codecs(args: &BenchCodecsArgs) -> Result<()> {
-    if args.batch == 0 || args.repeat == 0 {
-        bail!("--batch and --repeat must be at least 1");
-    }
-    let baked =
-        Baked::read(&args.baked).with_context(|| format!("reading {}", args.baked.display()))?;
-    if baked.transport.codec != DENSE_F32 {
-        bail!(
-            "{} stores its transport as '{}'; the benchmark needs the exact dense-f32 to measure \
-             against (bake without --codec)",
-            args.baked.display(),
-            baked.transport.codec
-        );
-    }
-    let exact = baked.transport.decode()?;
-    let n = exact.n;
-    let b0 = probe_light_sets(&baked.layout, args.batch);
-    let exact_op = codec::decode(&baked.transport)?;
-    eprintln!(
-        "bench codecs: {} ({n} patches, {} channel(s)), batch {}, median of {}",
-        args.baked.display(),
-        exact.channels,
-        args.batch,
-        args.repeat
-    );
-    let mut variants: Vec<(String, Box<dyn Codec>)> = codec::all()
-        .into_iter()
-        .map(|c| (c.name().to_string(), c))
-        .collect();
-    for passes in [0, 1] {
-        variants.push((
-            format!("bc1-reorder{passes}"),
-            Box::new(LogBlock {
-                passes,
-                ..LogBlock::bc1()
-            }),
-        ));
-    }
-    let header = [
-        "codec",
-        "bytes",
-        "bytes_per_entry",
-        "encode_s",
-        "matvec_s",
-        "entry_err_mean",
-        "entry_err_max",
-        "entry_err_sum",
-        "eind_rel_l2",
-        "eind_rel_max",
-    ];
-    let mut rows = Vec::new();
-    for (label, c) in &variants {
-        let start = Instant::now();
-        let enc = c.encode(&exact)?;
-        let encode_s = start.elapsed().as_secs_f64();
-        let bytes = enc.payload.len() + enc.params.to_string().len();
-        let op = codec::decode(&enc)?;
-        let mut out = vec![[0.0f32; 3]; b0.len()];
-        let mut times = Vec::new();
-        for _ in 0..args.repeat {
-            let start = Instant::now();
-            op.matvec_batch(&b0, &mut out)?;
-            times.push(start.elapsed().as_secs_f64());
-        }
-        times.sort_by(f64::total_cmp);
-        let entries = entry_errors(&exact, &op.to_dense());
-        let eind = irradiance_errors(exact_op.as_ref(), op.as_ref(), &b0)?;
-        eprintln!("  {label}: {bytes} bytes, E_ind rel L2 {:.2e}", eind.rel_l2);
-        rows.push(vec![
-            label.clone(),
-            bytes.to_string(),
-            format!("{:.4}", bytes as f64 / (n * n).max(1) as f64),
-            format!("{encode_s:.3}"),
-            format!("{:.5}", times[times.len() / 2]),
-            format!("{:.3e}", entries.mean),
-            format!("{:.3e}", entries.max),
-            format!("{:.3e}", entries.sum),
-            format!("{:.3e}", eind.rel_l2),
-            format!("{:.3e}", eind.rel_max),
-        ]);
-    }
-    emit(&header, &rows, args.csv.as_deref())
-}
-
 /// Print the table and write it as CSV when asked.
-fn emit(header: &[&str], rows: &[Vec<String>], csv: Option<&std::path::Path>) -> Result<()> {
+pub fn emit(header: &[&str], rows: &[Vec<String>], csv: Option<&std::path::Path>) -> Result<()> {
     print!("{}", table(header, rows));
     if let Some(path) = csv {
         let mut text = header.join(",");

@@ -5,9 +5,11 @@
 
 mod bake_cmd;
 mod bench;
+mod bench_codecs;
 mod demo;
 mod inspect;
 mod memory;
+mod plot;
 mod progress;
 
 use std::process::ExitCode;

@@ -36,8 +36,9 @@ pub struct BakeOptions {
     pub tracer: Tracer,
     /// How the transport is stored.
     pub codec: CodecRequest,
-    /// Share of entries the thesis-family codecs keep exactly.
-    pub sparse_share: f64,
+    /// Share of entries the thesis-family codecs keep exactly; `None` takes each codec's own
+    /// default (bc1 and bc4: the thesis' 4%; bc1-resid: 8%).
+    pub sparse_share: Option<f64>,
     /// The order patches (rows and columns of `T`) are numbered in.
     pub patch_order: voxel::PatchOrder,
 }
@@ -45,7 +46,7 @@ pub struct BakeOptions {
 /// Which codec stores the transport.
 #[derive(Debug, Clone, PartialEq)]
 pub enum CodecRequest {
-    /// This codec (`dense-f32`, `dense-f16`, `bc1`, `bc4`).
+    /// This codec (`dense-f32`, `dense-f16`, `bc1`, `bc4`, `log8`, `bc1-resid`).
     Named(String),
     /// The smallest codec whose `E_ind` relative L2 error stays within `max_error`.
     Auto { max_error: f64 },
@@ -64,7 +65,7 @@ impl Default for BakeOptions {
             keep_form_factors: false,
             tracer: Tracer::Grid,
             codec: CodecRequest::Named(DENSE_F32.to_string()),
-            sparse_share: 0.04,
+            sparse_share: None,
             patch_order: voxel::PatchOrder::Scan,
         }
     }
@@ -216,10 +217,11 @@ pub fn simplify(scene: &Scene, options: &BakeOptions) -> Result<voxel::Voxelizat
 
 /// Refuse bad codec options before any expensive work.
 fn check_codec_options(options: &BakeOptions) -> Result<(), BakeError> {
-    if !(0.0..=1.0).contains(&options.sparse_share) {
+    if let Some(share) = options.sparse_share
+        && !(0.0..=1.0).contains(&share)
+    {
         return Err(BakeError::Options(format!(
-            "--sparse-share must be between 0 and 1, got {}",
-            options.sparse_share
+            "--sparse-share must be between 0 and 1, got {share}"
         )));
     }
     match &options.codec {

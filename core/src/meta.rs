@@ -78,9 +78,10 @@ pub struct BakeSettings {
     /// The codec asked for: a codec name, or `auto` (the smallest within `max_error`).
     #[serde(default = "default_codec")]
     pub codec: String,
-    /// Share of entries the thesis-family codecs keep exactly.
-    #[serde(default = "default_sparse_share")]
-    pub sparse_share: f64,
+    /// Share of entries the thesis-family codecs keep exactly, when the bake set one (otherwise
+    /// each codec's default, which the codec parameters record).
+    #[serde(default)]
+    pub sparse_share: Option<f64>,
     /// For `auto`: the largest `E_ind` relative L2 error allowed.
     #[serde(default)]
     pub max_error: Option<f64>,
@@ -95,10 +96,6 @@ fn default_patch_order() -> crate::voxel::PatchOrder {
 
 fn default_codec() -> String {
     crate::matrix::DENSE_F32.to_string()
-}
-
-fn default_sparse_share() -> f64 {
-    0.04
 }
 
 /// Figures measured during the bake.

@@ -97,7 +97,7 @@ fn sample_meta() -> BakeMeta {
             bounces: Bounces::All,
             tracer: bounce_core::rays::Tracer::Grid,
             codec: "bc1".to_string(),
-            sparse_share: 0.04,
+            sparse_share: Some(0.04),
             max_error: Some(0.02),
             patch_order: bounce_core::voxel::PatchOrder::Morton,
         },

@@ -53,6 +53,8 @@ pub fn all() -> Vec<Box<dyn Codec>> {
         Box::new(dense::DenseF16),
         Box::new(logblock::LogBlock::bc1()),
         Box::new(logblock::LogBlock::bc4()),
+        Box::new(logblock::LogBlock::log8()),
+        Box::new(logblock::LogBlock::bc1_resid()),
     ]
 }
 
@@ -74,17 +76,20 @@ fn unknown(name: &str) -> CodecError {
     }
 }
 
-/// A codec by name with the knobs a bake gives it.
-pub fn configured(name: &str, sparse_share: f64) -> Result<Box<dyn Codec>, CodecError> {
+/// A codec by name with the knobs a bake gives it: a sparse share replaces the codec's own
+/// default where the codec has one.
+pub fn configured(name: &str, sparse_share: Option<f64>) -> Result<Box<dyn Codec>, CodecError> {
     let with_share = |base: logblock::LogBlock| -> Box<dyn Codec> {
         Box::new(logblock::LogBlock {
-            sparse_share,
+            sparse_share: sparse_share.unwrap_or(base.sparse_share),
             ..base
         })
     };
     match name {
-        "bc1" => Ok(with_share(logblock::LogBlock::bc1())),
-        "bc4" => Ok(with_share(logblock::LogBlock::bc4())),
+        logblock::BC1 => Ok(with_share(logblock::LogBlock::bc1())),
+        logblock::BC4 => Ok(with_share(logblock::LogBlock::bc4())),
+        logblock::LOG8 => Ok(with_share(logblock::LogBlock::log8())),
+        logblock::BC1_RESID => Ok(with_share(logblock::LogBlock::bc1_resid())),
         other => by_name(other),
     }
 }
@@ -105,7 +110,7 @@ pub fn choose(
     exact: &DenseMatrix,
     b0: &[[f32; 3]],
     max_error: f64,
-    sparse_share: f64,
+    sparse_share: Option<f64>,
 ) -> Result<Choice, CodecError> {
     let exact_op = dense::DenseOp::from(exact.clone());
     let mut best: Option<(EncodedMatrix, f64)> = None;
@@ -139,8 +144,11 @@ pub fn decode(m: &EncodedMatrix) -> Result<Box<dyn MatrixOp>, CodecError> {
     match m.codec.as_str() {
         crate::matrix::DENSE_F32 => Ok(Box::new(dense::DenseOp::from(m.decode()?))),
         dense::DENSE_F16 => Ok(Box::new(dense::decode_f16(m)?)),
-        "bc1" => Ok(Box::new(logblock::decode(m, logblock::Blocks::Bc1)?)),
-        "bc4" => Ok(Box::new(logblock::decode(m, logblock::Blocks::Bc4)?)),
+        logblock::BC1 | logblock::BC1_RESID => {
+            Ok(Box::new(logblock::decode(m, logblock::Blocks::Bc1)?))
+        }
+        logblock::BC4 => Ok(Box::new(logblock::decode(m, logblock::Blocks::Bc4)?)),
+        logblock::LOG8 => Ok(Box::new(logblock::decode(m, logblock::Blocks::Raw8)?)),
         other => Err(unknown(other)),
     }
 }

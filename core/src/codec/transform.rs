@@ -92,15 +92,28 @@ pub fn split_largest(channels: &mut [Vec<f32>], n: usize, share: f64) -> SparseP
             .map(|ch| ch[p])
             .fold(f32::NEG_INFINITY, f32::max)
     };
+    let positions = select_largest(nn, wanted, key);
+    let sparse = gather_positions(channels, n, &positions);
+    for ch in channels.iter_mut() {
+        for &p in &positions {
+            ch[p as usize] = 0.0;
+        }
+    }
+    sparse
+}
+
+/// The `take` positions of `0..nn` with the largest positive `key`, ascending. Larger key first,
+/// then lower index: a total order, so the selection is exact and deterministic. Positions whose
+/// key is not positive are never taken, so fewer come back when fewer have one.
+pub fn select_largest(nn: usize, take: usize, key: impl Fn(usize) -> f32 + Sync) -> Vec<u32> {
     let mut candidates: Vec<(f32, u32)> = (0..nn)
+        .into_par_iter()
         .filter_map(|p| {
             let k = key(p);
             (k > 0.0).then_some((k, p as u32))
         })
         .collect();
-    let take = wanted.min(candidates.len());
-
-    // Larger value first, then lower index: a total order, so selection is exact and deterministic.
+    let take = take.min(candidates.len());
     let rank =
         |a: &(f32, u32), b: &(f32, u32)| -> Ordering { b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)) };
     if take < candidates.len() && take > 0 {
@@ -109,7 +122,16 @@ pub fn split_largest(channels: &mut [Vec<f32>], n: usize, share: f64) -> SparseP
     candidates.truncate(take);
     let mut positions: Vec<u32> = candidates.into_iter().map(|(_, p)| p).collect();
     positions.sort_unstable();
+    positions
+}
 
+/// A CSR part holding `channels`' values (each `n*n`, row-major) at `positions` (ascending
+/// linear indices).
+pub fn gather_positions<C: AsRef<[f32]>>(
+    channels: &[C],
+    n: usize,
+    positions: &[u32],
+) -> SparsePart {
     let n_ch = channels.len();
     let nnz = positions.len();
     let mut row_ptr = vec![0u32; n + 1];
@@ -120,15 +142,13 @@ pub fn split_largest(channels: &mut [Vec<f32>], n: usize, share: f64) -> SparseP
         let (i, j) = (p / n, p % n);
         row_ptr[i + 1] += 1;
         col_idx.push(j as u32);
-        for (c, ch) in channels.iter_mut().enumerate() {
-            values[c * nnz + k] = ch[p];
-            ch[p] = 0.0;
+        for (c, ch) in channels.iter().enumerate() {
+            values[c * nnz + k] = ch.as_ref()[p];
         }
     }
     for i in 0..n {
         row_ptr[i + 1] += row_ptr[i];
     }
-
     SparsePart {
         n,
         channels: n_ch,
