@@ -71,7 +71,7 @@ pub fn plot_codecs(path: &Path, title: &str, points: &[Point]) -> Result<()> {
         ("stored bytes", &|p: &Point| p.bytes),
         ("CPU product time of the batch, s", &|p: &Point| p.matvec_s),
     ];
-    for (panel, (x_name, x_of)) in panels.iter().zip(axes) {
+    for (k_panel, (panel, (x_name, x_of))) in panels.iter().zip(axes).enumerate() {
         let mut chart = ChartBuilder::on(panel)
             .margin(16)
             .x_label_area_size(44)
@@ -82,6 +82,7 @@ pub fn plot_codecs(path: &Path, title: &str, points: &[Point]) -> Result<()> {
             .configure_mesh()
             .x_desc(x_name)
             .y_desc("E_ind relative L2 error")
+            .x_labels(6)
             .x_label_formatter(&|v| format!("{v:.1e}"))
             .y_label_formatter(&|v| format!("{v:.0e}"))
             .draw()
@@ -91,7 +92,8 @@ pub fn plot_codecs(path: &Path, title: &str, points: &[Point]) -> Result<()> {
             let mut members: Vec<&&Point> = shown.iter().filter(|p| p.series == *name).collect();
             members.sort_by(|a, b| x_of(a).total_cmp(&x_of(b)));
             let xy: Vec<(f64, f64)> = members.iter().map(|p| (x_of(p), p.rel_l2)).collect();
-            if name.ends_with("by share") {
+            // A sweep is a curve in bytes; in time its points are just points.
+            if k_panel == 0 && name.ends_with("by share") {
                 chart
                     .draw_series(LineSeries::new(xy.clone(), colour.stroke_width(2)))
                     .map_err(plot_err)?;
