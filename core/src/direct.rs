@@ -25,7 +25,7 @@
 //! ```text
 //! hash(x)            = lowbias32: x ^= x >> 16; x *= 0x7feb352d; x ^= x >> 15;
 //!                                 x *= 0x846ca68b; x ^= x >> 16        (u32, wrapping)
-//! jitter(patch, k, d) = (f32(hash(hash(patch) ^ (2k + d)) >> 8) + 0.5) · 2⁻²⁴   ∈ (0, 1)
+//! jitter(patch, k, d) = (f32(hash(hash(patch) ^ (2k + d)) >> 9) + 0.5) · 2⁻²³   ∈ (0, 1)
 //! ```
 //!
 //! Each sample casts one shadow ray per light that reaches it, so shadow edges come out
@@ -335,7 +335,8 @@ pub fn hash_u32(mut x: u32) -> u32 {
 #[inline]
 pub fn jitter(patch: u32, k: u32, dim: u32) -> f32 {
     let h = hash_u32(hash_u32(patch) ^ k.wrapping_mul(2).wrapping_add(dim));
-    ((h >> 8) as f32 + 0.5) * (1.0 / (1u32 << 24) as f32)
+    // 23 bits plus a half fit f32's 24-bit significand exactly, so the result is never 0 or 1.
+    ((h >> 9) as f32 + 0.5) * (1.0 / (1u32 << 23) as f32)
 }
 
 /// The grid side used for a requested sample count.
@@ -431,4 +432,99 @@ pub fn exitance_b0(layout: &PatchLayout, e_direct: &[[f32; 3]]) -> Vec<[f32; 3]>
         .zip(e_direct)
         .map(|(p, e)| std::array::from_fn(|c| p.emission[c] + p.albedo[c] * e[c]))
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Pinned values, for the GPU twin to check its hash and jitter against.
+    #[test]
+    fn hash_and_jitter_are_pinned() {
+        assert_eq!(hash_u32(0), 0);
+        assert_eq!(hash_u32(1), 0x6889_90c0);
+        assert_eq!(hash_u32(12345), 2_435_775_735);
+        let h = hash_u32(hash_u32(7) ^ 7);
+        assert_eq!(jitter(7, 3, 1), ((h >> 9) as f32 + 0.5) / 8_388_608.0);
+        assert_eq!(jitter(0, 0, 0), 0.5 / 8_388_608.0);
+        for patch in 0..64 {
+            for k in 0..64 {
+                for d in 0..2 {
+                    let j = jitter(patch, k, d);
+                    assert!(j > 0.0 && j < 1.0, "{j}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn samples_form_a_stratified_grid() {
+        assert_eq!(samples_side(0), 1);
+        assert_eq!(samples_side(16), 4);
+        assert_eq!(samples_side(24), 4);
+        assert_eq!(samples_side(100_000), MAX_SAMPLES_SIDE);
+        for k in 0..16 {
+            let [u, v] = sample_uv(9, k, 4);
+            assert_eq!(((u * 4.0) as u32, (v * 4.0) as u32), (k % 4, k / 4));
+        }
+    }
+
+    #[test]
+    fn falloff_windows() {
+        assert_eq!(range_window(5.0, 0.0), 1.0);
+        assert_eq!(range_window(2.0, 0.5), 0.0);
+        assert_eq!(range_window(3.0, 0.5), 0.0);
+        assert!((range_window(1.0, 0.5) - (1.0f32 - 0.0625).powi(2)).abs() < 1e-7);
+        let (inner, outer) = (0.3f32, 0.6f32);
+        let scale = 1.0 / (inner.cos() - outer.cos());
+        let offset = -outer.cos() * scale;
+        assert_eq!(spot_attenuation(1.0, scale, offset), 1.0);
+        assert_eq!(spot_attenuation(0.29f32.cos(), scale, offset), 1.0);
+        assert_eq!(spot_attenuation(0.61f32.cos(), scale, offset), 0.0);
+        let mid = spot_attenuation(0.45f32.cos(), scale, offset);
+        assert!(mid > 0.0 && mid < 1.0, "{mid}");
+    }
+
+    #[test]
+    fn light_behind_or_on_the_surface_gives_nothing() {
+        let point = PreparedLight::new(&Light::Point {
+            position: [0.0, 1.0, 0.0],
+            color: [1.0; 3],
+            intensity: 4.0,
+            range: None,
+            name: None,
+        })
+        .unwrap();
+        let s = light_sample(&point, Vec3::ZERO, Vec3::Y).unwrap();
+        assert_eq!(s.irradiance, Vec3::splat(4.0));
+        assert_eq!(s.distance, 1.0);
+        assert_eq!(s.dir, Vec3::Y);
+        assert_eq!(light_sample(&point, Vec3::ZERO, Vec3::NEG_Y), None);
+        assert_eq!(light_sample(&point, Vec3::Y, Vec3::Y), None);
+        let sun = PreparedLight::new(&Light::Directional {
+            direction: [0.0, -2.0, 0.0],
+            color: [1.0, 0.5, 0.0],
+            intensity: 3.0,
+            name: None,
+        })
+        .unwrap();
+        let s = light_sample(&sun, Vec3::ZERO, Vec3::Y).unwrap();
+        assert_eq!(s.irradiance, Vec3::new(3.0, 1.5, 0.0));
+        assert_eq!(s.distance, f32::INFINITY);
+        // Invalid and dark lights are dropped before any ray.
+        let dark = Light::Directional {
+            direction: [0.0, -1.0, 0.0],
+            color: [1.0; 3],
+            intensity: 0.0,
+            name: None,
+        };
+        assert_eq!(PreparedLight::new(&dark), None);
+        let broken = Light::Directional {
+            direction: [0.0, f32::NAN, 0.0],
+            color: [1.0; 3],
+            intensity: 1.0,
+            name: None,
+        };
+        assert_eq!(PreparedLight::new(&broken), None);
+    }
 }
