@@ -73,6 +73,7 @@ pub fn run(args: &InspectArgs) -> Result<()> {
             "codec_params": baked.transport.params,
             "matrix_bytes": baked.transport.payload.len(),
             "form_factors_stored": baked.form_factors.is_some(),
+            "occupied_voxels_stored": baked.occupancy.as_ref().map(Vec::len),
             "layout": {
                 "origin": l.origin,
                 "voxel_size": l.voxel_size,

@@ -355,5 +355,8 @@ fn bake_with(
         layout,
         transport,
         form_factors,
+        // The runtime traces shadow rays against the voxels the form factors were traced
+        // against.
+        occupancy: Some(vox.occupied),
     })
 }

@@ -2,8 +2,9 @@
 //!
 //! It owns scene import (glTF), voxel simplification into patches, form factors with visibility,
 //! the multi-bounce transport matrix, the baked file format and the bake pipeline that ties them
-//! together. It does not own any GPU code, networking or command-line handling: those live in the
-//! crates that depend on this one.
+//! together, and the CPU side of relighting: light validation and shadowed direct irradiance. It
+//! does not own any GPU code, networking or command-line handling: those live in the crates that
+//! depend on this one.
 //!
 //! Conventions (see DESIGN.md §1): `F[i][j]` is the fraction of energy leaving patch `i` that
 //! arrives at patch `j`; the transport `T` maps initial exitance `B0` to indirect irradiance
@@ -11,6 +12,7 @@
 
 pub mod bake;
 pub mod codec;
+pub mod direct;
 pub mod format;
 pub mod formfactor;
 pub mod import;

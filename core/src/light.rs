@@ -3,8 +3,13 @@
 //! Names and units follow glTF `KHR_lights_punctual`: point and spot intensity in candela, directional
 //! in lux, cone angles in radians. Unlike glTF, placement is explicit (`position`, `direction`) rather
 //! than taken from a node, so a light configuration is self-contained.
+//!
+//! This module owns the types, their JSON form and their validation ([`LightSet::from_json`],
+//! [`LightSet::validate`]): whatever reaches a light engine has passed these checks. What a light
+//! does to a surface is [`crate::direct`]'s business.
 
 use serde::{Deserialize, Serialize};
+use thiserror::Error;
 
 /// A set of lights, as read from or written to `{"lights": [...]}`.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
@@ -63,4 +68,487 @@ fn white() -> [f32; 3] {
 /// glTF's default outer cone angle, π/4.
 fn default_outer_cone() -> f32 {
     std::f32::consts::FRAC_PI_4
+}
+
+/// The most lights one configuration may hold. Every light costs a visibility ray per sample per
+/// patch, so a configuration far beyond this is a mistake or an attack, not a lighting setup.
+pub const MAX_LIGHTS: usize = 256;
+
+/// Why a light configuration was refused. Messages name the offending field by its JSON path
+/// (`lights[2].intensity`), so a server can hand them to the client as they are.
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum LightError {
+    #[error("light configuration is not valid JSON: {0}")]
+    Json(String),
+    #[error("{path}: {reason}")]
+    Invalid { path: String, reason: String },
+    #[error("lights: {count} lights, more than the {max} a configuration may hold")]
+    TooMany { count: usize, max: usize },
+}
+
+impl LightError {
+    fn invalid(path: impl Into<String>, reason: impl Into<String>) -> LightError {
+        LightError::Invalid {
+            path: path.into(),
+            reason: reason.into(),
+        }
+    }
+
+    /// The JSON path of the offending field (`lights[2].intensity`), or `""` for a document that
+    /// is not JSON at all.
+    pub fn path(&self) -> &str {
+        match self {
+            LightError::Json(_) => "",
+            LightError::Invalid { path, .. } => path,
+            LightError::TooMany { .. } => "lights",
+        }
+    }
+}
+
+impl LightSet {
+    /// Parses and validates `{"lights": [...]}`. Each light is deserialised on its own, so a
+    /// missing field or an unknown type names the light it belongs to.
+    pub fn from_json(json: &str) -> Result<LightSet, LightError> {
+        let value: serde_json::Value =
+            serde_json::from_str(json).map_err(|e| LightError::Json(e.to_string()))?;
+        let serde_json::Value::Object(mut top) = value else {
+            return Err(LightError::invalid(
+                "(root)",
+                "must be an object of the form {\"lights\": [...]}",
+            ));
+        };
+        let lights = top
+            .remove("lights")
+            .ok_or_else(|| LightError::invalid("lights", "missing"))?;
+        if let Some(unknown) = top.keys().next() {
+            return Err(LightError::invalid(
+                unknown.as_str(),
+                "unknown field (expected only \"lights\")",
+            ));
+        }
+        let serde_json::Value::Array(items) = lights else {
+            return Err(LightError::invalid("lights", "must be an array"));
+        };
+        // Before deserialising any light, so a huge array costs no more work than its parse.
+        if items.len() > MAX_LIGHTS {
+            return Err(LightError::TooMany {
+                count: items.len(),
+                max: MAX_LIGHTS,
+            });
+        }
+        let lights = items
+            .into_iter()
+            .enumerate()
+            .map(|(i, item)| {
+                serde_json::from_value::<Light>(item)
+                    .map_err(|e| LightError::invalid(format!("lights[{i}]"), e.to_string()))
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        let set = LightSet { lights };
+        set.validate()?;
+        Ok(set)
+    }
+
+    /// Checks every value a light engine relies on: finite numbers, non-negative intensity and
+    /// colour, usable directions, positive ranges, and spot cones with
+    /// `0 ≤ inner < outer ≤ π/2`.
+    pub fn validate(&self) -> Result<(), LightError> {
+        if self.lights.len() > MAX_LIGHTS {
+            return Err(LightError::TooMany {
+                count: self.lights.len(),
+                max: MAX_LIGHTS,
+            });
+        }
+        for (i, light) in self.lights.iter().enumerate() {
+            light.validate().map_err(|(field, reason)| {
+                LightError::invalid(format!("lights[{i}].{field}"), reason)
+            })?;
+        }
+        Ok(())
+    }
+}
+
+/// A field name and why its value was refused.
+pub(crate) type FieldError = (&'static str, String);
+
+impl Light {
+    /// As [`LightSet::validate`] for one light; the error names the field.
+    pub(crate) fn validate(&self) -> Result<(), FieldError> {
+        match self {
+            Light::Directional {
+                direction,
+                color,
+                intensity,
+                ..
+            } => {
+                check_direction("direction", direction)?;
+                check_color(color)?;
+                check_intensity(*intensity)
+            }
+            Light::Point {
+                position,
+                color,
+                intensity,
+                range,
+                ..
+            } => {
+                check_finite3("position", position)?;
+                check_color(color)?;
+                check_intensity(*intensity)?;
+                check_range(*range)
+            }
+            Light::Spot {
+                position,
+                direction,
+                color,
+                intensity,
+                range,
+                inner_cone_angle,
+                outer_cone_angle,
+                ..
+            } => {
+                check_finite3("position", position)?;
+                check_direction("direction", direction)?;
+                check_color(color)?;
+                check_intensity(*intensity)?;
+                check_range(*range)?;
+                check_cones(*inner_cone_angle, *outer_cone_angle)
+            }
+        }
+    }
+}
+
+fn check_finite3(field: &'static str, v: &[f32; 3]) -> Result<(), FieldError> {
+    if v.iter().all(|x| x.is_finite()) {
+        Ok(())
+    } else {
+        Err((field, format!("must be finite (got {v:?})")))
+    }
+}
+
+fn check_direction(field: &'static str, v: &[f32; 3]) -> Result<(), FieldError> {
+    check_finite3(field, v)?;
+    if unit_vector(*v).is_none() {
+        return Err((field, format!("must not be zero (got {v:?})")));
+    }
+    Ok(())
+}
+
+fn check_color(c: &[f32; 3]) -> Result<(), FieldError> {
+    if c.iter().all(|x| x.is_finite() && *x >= 0.0) {
+        Ok(())
+    } else {
+        Err((
+            "color",
+            format!("components must be finite and non-negative (got {c:?})"),
+        ))
+    }
+}
+
+fn check_intensity(intensity: f32) -> Result<(), FieldError> {
+    if intensity.is_finite() && intensity >= 0.0 {
+        Ok(())
+    } else {
+        Err((
+            "intensity",
+            format!("must be finite and non-negative (got {intensity})"),
+        ))
+    }
+}
+
+fn check_range(range: Option<f32>) -> Result<(), FieldError> {
+    match range {
+        Some(r) if !(r.is_finite() && r > 0.0) => Err((
+            "range",
+            format!("must be finite and positive, or absent for no limit (got {r})"),
+        )),
+        _ => Ok(()),
+    }
+}
+
+fn check_cones(inner: f32, outer: f32) -> Result<(), FieldError> {
+    let half_pi = std::f32::consts::FRAC_PI_2;
+    if !(inner.is_finite() && (0.0..half_pi).contains(&inner)) {
+        return Err((
+            "inner_cone_angle",
+            format!("must be finite, at least 0 and below π/2 (got {inner})"),
+        ));
+    }
+    if !(outer.is_finite() && outer > 0.0 && outer <= half_pi) {
+        return Err((
+            "outer_cone_angle",
+            format!("must be finite, above 0 and at most π/2 (got {outer})"),
+        ));
+    }
+    if inner >= outer {
+        return Err((
+            "inner_cone_angle",
+            format!("must be less than outer_cone_angle (got {inner} ≥ {outer})"),
+        ));
+    }
+    Ok(())
+}
+
+/// `v` scaled to unit length, or `None` when it is zero or not finite. Scales by the largest
+/// component first, so directions like `[1e30, 1e30, 0]` do not overflow on the way.
+pub fn unit_vector(v: [f32; 3]) -> Option<glam::Vec3> {
+    let v = glam::Vec3::from(v);
+    let m = v.abs().max_element();
+    if !(m.is_finite() && m > 0.0) {
+        return None;
+    }
+    let u = (v / m).normalize();
+    u.is_finite().then_some(u)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const GOOD: &str = r#"{"lights": [
+        {"type": "point", "position": [0, 1.5, 0], "color": [1, 1, 1], "intensity": 10},
+        {"type": "directional", "direction": [0.3, -1, 0.2], "color": [1, 0.95, 0.9], "intensity": 3},
+        {"type": "spot", "position": [0, 2, 0], "direction": [0, -1, 0], "color": [1, 1, 1],
+         "intensity": 50, "inner_cone_angle": 0.3, "outer_cone_angle": 0.6}
+    ]}"#;
+
+    /// The message for `GOOD` with light `index` replaced by `light`.
+    fn refuse_light(index: usize, light: &str) -> String {
+        let mut v: serde_json::Value = serde_json::from_str(GOOD).unwrap();
+        v["lights"][index] = serde_json::from_str(light).unwrap();
+        match LightSet::from_json(&v.to_string()) {
+            Ok(set) => panic!("accepted {set:?}"),
+            Err(e) => e.to_string(),
+        }
+    }
+
+    #[track_caller]
+    fn assert_refused(index: usize, light: &str, want: &str) {
+        let got = refuse_light(index, light);
+        assert!(got.contains(want), "{got:?} does not contain {want:?}");
+    }
+
+    #[test]
+    fn the_design_example_parses() {
+        let set = LightSet::from_json(GOOD).unwrap();
+        assert_eq!(set.lights.len(), 3);
+        assert!(matches!(
+            set.lights[2],
+            Light::Spot {
+                range: None,
+                inner_cone_angle: 0.3,
+                ..
+            }
+        ));
+        // And what it writes, it reads.
+        let again = LightSet::from_json(&serde_json::to_string(&set).unwrap()).unwrap();
+        assert_eq!(again, set);
+    }
+
+    #[test]
+    fn defaults_follow_gltf() {
+        let set = LightSet::from_json(
+            r#"{"lights":[{"type":"spot","position":[0,0,0],"direction":[0,0,-1],"intensity":1}]}"#,
+        )
+        .unwrap();
+        let Light::Spot {
+            color,
+            inner_cone_angle,
+            outer_cone_angle,
+            ..
+        } = set.lights[0]
+        else {
+            panic!("not a spot");
+        };
+        assert_eq!(color, [1.0; 3]);
+        assert_eq!(inner_cone_angle, 0.0);
+        assert_eq!(outer_cone_angle, std::f32::consts::FRAC_PI_4);
+        assert_eq!(
+            LightSet::from_json(r#"{"lights":[]}"#)
+                .unwrap()
+                .lights
+                .len(),
+            0
+        );
+    }
+
+    #[test]
+    fn negative_or_non_finite_intensity() {
+        assert_refused(
+            2,
+            r#"{"type":"spot","position":[0,2,0],"direction":[0,-1,0],"intensity":-1}"#,
+            "lights[2].intensity: must be finite and non-negative (got -1)",
+        );
+        // JSON has no NaN or Inf, but a number beyond f32 becomes Inf.
+        assert_refused(
+            0,
+            r#"{"type":"point","position":[0,0,0],"intensity":1e39}"#,
+            "lights[0].intensity: must be finite and non-negative (got inf)",
+        );
+    }
+
+    #[test]
+    fn negative_or_non_finite_colour() {
+        assert_refused(
+            1,
+            r#"{"type":"directional","direction":[0,-1,0],"color":[1,-0.5,0],"intensity":1}"#,
+            "lights[1].color: components must be finite and non-negative",
+        );
+        assert_refused(
+            0,
+            r#"{"type":"point","position":[0,0,0],"color":[1,1,1e300],"intensity":1}"#,
+            "lights[0].color",
+        );
+    }
+
+    #[test]
+    fn non_finite_position() {
+        assert_refused(
+            0,
+            r#"{"type":"point","position":[0,-1e40,0],"intensity":1}"#,
+            "lights[0].position: must be finite",
+        );
+    }
+
+    #[test]
+    fn zero_or_non_finite_direction() {
+        assert_refused(
+            1,
+            r#"{"type":"directional","direction":[0,0,0],"intensity":1}"#,
+            "lights[1].direction: must not be zero",
+        );
+        assert_refused(
+            2,
+            r#"{"type":"spot","position":[0,0,0],"direction":[0,1e39,0],"intensity":1}"#,
+            "lights[2].direction: must be finite",
+        );
+        // Huge but finite is a direction like any other.
+        let set = LightSet {
+            lights: vec![Light::Directional {
+                direction: [3e38, -3e38, 0.0],
+                color: [1.0; 3],
+                intensity: 1.0,
+                name: None,
+            }],
+        };
+        assert_eq!(set.validate(), Ok(()));
+    }
+
+    #[test]
+    fn non_positive_range() {
+        for range in ["0", "-2", "1e39"] {
+            assert_refused(
+                0,
+                &format!(r#"{{"type":"point","position":[0,0,0],"intensity":1,"range":{range}}}"#),
+                "lights[0].range: must be finite and positive",
+            );
+        }
+    }
+
+    #[test]
+    fn spot_cones_out_of_order_or_range() {
+        let spot = |inner: f32, outer: f32| {
+            format!(
+                r#"{{"type":"spot","position":[0,0,0],"direction":[0,-1,0],"intensity":1,
+                    "inner_cone_angle":{inner},"outer_cone_angle":{outer}}}"#
+            )
+        };
+        assert_refused(2, &spot(-0.1, 0.5), "lights[2].inner_cone_angle");
+        assert_refused(
+            2,
+            &spot(0.6, 0.5),
+            "lights[2].inner_cone_angle: must be less than",
+        );
+        assert_refused(
+            2,
+            &spot(0.5, 0.5),
+            "lights[2].inner_cone_angle: must be less than",
+        );
+        assert_refused(2, &spot(0.1, 1.6), "lights[2].outer_cone_angle");
+        assert_refused(2, &spot(0.0, 0.0), "lights[2].outer_cone_angle");
+        // The extremes of the valid range.
+        let set = LightSet {
+            lights: vec![Light::Spot {
+                position: [0.0; 3],
+                direction: [0.0, -1.0, 0.0],
+                color: [1.0; 3],
+                intensity: 1.0,
+                range: None,
+                inner_cone_angle: 0.0,
+                outer_cone_angle: std::f32::consts::FRAC_PI_2,
+                name: None,
+            }],
+        };
+        assert_eq!(set.validate(), Ok(()));
+    }
+
+    #[test]
+    fn unknown_type_and_fields_name_the_light() {
+        assert_refused(
+            1,
+            r#"{"type":"area","position":[0,0,0],"intensity":1}"#,
+            "lights[1]: unknown variant `area`",
+        );
+        assert_refused(
+            0,
+            r#"{"type":"point","position":[0,0,0],"intensity":1,"radius":2}"#,
+            "lights[0]: unknown field `radius`",
+        );
+        assert_refused(
+            0,
+            r#"{"type":"point","position":[0,0,0]}"#,
+            "lights[0]: missing field `intensity`",
+        );
+        assert_refused(
+            0,
+            r#"{"position":[0,0,0],"intensity":1}"#,
+            "lights[0]: missing field `type`",
+        );
+        assert_refused(
+            0,
+            r#"{"type":"point","position":[0,0],"intensity":1}"#,
+            "lights[0]: invalid length 2",
+        );
+    }
+
+    #[test]
+    fn document_shape() {
+        let err = |json: &str| LightSet::from_json(json).unwrap_err();
+        assert!(matches!(err("{"), LightError::Json(_)));
+        assert_eq!(err("[]").path(), "(root)");
+        assert_eq!(err("{}").to_string(), "lights: missing");
+        assert_eq!(
+            err(r#"{"lights": {}}"#).to_string(),
+            "lights: must be an array"
+        );
+        let e = err(r#"{"lights": [], "ambient": 1}"#);
+        assert_eq!(e.path(), "ambient");
+        assert!(e.to_string().contains("unknown field"), "{e}");
+    }
+
+    #[test]
+    fn too_many_lights() {
+        let one = r#"{"type":"point","position":[0,0,0],"intensity":1}"#;
+        let json = |n: usize| format!(r#"{{"lights": [{}]}}"#, vec![one; n].join(","));
+        assert_eq!(
+            LightSet::from_json(&json(MAX_LIGHTS)).unwrap().lights.len(),
+            MAX_LIGHTS
+        );
+        let e = LightSet::from_json(&json(MAX_LIGHTS + 1)).unwrap_err();
+        assert_eq!(
+            e,
+            LightError::TooMany {
+                count: MAX_LIGHTS + 1,
+                max: MAX_LIGHTS
+            }
+        );
+        assert!(
+            e.to_string().contains("257 lights, more than the 256"),
+            "{e}"
+        );
+        let set = LightSet {
+            lights: vec![LightSet::from_json(&json(1)).unwrap().lights[0].clone(); 300],
+        };
+        assert!(matches!(set.validate(), Err(LightError::TooMany { .. })));
+    }
 }

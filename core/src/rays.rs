@@ -8,6 +8,9 @@
 //!   enters by, is the exact answer for voxel geometry; the cost is the number of empty voxels
 //!   crossed. Needs the voxelisation, and a grid small enough for a dense occupancy bitset.
 //!
+//! Besides where a ray ends ([`RayScene::trace`], for form factors), both answer whether a
+//! segment is blocked ([`RayScene::occluded`], for the shadow rays of direct light).
+//!
 //! Both give the same fate for a ray except on exact edge and corner hits, where they may pick
 //! different (equally valid) neighbours. `bounce bench rays` compares their speed and results.
 
@@ -192,6 +195,34 @@ impl RayScene {
     }
 }
 
+impl RayScene {
+    /// Whether anything blocks the ray from `origin` (on patch `from`, or anywhere for the BVH)
+    /// along the unit vector `dir` before distance `max_t`; `f32::INFINITY` asks whether the ray
+    /// leaves the scene. Every quad blocks from either side, patches and occluders alike: this is
+    /// the shadow-ray query of direct lighting.
+    #[inline]
+    pub fn occluded(&self, from: usize, origin: Vec3, dir: Vec3, max_t: f32) -> bool {
+        match &self.backend {
+            Backend::Bvh { quads, bvh } => occluded_bvh(quads, bvh, origin, dir, max_t),
+            Backend::Grid(grid) => grid.occluded(&self.patches[from], origin, dir, max_t),
+        }
+    }
+}
+
+fn occluded_bvh(quads: &[Quad], bvh: &Bvh2, origin: Vec3, dir: Vec3, max_t: f32) -> bool {
+    if quads.is_empty() || max_t.is_nan() || max_t <= 0.0 {
+        return false;
+    }
+    let ray = Ray::new(Vec3A::from(origin), Vec3A::from(dir), 0.0, max_t);
+    // The origin's own patch (and coplanar neighbours) meet the ray at t = 0, which `intersect`
+    // does not count; any other crossing before `max_t` is a blocker, and the first one found
+    // ends the traversal.
+    !bvh.ray_traverse_miss(ray, |_, prim| {
+        let q = &quads[bvh.primitive_indices[prim] as usize];
+        q.intersect(origin, dir, true).unwrap_or(f32::INFINITY)
+    })
+}
+
 fn trace_bvh(quads: &[Quad], patches: usize, bvh: &Bvh2, origin: Vec3, dir: Vec3) -> RayFate {
     if quads.is_empty() {
         return RayFate::Escaped;
@@ -262,6 +293,32 @@ impl VoxelGrid {
 
     /// Walk from the empty voxel in front of `quad` until an occupied voxel or the grid's edge.
     fn trace(&self, quad: &Quad, origin: Vec3, dir: Vec3) -> RayFate {
+        match self.walk(quad, origin, dir, f32::INFINITY) {
+            Walk::Escaped | Walk::Reached => RayFate::Escaped,
+            Walk::StartOccupied => RayFate::Occluder,
+            Walk::Entered { cell, face } => {
+                let key = linear(self.dims, cell) * 6 + face.code() as u64;
+                match self.faces.get(&key) {
+                    Some(&p) => RayFate::Patch(p as usize),
+                    None => RayFate::Occluder,
+                }
+            }
+        }
+    }
+
+    /// Whether the walk meets an occupied voxel before distance `max_t` (`dir` is a unit
+    /// vector, so distances along the ray are world lengths).
+    fn occluded(&self, quad: &Quad, origin: Vec3, dir: Vec3, max_t: f32) -> bool {
+        match self.walk(quad, origin, dir, max_t) {
+            Walk::Escaped | Walk::Reached => false,
+            Walk::StartOccupied | Walk::Entered { .. } => true,
+        }
+    }
+
+    /// The DDA shared by [`VoxelGrid::trace`] and [`VoxelGrid::occluded`]: stops at the first
+    /// occupied voxel entered before `max_t`, at the grid's edge, or once the next voxel
+    /// boundary lies at or beyond `max_t`.
+    fn walk(&self, quad: &Quad, origin: Vec3, dir: Vec3, max_t: f32) -> Walk {
         // The origin lies on the patch's plane, a grid plane, inside the patch's face: the walk
         // starts in the voxel on the patch's front side. Taking the cell from the quad rather
         // than from the origin keeps rounding (an origin on the face's far edge) out of it.
@@ -295,15 +352,15 @@ impl VoxelGrid {
                 t_delta[ax] = -self.size / d;
             }
         }
+        if cell.iter().zip(&self.dims).any(|(&c, &d)| c < 0 || c >= d) {
+            return Walk::Escaped;
+        }
+        if self.is_occupied(cell) {
+            // Only for a start cell that is not empty, which a layout from the voxeliser
+            // never has (patches face empty voxels).
+            return Walk::StartOccupied;
+        }
         loop {
-            if cell.iter().zip(&self.dims).any(|(&c, &d)| c < 0 || c >= d) {
-                return RayFate::Escaped;
-            }
-            if self.is_occupied(cell) {
-                // Only for a start cell that is not empty, which a layout from the voxeliser
-                // never has (patches face empty voxels).
-                return RayFate::Occluder;
-            }
             let ax = if t_max[0] < t_max[1] {
                 if t_max[0] < t_max[2] { 0 } else { 2 }
             } else if t_max[1] < t_max[2] {
@@ -311,22 +368,35 @@ impl VoxelGrid {
             } else {
                 2
             };
+            // The ray enters the next voxel at `t_max[ax]`: the end of the segment, if that
+            // is not before `max_t` (infinite for a ray that never leaves the voxel).
+            if t_max[ax] >= max_t || !t_max[ax].is_finite() {
+                return Walk::Reached;
+            }
             cell[ax] += step[ax];
             t_max[ax] += t_delta[ax];
             if cell[ax] < 0 || cell[ax] >= self.dims[ax] {
-                return RayFate::Escaped;
+                return Walk::Escaped;
             }
             if self.is_occupied(cell) {
                 // Entered through the face looking back along the step.
                 let face = Face::from_axis_sign(ax, step[ax] < 0);
-                let key = linear(self.dims, cell) * 6 + face.code() as u64;
-                return match self.faces.get(&key) {
-                    Some(&p) => RayFate::Patch(p as usize),
-                    None => RayFate::Occluder,
-                };
+                return Walk::Entered { cell, face };
             }
         }
     }
+}
+
+/// How a grid walk ended.
+enum Walk {
+    /// Left the grid.
+    Escaped,
+    /// Got to the segment's end without meeting an occupied voxel.
+    Reached,
+    /// Started in an occupied voxel.
+    StartOccupied,
+    /// Entered the occupied voxel `cell` through its face `face`.
+    Entered { cell: [i32; 3], face: Face },
 }
 
 #[inline]

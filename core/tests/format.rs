@@ -8,7 +8,8 @@ use std::time::{Duration, Instant};
 
 use bounce_core::format::{
     Baked, ENTRY_LEN, FORMAT_VERSION, FileSummary, FormatError, HEADER_LEN, MAGIC,
-    PATCH_RECORD_LEN, SECTION_ALIGN, SectionKind, read_summary,
+    OCCUPANCY_HEADER_LEN, PATCH_RECORD_LEN, SECTION_ALIGN, SECTION_OPTIONAL, SectionKind,
+    read_summary,
 };
 use bounce_core::light::Light;
 use bounce_core::matrix::{DenseMatrix, EncodedMatrix};
@@ -171,6 +172,9 @@ fn dense(n: usize, channels: usize, seed: f32) -> DenseMatrix {
     m
 }
 
+/// Occupied voxels of the sample's 4×3×2 grid: the patches' voxels (12..=16) and a few more.
+const SAMPLE_OCCUPANCY: [u64; 8] = [0, 5, 12, 13, 14, 15, 16, 23];
+
 fn sample(channels: usize, with_form_factors: bool) -> Baked {
     let n = 5;
     Baked {
@@ -178,6 +182,7 @@ fn sample(channels: usize, with_form_factors: bool) -> Baked {
         layout: sample_layout(n),
         transport: EncodedMatrix::encode_dense_f32(&dense(n, channels, 1.0)),
         form_factors: with_form_factors.then(|| EncodedMatrix::encode_dense_f32(&dense(n, 1, 2.0))),
+        occupancy: Some(SAMPLE_OCCUPANCY.to_vec()),
     }
 }
 
@@ -277,7 +282,7 @@ fn reseal(b: &mut [u8]) {
 /// The sample's sections, for building variants of it.
 fn sample_sections() -> Vec<([u8; 4], Vec<u8>)> {
     let b = sample_bytes();
-    [b"META", b"LAYT", b"MTRX", b"FFAC"]
+    [b"META", b"LAYT", b"MTRX", b"FFAC", b"OCCU"]
         .into_iter()
         .map(|k| {
             let (o, l) = section_of(&b, k);
@@ -297,8 +302,10 @@ fn file_with(replace: &[u8; 4], with: Vec<u8>) -> Vec<u8> {
             }
         })
         .collect();
-    let refs: Vec<(&[u8; 4], u32, &[u8])> =
-        sections.iter().map(|(k, v)| (k, 0, v.as_slice())).collect();
+    let refs: Vec<(&[u8; 4], u32, &[u8])> = sections
+        .iter()
+        .map(|(k, v)| (k, u32::from(k == b"OCCU"), v.as_slice()))
+        .collect();
     raw_file(&refs)
 }
 
@@ -308,31 +315,39 @@ fn file_with(replace: &[u8; 4], with: Vec<u8>) -> Vec<u8> {
 #[test]
 fn round_trip_through_a_file_is_exact() {
     let dir = tempfile::tempdir().unwrap();
-    for channels in [1, 3] {
-        for with_ff in [false, true] {
-            let baked = sample(channels, with_ff);
-            let bytes = baked.to_bytes().unwrap();
-            assert_eq!(bytes, baked.to_bytes().unwrap(), "writing is deterministic");
-
-            let path = dir
-                .path()
-                .join(format!("scene-{channels}-{with_ff}.bounce"));
-            baked.write_atomic(&path).unwrap();
-            assert_eq!(std::fs::read(&path).unwrap(), bytes);
-
-            let back = Baked::read(&path).unwrap();
-            assert_eq!(back.meta, baked.meta);
-            assert_eq!(back.layout, baked.layout);
-            assert_eq!(back.transport, baked.transport);
-            assert_eq!(back.form_factors, baked.form_factors);
-            assert_eq!(back, baked);
-            assert_eq!(back.to_bytes().unwrap(), bytes, "re-encoding is bit-exact");
-            assert_eq!(
-                back.transport.decode().unwrap(),
-                dense(5, channels, 1.0),
-                "the payload still decodes to the matrix"
-            );
+    for (channels, with_ff, with_occ) in [
+        (1, false, false),
+        (1, true, true),
+        (3, false, true),
+        (3, true, false),
+        (3, true, true),
+    ] {
+        let mut baked = sample(channels, with_ff);
+        if !with_occ {
+            baked.occupancy = None;
         }
+        let bytes = baked.to_bytes().unwrap();
+        assert_eq!(bytes, baked.to_bytes().unwrap(), "writing is deterministic");
+
+        let path = dir
+            .path()
+            .join(format!("scene-{channels}-{with_ff}-{with_occ}.bounce"));
+        baked.write_atomic(&path).unwrap();
+        assert_eq!(std::fs::read(&path).unwrap(), bytes);
+
+        let back = Baked::read(&path).unwrap();
+        assert_eq!(back.meta, baked.meta);
+        assert_eq!(back.layout, baked.layout);
+        assert_eq!(back.transport, baked.transport);
+        assert_eq!(back.form_factors, baked.form_factors);
+        assert_eq!(back.occupancy, baked.occupancy);
+        assert_eq!(back, baked);
+        assert_eq!(back.to_bytes().unwrap(), bytes, "re-encoding is bit-exact");
+        assert_eq!(
+            back.transport.decode().unwrap(),
+            dense(5, channels, 1.0),
+            "the payload still decodes to the matrix"
+        );
     }
 }
 
@@ -370,11 +385,17 @@ fn layout_on_disk_matches_the_documentation() {
     let b = baked.to_bytes().unwrap();
     assert_eq!(&b[..8], b"BOUNCE\0B");
     assert_eq!(get_u32(&b, 8), 1);
-    assert_eq!(get_u32(&b, 12), 4);
+    assert_eq!(get_u32(&b, 12), 5);
     assert_eq!(get_u64(&b, 16), b.len() as u64);
-    let kinds: Vec<&[u8]> = (0..4).map(|i| &b[entry_at(i)..entry_at(i) + 4]).collect();
-    assert_eq!(kinds, [b"META", b"LAYT", b"MTRX", b"FFAC"]);
-    for i in 0..4 {
+    let kinds: Vec<&[u8]> = (0..5).map(|i| &b[entry_at(i)..entry_at(i) + 4]).collect();
+    assert_eq!(kinds, [b"META", b"LAYT", b"MTRX", b"FFAC", b"OCCU"]);
+    let flags: Vec<u32> = (0..5).map(|i| get_u32(&b, entry_at(i) + 4)).collect();
+    assert_eq!(
+        flags,
+        [0, 0, 0, 0, SECTION_OPTIONAL],
+        "only OCCU is optional"
+    );
+    for i in 0..5 {
         assert_eq!(
             get_u64(&b, entry_at(i) + 8) % 64,
             0,
@@ -401,6 +422,20 @@ fn layout_on_disk_matches_the_documentation() {
     assert_eq!(payload_at % 64, 0);
     assert_eq!(&b[payload_at..mtrx_at + mtrx_len], payload.as_slice());
     assert_eq!(get_u64(&b, mtrx_at + 48), payload.len() as u64);
+
+    // A 24-cell grid stores its occupied voxels as u32.
+    let (occu_at, occu_len) = section_of(&b, b"OCCU");
+    assert_eq!(
+        occu_len as u64,
+        OCCUPANCY_HEADER_LEN + 4 * SAMPLE_OCCUPANCY.len() as u64
+    );
+    assert_eq!(get_u64(&b, occu_at), SAMPLE_OCCUPANCY.len() as u64, "count");
+    assert_eq!(get_u32(&b, occu_at + 8), 4, "index width");
+    assert_eq!(get_u32(&b, occu_at + 12), 0, "reserved");
+    let indices: Vec<u64> = (0..SAMPLE_OCCUPANCY.len())
+        .map(|i| u64::from(get_u32(&b, occu_at + 16 + 4 * i)))
+        .collect();
+    assert_eq!(indices, SAMPLE_OCCUPANCY);
 }
 
 #[test]
@@ -416,7 +451,7 @@ fn summary_lists_sections_and_flags_a_damaged_one() {
         .iter()
         .map(|s| s.entry.kind.to_string())
         .collect();
-    assert_eq!(kinds, ["META", "LAYT", "MTRX", "FFAC"]);
+    assert_eq!(kinds, ["META", "LAYT", "MTRX", "FFAC", "OCCU"]);
     assert!(s.sections.iter().all(|s| s.crc_ok));
 
     let mut b = std::fs::read(&path).unwrap();
@@ -424,7 +459,7 @@ fn summary_lists_sections_and_flags_a_damaged_one() {
     b[mtrx_at + mtrx_len - 1] ^= 0x40;
     let s = FileSummary::from_bytes(&b).unwrap();
     let ok: Vec<bool> = s.sections.iter().map(|s| s.crc_ok).collect();
-    assert_eq!(ok, [true, true, false, true]);
+    assert_eq!(ok, [true, true, false, true, true]);
     let err = refuse(&b);
     assert!(
         matches!(err, FormatError::SectionChecksum { kind } if kind == SectionKind::MTRX),
@@ -549,10 +584,10 @@ proptest! {
     #[test]
     fn resealed_corruption_never_panics(
         edits in prop::collection::vec((any::<prop::sample::Index>(), any::<u8>()), 1..8),
-        table_edit in proptest::option::of((0usize..4, 0usize..4, any::<u64>())),
+        table_edit in proptest::option::of((0usize..5, 0usize..4, any::<u64>())),
     ) {
         let mut b = sample_bytes();
-        let body = HEADER_LEN as usize + 4 * ENTRY_LEN as usize;
+        let body = HEADER_LEN as usize + 5 * ENTRY_LEN as usize;
         for (at, v) in edits {
             let at = body + at.index(b.len() - body);
             b[at] = v;
@@ -1140,6 +1175,7 @@ fn write_atomic_makes_no_copy_of_a_large_matrix() {
     let n = 2048;
     let mut baked = sample(3, true);
     baked.layout = sample_layout(n);
+    baked.occupancy = None;
     // 48 MiB and 16 MiB, the sizes of dense f32 matrices of 2048 patches.
     baked.transport = opaque_matrix(n, 3, serde_json::json!({"scale": 0.5}), n * n * 12);
     baked.form_factors = Some(opaque_matrix(n, 1, serde_json::json!({}), n * n * 4));
@@ -1292,17 +1328,41 @@ fn arb_meta() -> impl Strategy<Value = BakeMeta> {
         })
 }
 
+/// The patches' voxels plus any others of the grid, ascending.
+fn arb_occupancy(layout: &PatchLayout) -> impl Strategy<Value = Vec<u64>> + use<> {
+    let [dx, dy, _] = layout.dims.map(u64::from);
+    let cells = layout.dims.iter().map(|&d| u64::from(d)).product::<u64>();
+    let own: Vec<u64> = layout
+        .patches
+        .iter()
+        .map(|p| {
+            let [x, y, z] = p.voxel.map(u64::from);
+            x + dx * (y + dy * z)
+        })
+        .collect();
+    prop::collection::vec(0..cells, 0..12).prop_map(move |mut extra| {
+        extra.extend_from_slice(&own);
+        extra.sort_unstable();
+        extra.dedup();
+        extra
+    })
+}
+
 fn arb_baked() -> impl Strategy<Value = Baked> {
     (arb_layout(), arb_meta()).prop_flat_map(|(layout, meta)| {
         let n = layout.len();
-        (arb_matrix(n), prop::option::of(arb_matrix(n))).prop_map(
-            move |(transport, form_factors)| Baked {
+        (
+            arb_matrix(n),
+            prop::option::of(arb_matrix(n)),
+            prop::option::of(arb_occupancy(&layout)),
+        )
+            .prop_map(move |(transport, form_factors, occupancy)| Baked {
                 meta: meta.clone(),
                 layout: layout.clone(),
                 transport,
                 form_factors,
-            },
-        )
+                occupancy,
+            })
     })
 }
 
@@ -1317,5 +1377,148 @@ proptest! {
         prop_assert_eq!(&back, &baked);
         prop_assert_eq!(back.to_bytes().unwrap(), bytes.clone());
         prop_assert!(largest <= bytes.len(), "allocated {} for a {}-byte file", largest, bytes.len());
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// The occupancy section.
+
+/// An `OCCU` section for the sample's grid, written from the documentation.
+fn occu_section(count: u64, width: u32, reserved: u32, indices: &[u64]) -> Vec<u8> {
+    let mut v = Vec::new();
+    v.extend_from_slice(&count.to_le_bytes());
+    v.extend_from_slice(&width.to_le_bytes());
+    v.extend_from_slice(&reserved.to_le_bytes());
+    for &k in indices {
+        if width == 8 {
+            v.extend_from_slice(&k.to_le_bytes());
+        } else {
+            v.extend_from_slice(&(k as u32).to_le_bytes());
+        }
+    }
+    v
+}
+
+fn occupancy_error(section: Vec<u8>) -> String {
+    let err = refuse(&file_with(b"OCCU", section));
+    assert!(
+        matches!(
+            err,
+            FormatError::Occupancy(_) | FormatError::Reserved { .. }
+        ),
+        "{err:?}"
+    );
+    err.to_string()
+}
+
+#[test]
+fn a_file_without_occupancy_reads_as_none() {
+    let mut baked = sample(3, true);
+    baked.occupancy = None;
+    let b = baked.to_bytes().unwrap();
+    assert_eq!(get_u32(&b, 12), 4, "no OCCU section");
+    assert_eq!(Baked::from_bytes(&b).unwrap().occupancy, None);
+    // The hand-made equivalent of the sample parses to the sample.
+    let occ = occu_section(8, 4, 0, &SAMPLE_OCCUPANCY);
+    assert_eq!(
+        Baked::from_bytes(&file_with(b"OCCU", occ)).unwrap(),
+        sample(3, true)
+    );
+}
+
+#[test]
+fn occupancy_count_not_matching_the_length_is_refused() {
+    // A huge count in a small section must not size an allocation.
+    let msg = occupancy_error(occu_section(1 << 40, 4, 0, &SAMPLE_OCCUPANCY));
+    assert!(msg.contains("claims 1099511627776 voxels"), "{msg}");
+    let msg = occupancy_error(occu_section(u64::MAX, 4, 0, &SAMPLE_OCCUPANCY));
+    assert!(msg.contains("claims"), "{msg}");
+    occupancy_error(occu_section(7, 4, 0, &SAMPLE_OCCUPANCY));
+    let mut short = occu_section(8, 4, 0, &SAMPLE_OCCUPANCY);
+    short.pop();
+    occupancy_error(short);
+    let err = refuse(&file_with(b"OCCU", vec![0; 10]));
+    assert!(
+        matches!(err, FormatError::SectionTooShort { .. }),
+        "{err:?}"
+    );
+}
+
+#[test]
+fn occupancy_out_of_order_or_outside_the_grid_is_refused() {
+    let msg = occupancy_error(occu_section(8, 4, 0, &[0, 5, 12, 13, 14, 15, 16, 24]));
+    assert!(
+        msg.contains("voxel index 24 (entry 7) is outside the [4, 3, 2] grid"),
+        "{msg}"
+    );
+    let msg = occupancy_error(occu_section(8, 4, 0, &[5, 0, 12, 13, 14, 15, 16, 23]));
+    assert!(
+        msg.contains("not strictly ascending at entry 1 (0 after 5)"),
+        "{msg}"
+    );
+    let msg = occupancy_error(occu_section(8, 4, 0, &[0, 12, 12, 13, 14, 15, 16, 23]));
+    assert!(msg.contains("not strictly ascending"), "{msg}");
+    // Every patch's voxel must be occupied: 12 is patch 0's.
+    let msg = occupancy_error(occu_section(7, 4, 0, &[0, 5, 13, 14, 15, 16, 23]));
+    assert!(
+        msg.contains("patch 0's voxel [0, 0, 1] is not occupied"),
+        "{msg}"
+    );
+}
+
+#[test]
+fn occupancy_width_and_reserved_field_are_checked() {
+    let msg = occupancy_error(occu_section(8, 8, 0, &SAMPLE_OCCUPANCY));
+    assert!(msg.contains("8 bytes wide"), "{msg}");
+    occupancy_error(occu_section(8, 2, 0, &SAMPLE_OCCUPANCY));
+    occupancy_error(occu_section(0, 0, 0, &[]));
+    let err = refuse(&file_with(
+        b"OCCU",
+        occu_section(8, 4, 1, &SAMPLE_OCCUPANCY),
+    ));
+    assert!(matches!(err, FormatError::Reserved { .. }), "{err:?}");
+}
+
+#[test]
+fn occupancy_of_a_grid_beyond_2_pow_32_cells_is_u64() {
+    let mut baked = sample(1, false);
+    baked.layout.dims = [70_000, 70_000, 2];
+    let far = [69_999u32, 69_999, 1];
+    baked.layout.patches[4].voxel = far;
+    let linear = |v: [u32; 3]| {
+        let [x, y, z] = v.map(u64::from);
+        x + 70_000 * (y + 70_000 * z)
+    };
+    let mut occ: Vec<u64> = baked
+        .layout
+        .patches
+        .iter()
+        .map(|p| linear(p.voxel))
+        .collect();
+    occ.sort_unstable();
+    occ.dedup();
+    assert!(*occ.last().unwrap() > u64::from(u32::MAX));
+    baked.occupancy = Some(occ.clone());
+    let b = baked.to_bytes().unwrap();
+    let (at, len) = section_of(&b, b"OCCU");
+    assert_eq!(get_u32(&b, at + 8), 8, "index width");
+    assert_eq!(len as u64, OCCUPANCY_HEADER_LEN + 8 * occ.len() as u64);
+    assert_eq!(Baked::from_bytes(&b).unwrap(), baked);
+}
+
+#[test]
+fn writer_refuses_invalid_occupancy() {
+    for (occ, want) in [
+        (vec![0, 5, 12, 13, 14, 15, 16, 99], "outside"),
+        (vec![0, 12, 5, 13, 14, 15, 16], "ascending"),
+        (
+            vec![12, 13, 14, 15],
+            "patch 4's voxel [0, 1, 1] is not occupied",
+        ),
+    ] {
+        let mut b = sample(3, false);
+        b.occupancy = Some(occ);
+        let err = b.to_bytes().expect_err("invalid occupancy was written");
+        assert!(err.to_string().contains(want), "{err}");
     }
 }

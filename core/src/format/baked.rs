@@ -13,6 +13,13 @@
 //! `MTRX` / `FFAC`: codec name (32 bytes, ASCII, zero-padded), rows u32, cols u32, channels u32,
 //! params length u32, payload length u64 (56 bytes), the codec params as JSON, zeros up to the next
 //! multiple of 64, then the payload, which therefore starts 64-byte aligned in the file.
+//!
+//! `OCCU` (flagged [`SECTION_OPTIONAL`]): the occupied voxels, which shadow rays are traced
+//! against. Count u64, index width u32 (4 or 8), reserved u32 (0) (16 bytes), then `count` linear
+//! voxel indices `x + dims.x · (y + dims.y · z)`, strictly ascending, each inside the `LAYT` grid,
+//! as u32 when the grid has at most 2^32 cells and as u64 otherwise (the width is fixed by the
+//! grid, so a file has one encoding). Every patch's voxel is among them. Files without the
+//! section are valid; their readers get no occupancy and trace shadows against the patches alone.
 
 use std::borrow::Cow;
 use std::path::Path;
@@ -34,6 +41,8 @@ pub const PATCH_RECORD_LEN: u64 = 68;
 /// Bytes of the fixed `MTRX`/`FFAC` fields before the codec params.
 pub const MATRIX_HEADER_LEN: u64 = 56;
 const CODEC_NAME_LEN: usize = 32;
+/// Bytes of the `OCCU` fields before the indices.
+pub const OCCUPANCY_HEADER_LEN: u64 = 16;
 
 /// Everything a baked file holds.
 #[derive(Debug, Clone, PartialEq)]
@@ -44,6 +53,10 @@ pub struct Baked {
     pub transport: EncodedMatrix,
     /// The single-bounce form factors `F`, kept when the bake was asked to.
     pub form_factors: Option<EncodedMatrix>,
+    /// Linear indices of the occupied voxels of the layout's grid, ascending (see
+    /// [`crate::voxel::Voxelization::occupied`]): what shadow rays are traced against. Absent in
+    /// files from bakes that did not store it.
+    pub occupancy: Option<Vec<u64>>,
 }
 
 impl Baked {
@@ -71,6 +84,13 @@ impl Baked {
         if let Some(m) = &self.form_factors {
             sections.push(encode_matrix(SectionKind::FFAC, m, n)?);
         }
+        if let Some(occ) = &self.occupancy {
+            sections.push(Section {
+                kind: SectionKind::OCCU,
+                flags: SECTION_OPTIONAL,
+                pieces: vec![Cow::Owned(encode_occupancy(occ, &self.layout)?)],
+            });
+        }
         Assembled::new(sections)
     }
 
@@ -84,6 +104,7 @@ impl Baked {
                 SectionKind::LAYT,
                 SectionKind::MTRX,
                 SectionKind::FFAC,
+                SectionKind::OCCU,
             ]
             .contains(&e.kind);
             if !known && !e.is_optional() {
@@ -109,11 +130,16 @@ impl Baked {
             Some(e) => Some(decode_matrix(SectionKind::FFAC, c.section(e)?, n)?),
             None => None,
         };
+        let occupancy = match c.entry(SectionKind::OCCU) {
+            Some(e) => Some(decode_occupancy(c.section(e)?, &layout)?),
+            None => None,
+        };
         Ok(Baked {
             meta,
             layout,
             transport,
             form_factors,
+            occupancy,
         })
     }
 
@@ -280,6 +306,112 @@ fn decode_layout(bytes: &[u8]) -> Result<PatchLayout, FormatError> {
     };
     validate_layout(&layout)?;
     Ok(layout)
+}
+
+/// Cells of the layout's grid; cannot overflow (three u32 factors fit in 96 bits, and u128 holds
+/// them).
+fn grid_cells(layout: &PatchLayout) -> u128 {
+    layout.dims.iter().map(|&d| u128::from(d)).product()
+}
+
+/// Bytes per index in `OCCU` for this grid.
+fn occupancy_width(layout: &PatchLayout) -> u32 {
+    if grid_cells(layout) <= 1u128 << 32 {
+        4
+    } else {
+        8
+    }
+}
+
+/// The checks shared by writer and reader: ascending, inside the grid, and covering every
+/// patch's voxel.
+fn validate_occupancy(occ: &[u64], layout: &PatchLayout) -> Result<(), FormatError> {
+    let cells = grid_cells(layout);
+    let mut last: Option<u64> = None;
+    for (i, &k) in occ.iter().enumerate() {
+        if u128::from(k) >= cells {
+            return Err(FormatError::Occupancy(format!(
+                "voxel index {k} (entry {i}) is outside the {:?} grid",
+                layout.dims
+            )));
+        }
+        if let Some(l) = last
+            && l >= k
+        {
+            return Err(FormatError::Occupancy(format!(
+                "voxel indices are not strictly ascending at entry {i} ({k} after {l})"
+            )));
+        }
+        last = Some(k);
+    }
+    let dims = layout.dims.map(u64::from);
+    for (i, p) in layout.patches.iter().enumerate() {
+        // Inside the grid (checked with the layout), so the index fits in u64.
+        let [x, y, z] = p.voxel.map(u64::from);
+        let k = x + dims[0] * (y + dims[1] * z);
+        if occ.binary_search(&k).is_err() {
+            return Err(FormatError::Occupancy(format!(
+                "patch {i}'s voxel {:?} is not occupied",
+                p.voxel
+            )));
+        }
+    }
+    Ok(())
+}
+
+fn encode_occupancy(occ: &[u64], layout: &PatchLayout) -> Result<Vec<u8>, FormatError> {
+    validate_occupancy(occ, layout)?;
+    let width = occupancy_width(layout);
+    let mut out = Vec::with_capacity(OCCUPANCY_HEADER_LEN as usize + occ.len() * width as usize);
+    out.extend_from_slice(&(occ.len() as u64).to_le_bytes());
+    out.extend_from_slice(&width.to_le_bytes());
+    out.extend_from_slice(&0u32.to_le_bytes());
+    for &k in occ {
+        if width == 4 {
+            // Below the grid's cell count, checked above, hence below 2^32.
+            out.extend_from_slice(&(k as u32).to_le_bytes());
+        } else {
+            out.extend_from_slice(&k.to_le_bytes());
+        }
+    }
+    Ok(out)
+}
+
+fn decode_occupancy(bytes: &[u8], layout: &PatchLayout) -> Result<Vec<u64>, FormatError> {
+    let kind = SectionKind::OCCU;
+    let mut r = FieldReader::new(bytes, Some(kind));
+    let count = r.u64("occupied voxel count")?;
+    let width = r.u32("voxel index width")?;
+    if r.u32("reserved")? != 0 {
+        return Err(FormatError::Reserved {
+            what: format!("section '{kind}'"),
+        });
+    }
+    let want = occupancy_width(layout);
+    if width != want {
+        return Err(FormatError::Occupancy(format!(
+            "voxel indices are {width} bytes wide, but a {:?} grid has {want}-byte indices",
+            layout.dims
+        )));
+    }
+    let indices = r.remaining();
+    // Only a count the section's length accounts for may size an allocation.
+    let have = indices.len() as u64;
+    if count.checked_mul(u64::from(width)) != Some(have) {
+        return Err(FormatError::Occupancy(format!(
+            "claims {count} voxels of {width} bytes but holds {have} bytes of indices"
+        )));
+    }
+    let occ: Vec<u64> = indices
+        .chunks_exact(width as usize)
+        .map(|c| {
+            let mut b = [0u8; 8];
+            b[..c.len()].copy_from_slice(c);
+            u64::from_le_bytes(b)
+        })
+        .collect();
+    validate_occupancy(&occ, layout)?;
+    Ok(occ)
 }
 
 fn valid_codec_name(name: &[u8]) -> bool {

@@ -41,6 +41,7 @@ impl SectionKind {
     pub const LAYT: SectionKind = SectionKind(*b"LAYT");
     pub const MTRX: SectionKind = SectionKind(*b"MTRX");
     pub const FFAC: SectionKind = SectionKind(*b"FFAC");
+    pub const OCCU: SectionKind = SectionKind(*b"OCCU");
 }
 
 impl fmt::Display for SectionKind {

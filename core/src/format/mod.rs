@@ -16,7 +16,8 @@
 //!
 //! Sections of version 1: `META` (the [`crate::meta::BakeMeta`] as JSON), `LAYT` (the patch layout,
 //! binary), `MTRX` (the transport matrix) and optionally `FFAC` (the single-bounce form factors, same
-//! encoding as `MTRX`). A reader skips sections of unknown kind whose [`SECTION_OPTIONAL`] flag is set
+//! encoding as `MTRX`) and `OCCU` (the occupied voxels, flagged optional so that a reader
+//! predating it skips it). A reader skips sections of unknown kind whose [`SECTION_OPTIONAL`] flag is set
 //! and refuses the file otherwise, so later versions can add sections that old readers may ignore.
 
 mod baked;
@@ -26,7 +27,10 @@ use std::path::PathBuf;
 
 use thiserror::Error;
 
-pub use baked::{Baked, LAYOUT_HEADER_LEN, MATRIX_HEADER_LEN, PATCH_RECORD_LEN, read_summary};
+pub use baked::{
+    Baked, LAYOUT_HEADER_LEN, MATRIX_HEADER_LEN, OCCUPANCY_HEADER_LEN, PATCH_RECORD_LEN,
+    read_summary,
+};
 pub use container::{
     ENTRY_LEN, FileSummary, HEADER_LEN, Header, MAGIC, SECTION_ALIGN, SECTION_OPTIONAL,
     SectionEntry, SectionKind, SectionSummary,
@@ -147,6 +151,8 @@ pub enum FormatError {
         kind: SectionKind,
         error: serde_json::Error,
     },
+    #[error("section 'OCCU': {0}")]
+    Occupancy(String),
     #[error("{what} is too large for the format ({value} > {max})")]
     TooLarge {
         what: &'static str,

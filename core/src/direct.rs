@@ -1,0 +1,530 @@
+//! Direct irradiance: per patch, the light arriving straight from a [`LightSet`], with shadows.
+//!
+//! This module owns the per-patch `E_direct` and the initial exitance `B0 = L_e + ρ ⊙ E_direct`
+//! (DESIGN.md §1) that the transport turns into indirect light. Light validation belongs to
+//! [`crate::light`], ray casting to [`crate::rays`].
+//!
+//! Units and falloff are glTF `KHR_lights_punctual`'s, with `cosθ` taken against the patch's face
+//! normal and `L` the unit vector from the surface point towards the light:
+//!
+//! - point: `E = I · color · cosθ / d² · W(d)`, where `W(d) = clamp(1 − (d/range)⁴, 0, 1)²` when
+//!   `range` is set and 1 otherwise;
+//! - spot: the point formula times `A = clamp(cd · scale + offset, 0, 1)²`, with
+//!   `cd = dot(axis, −L)`, `scale = 1 / max(0.001, cos(inner) − cos(outer))` and
+//!   `offset = −cos(outer) · scale`: 0 outside the outer cone, 1 inside the inner one;
+//! - directional: `E = I · color · cosθ`, `L = −direction`.
+//!
+//! A light behind the patch (`cosθ ≤ 0`) contributes nothing and costs no ray.
+//!
+//! **Sample pattern** (the GPU twin must reproduce it bit for bit in its choice of points):
+//! a patch takes `side²` samples, `side = min(⌊√samples⌋, 16)` and at least 1. Sample
+//! `k = 0..side²` sits in cell `(i, j) = (k mod side, k div side)` of a `side × side` grid over the
+//! patch's quad, at in-plane parameters `((i + ξ₀) / side, (j + ξ₁) / side)` passed to
+//! [`Quad::point`], where `ξ_d = jitter(patch, k, d)`:
+//!
+//! ```text
+//! hash(x)            = lowbias32: x ^= x >> 16; x *= 0x7feb352d; x ^= x >> 15;
+//!                                 x *= 0x846ca68b; x ^= x >> 16        (u32, wrapping)
+//! jitter(patch, k, d) = (f32(hash(hash(patch) ^ (2k + d)) >> 9) + 0.5) · 2⁻²³   ∈ (0, 1)
+//! ```
+//!
+//! Each sample casts one shadow ray per light that reaches it, so shadow edges come out
+//! fractional; `E_direct` is the mean over the samples of the sum over the lights, accumulated in
+//! f32 in sample order, then light order.
+
+use glam::Vec3;
+use rayon::prelude::*;
+
+use crate::light::{Light, LightSet, unit_vector};
+use crate::patch::{Face, PatchLayout, Quad};
+use crate::rays::{MAX_GRID_TRACER_CELLS, RayScene, Tracer};
+
+/// Samples per patch unless asked otherwise: a 4 × 4 grid.
+pub const DEFAULT_SAMPLES: u32 = 16;
+/// The largest grid side: 256 samples per patch.
+pub const MAX_SAMPLES_SIDE: u32 = 16;
+
+/// What shadow rays are traced against.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ShadowSource {
+    /// The occupied voxels of the bake: every solid blocks light.
+    Occupancy,
+    /// Only the patch quads, for a baked file without occupancy: light leaks through solids
+    /// whose faces are not patches (occluders, backs of one-sided walls).
+    PatchesOnly,
+}
+
+/// The geometry that shadow rays are traced against, built once per scene.
+pub struct ShadowScene {
+    rays: RayScene,
+    source: ShadowSource,
+}
+
+impl ShadowScene {
+    /// The scene of `layout`, blocked by `occupancy` (ascending linear voxel indices, as
+    /// [`crate::voxel::Voxelization::occupied`] and [`crate::format::Baked::occupancy`] hold
+    /// them) where given, else by the patch quads alone (see [`ShadowScene::source`]). Indices
+    /// outside the grid are ignored.
+    pub fn new(layout: &PatchLayout, occupancy: Option<&[u64]>) -> ShadowScene {
+        ShadowScene::with_tracer(layout, occupancy, Tracer::Grid)
+    }
+
+    /// As [`ShadowScene::new`], asking for `tracer` where there is occupancy (the grid tracer
+    /// falls back to the BVH for grids too large for it; [`ShadowScene::tracer`] says which).
+    /// Both give the same shadows but for rays through exact voxel edges and corners.
+    pub fn with_tracer(
+        layout: &PatchLayout,
+        occupancy: Option<&[u64]>,
+        tracer: Tracer,
+    ) -> ShadowScene {
+        match occupancy {
+            Some(occupied) => {
+                let cells = layout.dims.iter().map(|&d| u64::from(d)).product::<u64>();
+                // The BVH needs the solids' faces as quads; the grid tracer reads the occupancy
+                // directly.
+                let occluders = if tracer == Tracer::Bvh || cells > MAX_GRID_TRACER_CELLS {
+                    exposed_non_patch_faces(layout, occupied)
+                } else {
+                    Vec::new()
+                };
+                ShadowScene {
+                    rays: RayScene::voxels(layout, occupied, &occluders, tracer),
+                    source: ShadowSource::Occupancy,
+                }
+            }
+            None => ShadowScene {
+                rays: RayScene::new(&layout.quads(), &[]),
+                source: ShadowSource::PatchesOnly,
+            },
+        }
+    }
+
+    /// Whether shadows come from the occupancy or, lacking it, from the patches alone.
+    pub fn source(&self) -> ShadowSource {
+        self.source
+    }
+
+    /// The tracer the rays go through.
+    pub fn tracer(&self) -> Tracer {
+        self.rays.tracer()
+    }
+
+    pub fn patch_count(&self) -> usize {
+        self.rays.patch_count()
+    }
+
+    /// Whether the segment from `origin` on patch `from` along unit `dir` is blocked before
+    /// `max_t` (infinite: before leaving the scene).
+    pub fn occluded(&self, from: usize, origin: Vec3, dir: Vec3, max_t: f32) -> bool {
+        self.rays.occluded(from, origin, dir, max_t)
+    }
+}
+
+/// Faces of occupied voxels that look into empty space (or out of the grid) and are not patches.
+fn exposed_non_patch_faces(layout: &PatchLayout, occupied: &[u64]) -> Vec<Quad> {
+    let dims = layout.dims.map(u64::from);
+    let cells = dims.iter().product::<u64>();
+    let patch_faces: std::collections::HashSet<([u32; 3], Face)> =
+        layout.patches.iter().map(|p| (p.voxel, p.face)).collect();
+    let is_occupied = |c: [u64; 3]| {
+        occupied
+            .binary_search(&(c[0] + dims[0] * (c[1] + dims[1] * c[2])))
+            .is_ok()
+    };
+    let mut quads = Vec::new();
+    for &k in occupied.iter().filter(|&&k| k < cells) {
+        let c = [k % dims[0], k / dims[0] % dims[1], k / (dims[0] * dims[1])];
+        // Below the dims, which are u32.
+        let voxel = c.map(|v| v as u32);
+        for face in Face::ALL {
+            let a = face.axis();
+            let mut nb = c;
+            let inside = if face.sign() > 0.0 {
+                nb[a] += 1;
+                nb[a] < dims[a]
+            } else if nb[a] > 0 {
+                nb[a] -= 1;
+                true
+            } else {
+                false
+            };
+            if (!inside || !is_occupied(nb)) && !patch_faces.contains(&(voxel, face)) {
+                quads.push(layout.face_quad(voxel, face));
+            }
+        }
+    }
+    quads
+}
+
+/// A light reduced to what the per-sample formula needs, in the form a GPU buffer would hold.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PreparedLight {
+    pub kind: LightKind,
+    /// Point and spot: the light's position.
+    pub position: Vec3,
+    /// Directional and spot: the unit direction light travels in.
+    pub axis: Vec3,
+    /// `intensity · color`.
+    pub radiant: Vec3,
+    /// `1 / range`, 0 for no range.
+    pub inv_range: f32,
+    /// Spot: `scale` and `offset` of the angular attenuation (see the module doc).
+    pub angle_scale: f32,
+    pub angle_offset: f32,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LightKind {
+    Directional,
+    Point,
+    Spot,
+}
+
+impl PreparedLight {
+    /// `None` for a light that cannot light anything: one that fails validation (so no
+    /// non-finite value reaches the sums) or has zero intensity or colour.
+    pub fn new(light: &Light) -> Option<PreparedLight> {
+        light.validate().ok()?;
+        let (kind, position, axis, color, intensity, range, cones) = match *light {
+            Light::Directional {
+                direction,
+                color,
+                intensity,
+                ..
+            } => (
+                LightKind::Directional,
+                Vec3::ZERO,
+                unit_vector(direction)?,
+                color,
+                intensity,
+                None,
+                None,
+            ),
+            Light::Point {
+                position,
+                color,
+                intensity,
+                range,
+                ..
+            } => (
+                LightKind::Point,
+                Vec3::from(position),
+                Vec3::ZERO,
+                color,
+                intensity,
+                range,
+                None,
+            ),
+            Light::Spot {
+                position,
+                direction,
+                color,
+                intensity,
+                range,
+                inner_cone_angle,
+                outer_cone_angle,
+                ..
+            } => (
+                LightKind::Spot,
+                Vec3::from(position),
+                unit_vector(direction)?,
+                color,
+                intensity,
+                range,
+                Some((inner_cone_angle, outer_cone_angle)),
+            ),
+        };
+        let radiant = Vec3::from(color) * intensity;
+        if radiant.max_element() <= 0.0 {
+            return None;
+        }
+        let (angle_scale, angle_offset) = match cones {
+            Some((inner, outer)) => {
+                let scale = 1.0 / (inner.cos() - outer.cos()).max(0.001);
+                (scale, -outer.cos() * scale)
+            }
+            None => (0.0, 0.0),
+        };
+        Some(PreparedLight {
+            kind,
+            position,
+            axis,
+            radiant,
+            inv_range: range.map_or(0.0, |r| 1.0 / r),
+            angle_scale,
+            angle_offset,
+        })
+    }
+}
+
+/// What one light delivers to one surface point, before visibility.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LightSample {
+    /// Unit vector from the point towards the light: the shadow ray's direction.
+    pub dir: Vec3,
+    /// How far the shadow ray must get unblocked: the light's distance, infinite for a
+    /// directional light.
+    pub distance: f32,
+    /// Irradiance if nothing blocks the ray.
+    pub irradiance: Vec3,
+}
+
+/// The glTF range window `clamp(1 − (d/range)⁴, 0, 1)²`; 1 when `inv_range` is 0 (no range).
+#[inline]
+pub fn range_window(distance: f32, inv_range: f32) -> f32 {
+    let x = distance * inv_range;
+    let w = (1.0 - x * x * x * x).clamp(0.0, 1.0);
+    w * w
+}
+
+/// glTF's smooth spot attenuation for `cd`, the cosine between the spot axis and the direction
+/// from the light to the point.
+#[inline]
+pub fn spot_attenuation(cd: f32, angle_scale: f32, angle_offset: f32) -> f32 {
+    let a = (cd * angle_scale + angle_offset).clamp(0.0, 1.0);
+    a * a
+}
+
+/// What `light` delivers at point `p` with unit normal `n`, if anything: `None` when the light
+/// is behind the surface, out of range or outside its cone (no ray needed then).
+#[inline]
+pub fn light_sample(light: &PreparedLight, p: Vec3, n: Vec3) -> Option<LightSample> {
+    let (dir, distance, scale) = match light.kind {
+        LightKind::Directional => (-light.axis, f32::INFINITY, 1.0),
+        LightKind::Point | LightKind::Spot => {
+            let to = light.position - p;
+            let d2 = to.length_squared();
+            let d = d2.sqrt();
+            if !(d > 0.0 && d.is_finite()) {
+                // The light sits on the point: no direction to take a cosine with.
+                return None;
+            }
+            let dir = to / d;
+            let mut scale = range_window(d, light.inv_range) / d2;
+            if light.kind == LightKind::Spot {
+                scale *=
+                    spot_attenuation(light.axis.dot(-dir), light.angle_scale, light.angle_offset);
+            }
+            (dir, d, scale)
+        }
+    };
+    let cos = n.dot(dir);
+    // Zero factors end here, before they can meet an infinite product.
+    if !(cos > 0.0 && scale > 0.0) {
+        return None;
+    }
+    Some(LightSample {
+        dir,
+        distance,
+        irradiance: light.radiant * (cos * scale),
+    })
+}
+
+/// lowbias32 (C. Wellons): a cheap u32 hash with good avalanche, written the same in WGSL.
+#[inline]
+pub fn hash_u32(mut x: u32) -> u32 {
+    x ^= x >> 16;
+    x = x.wrapping_mul(0x7feb_352d);
+    x ^= x >> 15;
+    x = x.wrapping_mul(0x846c_a68b);
+    x ^= x >> 16;
+    x
+}
+
+/// The jitter of coordinate `dim` (0 or 1) of sample `k` on `patch`, strictly inside (0, 1).
+#[inline]
+pub fn jitter(patch: u32, k: u32, dim: u32) -> f32 {
+    let h = hash_u32(hash_u32(patch) ^ k.wrapping_mul(2).wrapping_add(dim));
+    // 23 bits plus a half fit f32's 24-bit significand exactly, so the result is never 0 or 1.
+    ((h >> 9) as f32 + 0.5) * (1.0 / (1u32 << 23) as f32)
+}
+
+/// The grid side used for a requested sample count.
+pub fn samples_side(samples: u32) -> u32 {
+    samples.isqrt().clamp(1, MAX_SAMPLES_SIDE)
+}
+
+/// In-plane parameters in (0, 1)² of sample `k` of a `side × side` grid on `patch`.
+#[inline]
+pub fn sample_uv(patch: u32, k: u32, side: u32) -> [f32; 2] {
+    let s = side as f32;
+    let (i, j) = (k % side, k / side);
+    [
+        (i as f32 + jitter(patch, k, 0)) / s,
+        (j as f32 + jitter(patch, k, 1)) / s,
+    ]
+}
+
+/// Direct irradiance (linear RGB) on every patch of `layout` from `lights`, shadowed by `scene`
+/// (built from the same layout), with about `samples` samples per patch (see the module doc for
+/// the pattern). Lights that fail validation are skipped. The result is the same bits whatever
+/// the thread count: each patch is summed by one thread in a fixed order.
+///
+/// # Panics
+/// If `scene` was built from a layout with a different patch count: a caller's bug.
+pub fn direct_irradiance(
+    scene: &ShadowScene,
+    layout: &PatchLayout,
+    lights: &LightSet,
+    samples: u32,
+) -> Vec<[f32; 3]> {
+    assert_eq!(
+        scene.patch_count(),
+        layout.len(),
+        "shadow scene and layout disagree on the patch count"
+    );
+    let prepared: Vec<PreparedLight> = lights
+        .lights
+        .iter()
+        .filter_map(PreparedLight::new)
+        .collect();
+    let side = samples_side(samples);
+    (0..layout.len())
+        .into_par_iter()
+        .map(|i| patch_irradiance(scene, &layout.quad(i), i, &prepared, side))
+        .collect()
+}
+
+/// One patch's mean over its samples.
+fn patch_irradiance(
+    scene: &ShadowScene,
+    quad: &Quad,
+    patch: usize,
+    lights: &[PreparedLight],
+    side: u32,
+) -> [f32; 3] {
+    if lights.is_empty() {
+        return [0.0; 3];
+    }
+    let n = quad.normal();
+    let count = side * side;
+    let mut sum = Vec3::ZERO;
+    for k in 0..count {
+        // Patch indices beyond u32 do not occur (a layout holds at most u32::MAX patches);
+        // wrapping would only change the jitter.
+        let [u, v] = sample_uv(patch as u32, k, side);
+        let p = quad.point(u, v);
+        for light in lights {
+            if let Some(s) = light_sample(light, p, n)
+                && !scene.occluded(patch, p, s.dir, s.distance)
+            {
+                sum += s.irradiance;
+            }
+        }
+    }
+    // A sum of very bright lights may overflow; keep the result finite for the encoders.
+    (sum / count as f32).min(Vec3::splat(f32::MAX)).to_array()
+}
+
+/// Initial exitance `B0 = L_e + ρ ⊙ E_direct` per patch (DESIGN.md §1).
+///
+/// # Panics
+/// If `e_direct` does not have one entry per patch: a caller's bug.
+pub fn exitance_b0(layout: &PatchLayout, e_direct: &[[f32; 3]]) -> Vec<[f32; 3]> {
+    assert_eq!(
+        e_direct.len(),
+        layout.len(),
+        "one direct irradiance per patch"
+    );
+    layout
+        .patches
+        .iter()
+        .zip(e_direct)
+        .map(|(p, e)| std::array::from_fn(|c| p.emission[c] + p.albedo[c] * e[c]))
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Pinned values, for the GPU twin to check its hash and jitter against.
+    #[test]
+    fn hash_and_jitter_are_pinned() {
+        assert_eq!(hash_u32(0), 0);
+        assert_eq!(hash_u32(1), 0x6889_90c0);
+        assert_eq!(hash_u32(12345), 2_435_775_735);
+        let h = hash_u32(hash_u32(7) ^ 7);
+        assert_eq!(jitter(7, 3, 1), ((h >> 9) as f32 + 0.5) / 8_388_608.0);
+        assert_eq!(jitter(0, 0, 0), 0.5 / 8_388_608.0);
+        for patch in 0..64 {
+            for k in 0..64 {
+                for d in 0..2 {
+                    let j = jitter(patch, k, d);
+                    assert!(j > 0.0 && j < 1.0, "{j}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn samples_form_a_stratified_grid() {
+        assert_eq!(samples_side(0), 1);
+        assert_eq!(samples_side(16), 4);
+        assert_eq!(samples_side(24), 4);
+        assert_eq!(samples_side(100_000), MAX_SAMPLES_SIDE);
+        for k in 0..16 {
+            let [u, v] = sample_uv(9, k, 4);
+            assert_eq!(((u * 4.0) as u32, (v * 4.0) as u32), (k % 4, k / 4));
+        }
+    }
+
+    #[test]
+    fn falloff_windows() {
+        assert_eq!(range_window(5.0, 0.0), 1.0);
+        assert_eq!(range_window(2.0, 0.5), 0.0);
+        assert_eq!(range_window(3.0, 0.5), 0.0);
+        assert!((range_window(1.0, 0.5) - (1.0f32 - 0.0625).powi(2)).abs() < 1e-7);
+        let (inner, outer) = (0.3f32, 0.6f32);
+        let scale = 1.0 / (inner.cos() - outer.cos());
+        let offset = -outer.cos() * scale;
+        assert_eq!(spot_attenuation(1.0, scale, offset), 1.0);
+        assert_eq!(spot_attenuation(0.29f32.cos(), scale, offset), 1.0);
+        assert_eq!(spot_attenuation(0.61f32.cos(), scale, offset), 0.0);
+        let mid = spot_attenuation(0.45f32.cos(), scale, offset);
+        assert!(mid > 0.0 && mid < 1.0, "{mid}");
+    }
+
+    #[test]
+    fn light_behind_or_on_the_surface_gives_nothing() {
+        let point = PreparedLight::new(&Light::Point {
+            position: [0.0, 1.0, 0.0],
+            color: [1.0; 3],
+            intensity: 4.0,
+            range: None,
+            name: None,
+        })
+        .unwrap();
+        let s = light_sample(&point, Vec3::ZERO, Vec3::Y).unwrap();
+        assert_eq!(s.irradiance, Vec3::splat(4.0));
+        assert_eq!(s.distance, 1.0);
+        assert_eq!(s.dir, Vec3::Y);
+        assert_eq!(light_sample(&point, Vec3::ZERO, Vec3::NEG_Y), None);
+        assert_eq!(light_sample(&point, Vec3::Y, Vec3::Y), None);
+        let sun = PreparedLight::new(&Light::Directional {
+            direction: [0.0, -2.0, 0.0],
+            color: [1.0, 0.5, 0.0],
+            intensity: 3.0,
+            name: None,
+        })
+        .unwrap();
+        let s = light_sample(&sun, Vec3::ZERO, Vec3::Y).unwrap();
+        assert_eq!(s.irradiance, Vec3::new(3.0, 1.5, 0.0));
+        assert_eq!(s.distance, f32::INFINITY);
+        // Invalid and dark lights are dropped before any ray.
+        let dark = Light::Directional {
+            direction: [0.0, -1.0, 0.0],
+            color: [1.0; 3],
+            intensity: 0.0,
+            name: None,
+        };
+        assert_eq!(PreparedLight::new(&dark), None);
+        let broken = Light::Directional {
+            direction: [0.0, f32::NAN, 0.0],
+            color: [1.0; 3],
+            intensity: 1.0,
+            name: None,
+        };
+        assert_eq!(PreparedLight::new(&broken), None);
+    }
+}
