@@ -56,6 +56,45 @@ fn every_codec_multiplies_like_its_decoded_matrix() {
     }
 }
 
+/// Products drop columns no light set of the batch reaches (shadowed patches): with most of
+/// `B0` dark, and with all of it dark, every codec still multiplies like its decoded matrix.
+#[test]
+fn dark_columns_are_skipped_without_changing_products() {
+    let (t, layout) = cornell();
+    let n = t.n;
+    let full = probe_light_sets(layout, 3);
+    let sparse_light: Vec<[f32; 3]> = full
+        .iter()
+        .enumerate()
+        .map(|(p, v)| if (p % n) % 13 == (p / n) { *v } else { [0.0; 3] })
+        .collect();
+    // Few lit patches: even in BC's 4-column groups most columns are dark, so products gather.
+    let few_lit: Vec<[f32; 3]> = full
+        .iter()
+        .enumerate()
+        .map(|(p, v)| if (p % n) % 29 == 0 { *v } else { [0.0; 3] })
+        .collect();
+    let dark = vec![[0.0f32; 3]; 2 * n];
+    for codec in all() {
+        let op = decode(&codec.encode(t).unwrap()).unwrap();
+        let dense = bounce_core::codec::dense::DenseOp::from(op.to_dense());
+        for b0 in [&sparse_light, &few_lit, &dark] {
+            let mut a = vec![[1.0; 3]; b0.len()];
+            let mut b = vec![[0.0; 3]; b0.len()];
+            op.matvec_batch(b0, &mut a).unwrap();
+            bounce_core::codec::MatrixOp::matvec_batch(&dense, b0, &mut b).unwrap();
+            let scale = b.iter().flatten().fold(0.0f32, |m, v| m.max(v.abs()));
+            for (x, y) in a.iter().flatten().zip(b.iter().flatten()) {
+                assert!(
+                    (x - y).abs() <= 1e-5 * scale,
+                    "{}: {x} against {y} (scale {scale})",
+                    codec.name()
+                );
+            }
+        }
+    }
+}
+
 #[test]
 fn with_everything_sparse_the_thesis_codec_is_exact_in_any_order() {
     let (t, _) = cornell();

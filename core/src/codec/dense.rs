@@ -7,6 +7,7 @@
 use half::f16;
 use rayon::prelude::*;
 
+use super::lanes::{Lanes, dot, dot_gather};
 use super::{Codec, CodecError, MatrixOp, batch_len};
 use crate::matrix::{DenseMatrix, EncodedMatrix};
 
@@ -130,6 +131,12 @@ impl<T: Entry> MatrixOp for Dense<T> {
         let n = self.n;
         let batch = batch_len(n, x, out)?;
         let m = self;
+        let lanes = Lanes::new(x, n, None, 1);
+        if lanes.dark() {
+            out.fill([0.0; 3]);
+            return Ok(());
+        }
+        let lanes = &lanes;
         // Rows in parallel; every light set of the batch shares the row's one pass over memory,
         // which is what makes batching pay.
         let rows: Vec<[f32; 3]> = (0..n)
@@ -137,11 +144,13 @@ impl<T: Entry> MatrixOp for Dense<T> {
             .flat_map_iter(|i| {
                 let rows: Vec<&[T]> = (0..m.channels).map(|c| m.row(c, i)).collect();
                 (0..batch).map(move |k| {
-                    let xs = &x[k * n..(k + 1) * n];
                     let mut acc = [0.0f32; 3];
                     for (c, a) in acc.iter_mut().enumerate() {
                         let row = rows[c.min(rows.len() - 1)];
-                        *a = row.iter().zip(xs).map(|(&t, xj)| t.value() * xj[c]).sum();
+                        *a = match &lanes.cols {
+                            None => dot(row, lanes.lane(k, c)),
+                            Some(cols) => dot_gather(row, cols, lanes.lane(k, c)),
+                        };
                     }
                     acc
                 })

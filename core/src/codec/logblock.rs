@@ -19,6 +19,7 @@ use super::transform::{
     SparsePart, gather_positions, greedy_chain, is_permutation, log_dequantize, log_quantize,
     select_largest, split_largest,
 };
+use super::lanes::{Lanes, dot};
 use super::{Codec, CodecError, MatrixOp, batch_len};
 use crate::matrix::{DenseMatrix, EncodedMatrix};
 
@@ -213,23 +214,23 @@ impl Codec for LogBlock {
         };
         drop(codes);
 
-        let mut op = LogBlockOp {
+        let mut op = LogBlockOp::assemble(
             n,
-            channels: ch,
-            blocks: self.blocks,
+            ch,
+            self.blocks,
             width,
             row_perm,
             col_perm,
-            lut: max.iter().map(|&m| lut(m)).collect(),
-            sparse: SparsePart {
+            max.iter().map(|&m| lut(m)).collect(),
+            SparsePart {
                 n,
                 channels: ch,
                 row_ptr: vec![0; n + 1],
                 col_idx: Vec::new(),
                 values: Vec::new(),
             },
-            raw: blocks,
-        };
+            blocks,
+        );
         op.sparse = if by_size == total {
             sparse
         } else {
@@ -474,6 +475,56 @@ pub struct LogBlockOp {
     sparse: SparsePart,
     /// BC1: one image; BC4: one image per channel.
     raw: Vec<u8>,
+    /// Per image and block (image-major, then row-major blocks): does the block decode to all
+    /// zeros? Products skip those. Empty for raw codes.
+    zero: Vec<bool>,
+}
+
+impl LogBlockOp {
+    #[allow(clippy::too_many_arguments)]
+    fn assemble(
+        n: usize,
+        channels: usize,
+        blocks: Blocks,
+        width: usize,
+        row_perm: Vec<u32>,
+        col_perm: Vec<u32>,
+        lut: Vec<[f32; 256]>,
+        sparse: SparsePart,
+        raw: Vec<u8>,
+    ) -> LogBlockOp {
+        let zero = match blocks {
+            Blocks::Raw8 => Vec::new(),
+            Blocks::Bc1 => raw
+                .par_chunks_exact(bc::BLOCK_BYTES)
+                .map(|b| {
+                    let mut block = [0u8; 8];
+                    block.copy_from_slice(b);
+                    bc::decode_bc1_block(&block).iter().all(|t| *t == [0; 3])
+                })
+                .collect(),
+            Blocks::Bc4 => raw
+                .par_chunks_exact(bc::BLOCK_BYTES)
+                .map(|b| {
+                    let mut block = [0u8; 8];
+                    block.copy_from_slice(b);
+                    bc::decode_bc4_block(&block).iter().all(|t| *t == 0)
+                })
+                .collect(),
+        };
+        LogBlockOp {
+            n,
+            channels,
+            blocks,
+            width,
+            row_perm,
+            col_perm,
+            lut,
+            sparse,
+            raw,
+            zero,
+        }
+    }
 }
 
 /// Check and unpack a stored matrix of this family.
@@ -546,17 +597,17 @@ pub(super) fn decode(m: &EncodedMatrix, blocks: Blocks) -> Result<LogBlockOp, Co
         return Err(corrupt(blocks, "trailing bytes after the blocks"));
     }
     let lut = p.max.iter().map(|&max| lut(max)).collect();
-    Ok(LogBlockOp {
+    Ok(LogBlockOp::assemble(
         n,
-        channels: ch,
+        ch,
         blocks,
-        width: w,
+        w,
         row_perm,
         col_perm,
         lut,
         sparse,
-        raw: raw.to_vec(),
-    })
+        raw.to_vec(),
+    ))
 }
 
 impl LogBlockOp {
@@ -597,7 +648,8 @@ impl LogBlockOp {
     }
 
     /// Codes of image rows `4·strip .. 4·strip + 4`, per channel: `[channel][row][column]`.
-    fn strip(&self, strip: usize) -> Vec<[Vec<u8>; 4]> {
+    /// Blocks that decode to zeros, and block columns `lit` marks dark, are left at code 0.
+    fn strip(&self, strip: usize, lit: Option<&[bool]>) -> Vec<[Vec<u8>; 4]> {
         let w = self.width;
         let blocks_per_row = w / 4;
         let mut out: Vec<[Vec<u8>; 4]> = (0..self.channels)
@@ -613,9 +665,15 @@ impl LogBlockOp {
             }
             return out;
         }
+        let per_image = blocks_per_row * blocks_per_row;
         for bx in 0..blocks_per_row {
-            let at = (strip * blocks_per_row + bx) * bc::BLOCK_BYTES;
+            if lit.is_some_and(|l| !l[bx]) {
+                continue;
+            }
+            let block = strip * blocks_per_row + bx;
+            let at = block * bc::BLOCK_BYTES;
             match self.blocks {
+                Blocks::Bc1 if self.zero[block] => {}
                 Blocks::Bc1 => {
                     let mut b = [0u8; 8];
                     b.copy_from_slice(&self.raw[at..at + 8]);
@@ -630,6 +688,9 @@ impl LogBlockOp {
                 Blocks::Raw8 => {}
                 Blocks::Bc4 => {
                     for (c, plane) in out.iter_mut().enumerate() {
+                        if self.zero[c * per_image + block] {
+                            continue;
+                        }
                         let at = c * image_bytes + at;
                         let mut b = [0u8; 8];
                         b.copy_from_slice(&self.raw[at..at + 8]);
@@ -657,56 +718,64 @@ impl MatrixOp for LogBlockOp {
     fn matvec_batch(&self, x: &[[f32; 3]], out: &mut [[f32; 3]]) -> Result<(), CodecError> {
         let n = self.n;
         let batch = batch_len(n, x, out)?;
-        // Inputs in image column order, once per batch.
-        let xp: Vec<[f32; 3]> = (0..batch)
-            .flat_map(|b| self.col_perm.iter().map(move |&j| x[b * n + j as usize]))
-            .collect();
-        let xp = &xp;
-        let strips = self.width / 4;
-        let rows: Vec<(usize, Vec<[f32; 3]>)> = (0..strips)
+        // Inputs in image column order, dark block columns dropped, once per batch.
+        let lanes = Lanes::new(x, n, Some(&self.col_perm), 4);
+        let lit: Option<Vec<bool>> = lanes.cols.as_ref().map(|cols| {
+            let mut lit = vec![false; self.width / 4];
+            for &l in cols {
+                lit[l as usize / 4] = true;
+            }
+            lit
+        });
+        let (lanes, lit) = (&lanes, lit.as_deref());
+        let sp = &self.sparse;
+        let rows: Vec<(usize, Vec<[f32; 3]>)> = (0..self.width / 4)
             .into_par_iter()
             .flat_map_iter(|s| {
-                let codes = self.strip(s);
-                (0..4)
-                    .filter(move |r| 4 * s + r < n)
-                    .map(move |r| {
-                        let i = self.row_perm[4 * s + r] as usize;
-                        let per_set = (0..batch)
-                            .map(|b| {
-                                let xs = &xp[b * n..(b + 1) * n];
-                                let mut acc = [0.0f32; 3];
-                                for (c, a) in acc.iter_mut().enumerate() {
-                                    let cc = c.min(self.channels - 1);
-                                    let lut = &self.lut[cc];
-                                    *a = codes[cc][r][..n]
-                                        .iter()
-                                        .zip(xs)
-                                        .map(|(&q, xl)| lut[q as usize] * xl[c])
-                                        .sum();
+                let codes = (!lanes.dark()).then(|| self.strip(s, lit));
+                let mut values = vec![vec![0.0f32; lanes.len]; self.channels];
+                (0..4).filter(move |r| 4 * s + r < n).map(move |r| {
+                    let i = self.row_perm[4 * s + r] as usize;
+                    if let Some(codes) = &codes {
+                        // Decoded once per row, used by every light set of the batch.
+                        for (c, v) in values.iter_mut().enumerate() {
+                            let (lut, row) = (&self.lut[c], &codes[c][r]);
+                            match &lanes.cols {
+                                None => v
+                                    .iter_mut()
+                                    .zip(row)
+                                    .for_each(|(v, &q)| *v = lut[q as usize]),
+                                Some(cols) => v
+                                    .iter_mut()
+                                    .zip(cols)
+                                    .for_each(|(v, &l)| *v = lut[row[l as usize] as usize]),
+                            }
+                        }
+                    }
+                    let per_set = (0..batch)
+                        .map(|k| {
+                            let mut acc = [0.0f32; 3];
+                            for (c, a) in acc.iter_mut().enumerate() {
+                                let cc = c.min(self.channels - 1);
+                                if codes.is_some() {
+                                    *a = dot(&values[cc], lanes.lane(k, c));
                                 }
-                                acc
-                            })
-                            .collect();
-                        (i, per_set)
-                    })
-                    .collect::<Vec<_>>()
+                                for e in sp.row_ptr[i] as usize..sp.row_ptr[i + 1] as usize {
+                                    let j = sp.col_idx[e] as usize;
+                                    *a += sp.values[cc * sp.nnz() + e] * x[k * n + j][c];
+                                }
+                            }
+                            acc
+                        })
+                        .collect();
+                    (i, per_set)
+                })
+                .collect::<Vec<_>>()
             })
             .collect();
         for (i, per_set) in rows {
-            for (b, v) in per_set.into_iter().enumerate() {
-                out[b * n + i] = v;
-            }
-        }
-        let sp = &self.sparse;
-        for i in 0..n {
-            for e in sp.row_ptr[i] as usize..sp.row_ptr[i + 1] as usize {
-                let j = sp.col_idx[e] as usize;
-                for b in 0..batch {
-                    for c in 0..3 {
-                        let cc = c.min(self.channels - 1);
-                        out[b * n + i][c] += sp.values[cc * sp.nnz() + e] * x[b * n + j][c];
-                    }
-                }
+            for (k, v) in per_set.into_iter().enumerate() {
+                out[k * n + i] = v;
             }
         }
         Ok(())
@@ -717,7 +786,7 @@ impl MatrixOp for LogBlockOp {
         let ch = self.channels;
         let mut data = vec![0.0f32; n * n * ch];
         for s in 0..self.width / 4 {
-            for (c, plane) in self.strip(s).iter().enumerate().take(ch) {
+            for (c, plane) in self.strip(s, None).iter().enumerate().take(ch) {
                 for (r, codes) in plane.iter().enumerate() {
                     let k = 4 * s + r;
                     if k >= n {

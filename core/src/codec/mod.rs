@@ -10,6 +10,7 @@
 pub mod bc;
 pub mod dense;
 pub mod error;
+pub mod lanes;
 pub mod logblock;
 pub mod transform;
 

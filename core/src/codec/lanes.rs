@@ -1,0 +1,128 @@
+//! The CPU products' shared inner loop: a batch of light vectors rearranged so each matrix row is
+//! read once for the whole batch, the dot products vectorise, and columns no light reaches are
+//! never touched.
+//!
+//! A light vector arrives as `[f32; 3]` per patch (RGB interleaved), one light set after another.
+//! Products want the opposite: per light set and channel, one contiguous run of values, in the
+//! order the matrix stores its columns, holding only the columns that carry light. Shadowed scenes
+//! leave many patches dark (their `B0` is zero in every light set of the batch), and their columns
+//! contribute nothing, so dropping them is exact.
+
+use super::dense::Entry;
+
+/// Below this share of lit columns the products gather the lit ones; above it they run over all
+/// columns contiguously (a gather costs about twice a contiguous load).
+pub const GATHER_BELOW: f64 = 0.5;
+
+/// A batch of light vectors, per light set and channel, over the kept columns.
+pub struct Lanes {
+    /// The kept columns in the matrix's storage order, ascending; `None` when all are kept.
+    pub cols: Option<Vec<u32>>,
+    /// Light sets in the batch.
+    pub batch: usize,
+    /// Kept columns per lane.
+    pub len: usize,
+    /// `data[(k * 3 + c) * len + m]`: light set `k`, channel `c`, `m`-th kept column.
+    data: Vec<f32>,
+}
+
+impl Lanes {
+    /// Rearrange `x` (`batch × n`, light set `k` at `x[k*n..]`). Stored column `s` of the matrix
+    /// holds patch `order[s]` (identity without `order`). `group` keeps or drops stored columns in
+    /// aligned runs of that many (a BC block is 4 columns wide).
+    pub fn new(x: &[[f32; 3]], n: usize, order: Option<&[u32]>, group: usize) -> Lanes {
+        let batch = x.len() / n.max(1);
+        let patch = |s: usize| order.map_or(s, |o| o[s] as usize);
+        let width = n.div_ceil(group) * group;
+        let lit_group: Vec<bool> = (0..width / group)
+            .map(|g| {
+                (g * group..((g + 1) * group).min(n)).any(|s| {
+                    let j = patch(s);
+                    (0..batch).any(|k| x[k * n + j] != [0.0; 3])
+                })
+            })
+            .collect();
+        let lit = lit_group.iter().filter(|&&l| l).count() * group;
+        let cols: Option<Vec<u32>> = ((lit as f64) < GATHER_BELOW * width as f64).then(|| {
+            lit_group
+                .iter()
+                .enumerate()
+                .filter(|(_, l)| **l)
+                .flat_map(|(g, _)| (g * group..(g + 1) * group).map(|s| s as u32))
+                .collect()
+        });
+        // Without gathering, lanes run over the padded width so block rows line up.
+        let len = cols.as_ref().map_or(width, Vec::len);
+        let mut data = vec![0.0f32; batch * 3 * len];
+        for k in 0..batch {
+            for m in 0..len {
+                let s = cols.as_ref().map_or(m, |c| c[m] as usize);
+                if s >= n {
+                    continue;
+                }
+                let v = x[k * n + patch(s)];
+                for (c, &vc) in v.iter().enumerate() {
+                    data[(k * 3 + c) * len + m] = vc;
+                }
+            }
+        }
+        Lanes {
+            cols,
+            batch,
+            len,
+            data,
+        }
+    }
+
+    pub fn lane(&self, k: usize, c: usize) -> &[f32] {
+        &self.data[(k * 3 + c) * self.len..(k * 3 + c + 1) * self.len]
+    }
+
+    /// Is every column dark? Then every product is zero.
+    pub fn dark(&self) -> bool {
+        self.len == 0
+    }
+}
+
+/// `Σ a[m]·b[m]` in eight independent partial sums, which the compiler keeps in one SIMD
+/// register (a single running sum would serialise on the adds).
+#[inline]
+pub fn dot<T: Entry>(a: &[T], b: &[f32]) -> f32 {
+    let len = a.len().min(b.len());
+    let (a, b) = (&a[..len], &b[..len]);
+    let mut acc = [0.0f32; 8];
+    let mut ac = a.chunks_exact(8);
+    let mut bc = b.chunks_exact(8);
+    for (x, y) in (&mut ac).zip(&mut bc) {
+        for l in 0..8 {
+            acc[l] += x[l].value() * y[l];
+        }
+    }
+    let tail: f32 = ac
+        .remainder()
+        .iter()
+        .zip(bc.remainder())
+        .map(|(x, y)| x.value() * y)
+        .sum();
+    acc.iter().sum::<f32>() + tail
+}
+
+/// `Σ row[cols[m]]·b[m]`: the dot over gathered columns.
+#[inline]
+pub fn dot_gather<T: Entry>(row: &[T], cols: &[u32], b: &[f32]) -> f32 {
+    let mut acc = [0.0f32; 8];
+    let mut cc = cols.chunks_exact(8);
+    let mut bc = b.chunks_exact(8);
+    for (c, y) in (&mut cc).zip(&mut bc) {
+        for l in 0..8 {
+            acc[l] += row[c[l] as usize].value() * y[l];
+        }
+    }
+    let tail: f32 = cc
+        .remainder()
+        .iter()
+        .zip(bc.remainder())
+        .map(|(&c, y)| row[c as usize].value() * y)
+        .sum();
+    acc.iter().sum::<f32>() + tail
+}
