@@ -27,7 +27,7 @@ pub(super) fn upload(device: &wgpu::Device, m: &EncodedMatrix) -> Result<Pass, G
             &dense_source(),
             "dense_matvec",
             &constants,
-        ),
+        )?,
         bound: vec![(3, Bound::Buffer(matrix))],
         groups: n.div_ceil(ROWS),
     })

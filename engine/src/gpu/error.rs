@@ -29,6 +29,11 @@ pub enum GpuError {
         needed: u64,
         limit: u64,
     },
+    #[error("kernel {kernel} did not compile: {message}")]
+    Shader {
+        kernel: &'static str,
+        message: String,
+    },
     #[error("GPU readback failed: {0}")]
     Readback(String),
 }

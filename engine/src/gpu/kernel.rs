@@ -1,6 +1,8 @@
 //! What every kernel shares: the uniform [`Params`], the work split constants, the WGSL prelude
 //! and the plumbing that turns a source into a pipeline and a row count into a dispatch grid.
 
+use std::sync::Mutex;
+
 use bytemuck::{Pod, Zeroable};
 use wgpu::util::DeviceExt;
 
@@ -40,19 +42,27 @@ pub fn sparse_source() -> String {
     [COMMON, include_str!("shaders/sparse.wgsl")].concat()
 }
 
-/// A pipeline with its layout derived from the shader, overrides set by name.
+/// A pipeline with its layout derived from the shader, overrides set by name. A shader the
+/// driver or naga rejects is an error here, not wgpu's default panic.
 pub fn pipeline(
     device: &wgpu::Device,
-    label: &str,
+    label: &'static str,
     source: &str,
     entry: &str,
     constants: &[(&str, f64)],
-) -> wgpu::ComputePipeline {
+) -> Result<wgpu::ComputePipeline, GpuError> {
+    // Error scopes are a stack per device, shared by every thread: two uploads compiling at once
+    // would pop each other's scope, so compilation is one at a time.
+    static COMPILING: Mutex<()> = Mutex::new(());
+    let _one = COMPILING
+        .lock()
+        .unwrap_or_else(|poisoned| poisoned.into_inner());
+    let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
     let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
         label: Some(label),
         source: wgpu::ShaderSource::Wgsl(source.into()),
     });
-    device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+    let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
         label: Some(label),
         layout: None,
         module: &module,
@@ -62,7 +72,14 @@ pub fn pipeline(
             ..Default::default()
         },
         cache: None,
-    })
+    });
+    match pollster::block_on(scope.pop()) {
+        None => Ok(pipeline),
+        Some(e) => Err(GpuError::Shader {
+            kernel: label,
+            message: e.to_string(),
+        }),
+    }
 }
 
 /// A read-only storage buffer holding `bytes`, refused when over the binding limit. Padded to a

@@ -47,7 +47,7 @@ pub(super) fn upload(
             &logblock_source(),
             "logblock_matvec",
             &[("BC4", bc4)],
-        ),
+        )?,
         bound: vec![
             (3, Bound::Texture(texture)),
             (4, Bound::Buffer(row_perm)),

@@ -16,7 +16,7 @@ pub(super) fn upload(device: &wgpu::Device, sp: &SparsePart) -> Result<Option<Pa
     let col_idx = storage(device, "sparse columns", u32_bytes(&sp.col_idx))?;
     let values = storage(device, "sparse values", bytemuck::cast_slice(&sp.values))?;
     Ok(Some(Pass {
-        pipeline: pipeline(device, "sparse_add", &sparse_source(), "sparse_add", &[]),
+        pipeline: pipeline(device, "sparse_add", &sparse_source(), "sparse_add", &[])?,
         bound: vec![
             (3, Bound::Buffer(row_ptr)),
             (4, Bound::Buffer(col_idx)),
