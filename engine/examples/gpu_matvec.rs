@@ -1,6 +1,7 @@
 //! Times GPU batched products against the CPU twins on a synthetic matrix and prints a table.
 //! A benchmark, not a test: `cargo run --release -p bounce-engine --example gpu_matvec [n]`.
-//! On a software adapter (lavapipe) the numbers say nothing about GPUs; compare ratios only.
+//! On a software adapter (lavapipe) the numbers say nothing about GPUs; compare ratios only. The
+//! CPU column means something only with `--release` (the dev profile leaves bounce-core at -O0).
 
 use std::time::Instant;
 

@@ -36,7 +36,7 @@ impl GpuContext {
     /// when the adapter has it.
     pub fn new() -> Result<GpuContext, GpuError> {
         let desc = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
-        let backends = desc.backends;
+        let backends = desc.backends & wgpu::Instance::enabled_backend_features();
         let instance = wgpu::Instance::new(desc);
         let request = |fallback: bool| {
             pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
