@@ -527,8 +527,8 @@ impl LogBlockOp {
     }
 }
 
-/// Check and unpack a stored matrix of this family.
-pub(super) fn decode(m: &EncodedMatrix, blocks: Blocks) -> Result<LogBlockOp, CodecError> {
+/// Check and unpack a stored matrix of this family (GPU engines call it for the blocks).
+pub fn decode(m: &EncodedMatrix, blocks: Blocks) -> Result<LogBlockOp, CodecError> {
     let n = m.rows as usize;
     let ch = m.channels as usize;
     let p: Params = serde_json::from_value(m.params.clone()).map_err(|e| corrupt(blocks, e))?;

@@ -1,0 +1,24 @@
+//! wgpu compute for `E_ind = T · B0` on batches of light configurations.
+//!
+//! [`GpuContext`] picks an adapter and opens a device; [`GpuMatrix`] uploads one encoded matrix
+//! (`dense-f32`, `dense-f16`, `bc1`, `bc4`) and multiplies batches against it, blocking until the
+//! result is read back. Kernels live in `gpu/shaders/*.wgsl`.
+
+mod context;
+mod dense;
+mod error;
+mod kernel;
+mod logblock;
+mod matrix;
+mod sparse;
+
+pub use context::{AdapterSummary, GpuContext};
+pub use error::GpuError;
+pub use kernel::{CHUNK, Params, ROWS};
+pub use matrix::GpuMatrix;
+
+/// WGSL sources as compiled (the shared prelude plus the kernel's file), for tools and the naga
+/// layout tests.
+pub mod sources {
+    pub use super::kernel::{dense_source, logblock_source, sparse_source};
+}

@@ -1,0 +1,140 @@
+//! What every kernel shares: the uniform [`Params`], the work split constants, the WGSL prelude
+//! and the plumbing that turns a source into a pipeline and a row count into a dispatch grid.
+
+use std::sync::Mutex;
+
+use bytemuck::{Pod, Zeroable};
+use wgpu::util::DeviceExt;
+
+use super::GpuError;
+
+/// Rows a workgroup owns (mirrors `ROWS` in `common.wgsl`).
+pub const ROWS: u32 = 4;
+/// Light sets a workgroup serves per pass over its rows (mirrors `CHUNK` in `common.wgsl`): a
+/// batch of `b` light sets reads the matrix `ceil(b / CHUNK)` times.
+pub const CHUNK: u32 = 8;
+
+/// The uniform every kernel reads (`Params` in `common.wgsl`; a test checks the layouts agree).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Pod, Zeroable)]
+pub struct Params {
+    pub n: u32,
+    pub channels: u32,
+    pub sets: u32,
+    pub groups_x: u32,
+    pub nnz: u32,
+    pub pad: [u32; 3],
+    pub max: [f32; 4],
+}
+
+const COMMON: &str = include_str!("shaders/common.wgsl");
+const ROW_BLOCK: &str = include_str!("shaders/row_block.wgsl");
+
+pub fn dense_source() -> String {
+    [COMMON, ROW_BLOCK, include_str!("shaders/dense.wgsl")].concat()
+}
+
+pub fn logblock_source() -> String {
+    [COMMON, ROW_BLOCK, include_str!("shaders/logblock.wgsl")].concat()
+}
+
+pub fn sparse_source() -> String {
+    [COMMON, include_str!("shaders/sparse.wgsl")].concat()
+}
+
+/// A pipeline with its layout derived from the shader, overrides set by name. A shader the
+/// driver or naga rejects is an error here, not wgpu's default panic.
+pub fn pipeline(
+    device: &wgpu::Device,
+    label: &'static str,
+    source: &str,
+    entry: &str,
+    constants: &[(&str, f64)],
+) -> Result<wgpu::ComputePipeline, GpuError> {
+    // Error scopes are a stack per device, shared by every thread: two uploads compiling at once
+    // would pop each other's scope, so compilation is one at a time.
+    static COMPILING: Mutex<()> = Mutex::new(());
+    let _one = COMPILING
+        .lock()
+        .unwrap_or_else(|poisoned| poisoned.into_inner());
+    let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+    let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+        label: Some(label),
+        source: wgpu::ShaderSource::Wgsl(source.into()),
+    });
+    let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+        label: Some(label),
+        layout: None,
+        module: &module,
+        entry_point: Some(entry),
+        compilation_options: wgpu::PipelineCompilationOptions {
+            constants,
+            ..Default::default()
+        },
+        cache: None,
+    });
+    match pollster::block_on(scope.pop()) {
+        None => Ok(pipeline),
+        Some(e) => Err(GpuError::Shader {
+            kernel: label,
+            message: e.to_string(),
+        }),
+    }
+}
+
+/// A read-only storage buffer holding `bytes`, refused when over the binding limit. Padded to a
+/// whole word (and to one word when empty: wgpu does not bind empty buffers).
+pub fn storage(
+    device: &wgpu::Device,
+    label: &'static str,
+    bytes: &[u8],
+) -> Result<wgpu::Buffer, GpuError> {
+    check_binding(device, label, bytes.len() as u64)?;
+    let mut padded;
+    let contents = if bytes.is_empty() || !bytes.len().is_multiple_of(4) {
+        padded = bytes.to_vec();
+        padded.resize(bytes.len().next_multiple_of(4).max(4), 0);
+        &padded[..]
+    } else {
+        bytes
+    };
+    Ok(
+        device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some(label),
+            contents,
+            usage: wgpu::BufferUsages::STORAGE,
+        }),
+    )
+}
+
+pub fn check_binding(
+    device: &wgpu::Device,
+    what: &'static str,
+    bytes: u64,
+) -> Result<(), GpuError> {
+    let limits = device.limits();
+    let limit = limits
+        .max_storage_buffer_binding_size
+        .min(limits.max_buffer_size);
+    if bytes > limit {
+        return Err(GpuError::TooLarge {
+            what,
+            needed: bytes,
+            limit,
+        });
+    }
+    Ok(())
+}
+
+/// A grid of `groups` workgroups along x (folded into y past the per-dimension limit) times
+/// `ceil(sets / CHUNK)` along z. Returns the grid and the x extent the shader linearises with.
+pub fn grid(device: &wgpu::Device, groups: u32, sets: u32) -> ([u32; 3], u32) {
+    let max = device.limits().max_compute_workgroups_per_dimension.max(1);
+    let gx = groups.clamp(1, max);
+    let gy = groups.div_ceil(gx).max(1);
+    ([gx, gy, sets.div_ceil(CHUNK)], gx)
+}
+
+pub fn u32_bytes(values: &[u32]) -> &[u8] {
+    bytemuck::cast_slice(values)
+}

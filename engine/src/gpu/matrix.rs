@@ -1,0 +1,258 @@
+//! [`GpuMatrix`]: one uploaded matrix, the passes that multiply by it, and the batch buffers
+//! reused from call to call.
+
+use std::sync::Mutex;
+
+use bounce_core::codec::CodecError;
+use bounce_core::matrix::EncodedMatrix;
+
+use super::kernel::{CHUNK, Params, check_binding, grid};
+use super::{GpuContext, GpuError, dense, logblock};
+
+/// A resource a pass binds besides the shared params, light and output buffers (bindings 0–2).
+pub(super) enum Bound {
+    Buffer(wgpu::Buffer),
+    Texture(wgpu::TextureView),
+}
+
+/// One dispatch per batch chunk: a pipeline, its own resources, and how many workgroups a chunk
+/// of light sets needs.
+pub(super) struct Pass {
+    pub pipeline: wgpu::ComputePipeline,
+    pub bound: Vec<(u32, Bound)>,
+    pub groups: u32,
+}
+
+/// Light, output and readback buffers for up to `sets` light sets, with the bind groups that
+/// reference them.
+struct Io {
+    sets: u32,
+    x: wgpu::Buffer,
+    out: wgpu::Buffer,
+    readback: wgpu::Buffer,
+    params: Vec<wgpu::Buffer>,
+    groups: Vec<wgpu::BindGroup>,
+}
+
+/// A transport matrix resident on the GPU, ready for batched products `E_ind = T · B0`.
+pub struct GpuMatrix {
+    device: wgpu::Device,
+    queue: wgpu::Queue,
+    codec: String,
+    n: u32,
+    channels: u32,
+    max: [f32; 4],
+    nnz: u32,
+    /// The block or dense pass, then (bc1/bc4) the sparse pass that adds onto its output.
+    passes: Vec<Pass>,
+    io: Mutex<Option<Io>>,
+}
+
+impl GpuMatrix {
+    /// Upload an encoded matrix. Which kernel runs follows the codec; a codec without one is an
+    /// error, as is a matrix over the device's buffer or texture limits.
+    pub fn upload(ctx: &GpuContext, m: &EncodedMatrix) -> Result<GpuMatrix, GpuError> {
+        m.validate_shape().map_err(CodecError::from)?;
+        let (passes, max, nnz) = match m.codec.as_str() {
+            "dense-f32" | "dense-f16" => (vec![dense::upload(&ctx.device, m)?], [0.0; 4], 0),
+            "bc1" | "bc4" => {
+                let (block, sparse, max, nnz) = logblock::upload(ctx, m)?;
+                (std::iter::once(block).chain(sparse).collect(), max, nnz)
+            }
+            other => return Err(GpuError::UnsupportedCodec(other.to_string())),
+        };
+        Ok(GpuMatrix {
+            device: ctx.device.clone(),
+            queue: ctx.queue.clone(),
+            codec: m.codec.clone(),
+            n: m.rows,
+            channels: m.channels,
+            max,
+            nnz,
+            passes,
+            io: Mutex::new(None),
+        })
+    }
+
+    pub fn n(&self) -> usize {
+        self.n as usize
+    }
+
+    pub fn channels(&self) -> usize {
+        self.channels as usize
+    }
+
+    pub fn codec(&self) -> &str {
+        &self.codec
+    }
+
+    /// How many times a batch of `sets` light sets reads the matrix.
+    pub fn passes_for(sets: usize) -> usize {
+        sets.div_ceil(CHUNK as usize)
+    }
+
+    /// `out[k·n + i][c] = Σ_j T_c(i, j) · x[k·n + j][c]` for every light set `k`, as
+    /// `MatrixOp::matvec_batch`; blocks until the result is back on the host.
+    pub fn matvec_batch(&self, x: &[[f32; 3]], out: &mut [[f32; 3]]) -> Result<(), GpuError> {
+        let n = self.n as usize;
+        if n == 0 || !x.len().is_multiple_of(n) || out.len() != x.len() {
+            return Err(CodecError::Batch { got: x.len(), n }.into());
+        }
+        let sets = x.len() / n;
+        // Batches larger than one binding (or the dispatch grid) go in slices.
+        let set_bytes = n as u64 * 12;
+        let limits = self.device.limits();
+        let by_binding = limits
+            .max_storage_buffer_binding_size
+            .min(limits.max_buffer_size)
+            / set_bytes;
+        let by_grid = u64::from(limits.max_compute_workgroups_per_dimension) * u64::from(CHUNK);
+        let slice = by_binding.min(by_grid).min(sets as u64) as usize;
+        if slice == 0 {
+            return Err(GpuError::TooLarge {
+                what: "one light set",
+                needed: set_bytes,
+                limit: limits.max_storage_buffer_binding_size,
+            });
+        }
+        let mut io = self
+            .io
+            .lock()
+            .map_err(|_| GpuError::Readback("a previous product panicked".into()))?;
+        for (xs, outs) in x.chunks(slice * n).zip(out.chunks_mut(slice * n)) {
+            self.run(&mut io, xs, outs)?;
+        }
+        Ok(())
+    }
+
+    fn run(
+        &self,
+        io: &mut Option<Io>,
+        x: &[[f32; 3]],
+        out: &mut [[f32; 3]],
+    ) -> Result<(), GpuError> {
+        let sets = (x.len() / self.n as usize) as u32;
+        if io.as_ref().is_none_or(|io| io.sets < sets) {
+            *io = Some(self.io_for(sets)?);
+        }
+        let Some(io) = io.as_ref() else {
+            return Err(GpuError::Readback("batch buffers missing".into()));
+        };
+        let bytes: &[u8] = bytemuck::cast_slice(x);
+        self.queue.write_buffer(&io.x, 0, bytes);
+        let mut encoder = self
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
+        {
+            let mut cpass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
+            for ((pass, params), group) in self.passes.iter().zip(&io.params).zip(&io.groups) {
+                let ([gx, gy, gz], groups_x) = grid(&self.device, pass.groups, sets);
+                let p = Params {
+                    n: self.n,
+                    channels: self.channels,
+                    sets,
+                    groups_x,
+                    nnz: self.nnz,
+                    pad: [0; 3],
+                    max: self.max,
+                };
+                self.queue.write_buffer(params, 0, bytemuck::bytes_of(&p));
+                cpass.set_pipeline(&pass.pipeline);
+                cpass.set_bind_group(0, group, &[]);
+                // Dispatches in one pass are ordered: wgpu puts a barrier between the block
+                // pass's writes to `out` and the sparse pass's read-modify-write.
+                cpass.dispatch_workgroups(gx, gy, gz);
+            }
+        }
+        let len = bytes.len() as u64;
+        encoder.copy_buffer_to_buffer(&io.out, 0, &io.readback, 0, len);
+        self.queue.submit([encoder.finish()]);
+        let slice = io.readback.slice(..len);
+        let (tx, rx) = std::sync::mpsc::channel();
+        slice.map_async(wgpu::MapMode::Read, move |r| {
+            // The receiver outlives the poll below; a send can only fail after it gave up.
+            let _ = tx.send(r);
+        });
+        self.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map_err(|e| GpuError::Readback(e.to_string()))?;
+        rx.recv()
+            .map_err(|e| GpuError::Readback(e.to_string()))?
+            .map_err(|e| GpuError::Readback(e.to_string()))?;
+        {
+            let view = slice
+                .get_mapped_range()
+                .map_err(|e| GpuError::Readback(e.to_string()))?;
+            bytemuck::cast_slice_mut::<[f32; 3], u8>(out).copy_from_slice(&view);
+        }
+        io.readback.unmap();
+        Ok(())
+    }
+
+    fn io_for(&self, sets: u32) -> Result<Io, GpuError> {
+        let bytes = u64::from(sets) * u64::from(self.n) * 12;
+        check_binding(&self.device, "light batch", bytes)?;
+        let buffer = |label, usage| {
+            self.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size: bytes,
+                usage,
+                mapped_at_creation: false,
+            })
+        };
+        use wgpu::BufferUsages as U;
+        let x = buffer("lights", U::STORAGE | U::COPY_DST);
+        let out = buffer("irradiance", U::STORAGE | U::COPY_SRC);
+        let readback = buffer("readback", U::MAP_READ | U::COPY_DST);
+        let params: Vec<wgpu::Buffer> = self
+            .passes
+            .iter()
+            .map(|_| {
+                self.device.create_buffer(&wgpu::BufferDescriptor {
+                    label: Some("params"),
+                    size: std::mem::size_of::<Params>() as u64,
+                    usage: U::UNIFORM | U::COPY_DST,
+                    mapped_at_creation: false,
+                })
+            })
+            .collect();
+        let groups = self
+            .passes
+            .iter()
+            .zip(&params)
+            .map(|(pass, params)| {
+                let mut entries = vec![
+                    entry(0, params.as_entire_binding()),
+                    entry(1, x.as_entire_binding()),
+                    entry(2, out.as_entire_binding()),
+                ];
+                for (binding, bound) in &pass.bound {
+                    entries.push(entry(
+                        *binding,
+                        match bound {
+                            Bound::Buffer(b) => b.as_entire_binding(),
+                            Bound::Texture(t) => wgpu::BindingResource::TextureView(t),
+                        },
+                    ));
+                }
+                self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                    label: None,
+                    layout: &pass.pipeline.get_bind_group_layout(0),
+                    entries: &entries,
+                })
+            })
+            .collect();
+        Ok(Io {
+            sets,
+            x,
+            out,
+            readback,
+            params,
+            groups,
+        })
+    }
+}
+
+fn entry(binding: u32, resource: wgpu::BindingResource<'_>) -> wgpu::BindGroupEntry<'_> {
+    wgpu::BindGroupEntry { binding, resource }
+}

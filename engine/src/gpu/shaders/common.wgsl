@@ -1,0 +1,77 @@
+// Prelude of every matvec kernel (prepended to the kernel's own file before compiling).
+//
+// A batch of light sets is `x[(s * n + j) * 3 + c]`: packed RGB, light set `s`, patch `j`, the
+// same layout as the host's `[[f32; 3]]`, so uploads are a plain byte copy.
+//
+// Work split: a workgroup owns ROWS consecutive rows and one chunk of CHUNK light sets (its
+// `workgroup_id.z`); its threads stride over the columns, so every matrix value is loaded once per
+// chunk and multiplied into all the chunk's light sets. A batch of b sets thus costs
+// ceil(b / CHUNK) passes over the matrix. ROWS rows share each gathered light value; CHUNK is
+// bounded by the ROWS * CHUNK RGB accumulators each thread keeps in registers.
+
+struct Params {
+    n: u32,
+    channels: u32,
+    // Light sets in the whole batch.
+    sets: u32,
+    // Workgroups along x of the dispatch: grids over many rows are 2-D (a dimension is capped at
+    // 65535 workgroups), and this linearises them.
+    groups_x: u32,
+    // Sparse entries (sparse kernel only).
+    nnz: u32,
+    pad0: u32,
+    pad1: u32,
+    pad2: u32,
+    // Per-channel maxima of the log quantisation (block kernels only).
+    max: vec4<f32>,
+}
+
+const WG: u32 = 64u;
+const ROWS: u32 = 4u;
+const CHUNK: u32 = 8u;
+const SLOTS: u32 = 32u; // ROWS * CHUNK
+// Accumulator slots reduced per round: bounded by workgroup memory (WG * LANES vec3s).
+const LANES: u32 = 4u;
+
+@group(0) @binding(0) var<uniform> params: Params;
+@group(0) @binding(1) var<storage, read> x: array<f32>;
+@group(0) @binding(2) var<storage, read_write> out: array<f32>;
+
+var<workgroup> red: array<vec3<f32>, 256>; // WG * LANES
+
+fn group_index(wid: vec3<u32>) -> u32 {
+    return wid.x + wid.y * params.groups_x;
+}
+
+fn light(li: u32, j: u32) -> vec3<f32> {
+    let at = (li * params.n + j) * 3u;
+    return vec3<f32>(x[at], x[at + 1u], x[at + 2u]);
+}
+
+fn store(li: u32, i: u32, v: vec3<f32>) {
+    let at = (li * params.n + i) * 3u;
+    out[at] = v.x;
+    out[at + 1u] = v.y;
+    out[at + 2u] = v.z;
+}
+
+fn add(li: u32, i: u32, v: vec3<f32>) {
+    let at = (li * params.n + i) * 3u;
+    out[at] += v.x;
+    out[at + 1u] += v.y;
+    out[at + 2u] += v.z;
+}
+
+// Sums slot `slot` of every thread's accumulators into lane `lane` of `red`; call in uniform
+// control flow. Results end in red[lane * WG] for lanes 0..LANES.
+fn reduce_lanes(tid: u32) {
+    workgroupBarrier();
+    for (var stride = WG / 2u; stride > 0u; stride = stride / 2u) {
+        if tid < stride {
+            for (var q = 0u; q < LANES; q++) {
+                red[q * WG + tid] += red[q * WG + tid + stride];
+            }
+        }
+        workgroupBarrier();
+    }
+}

@@ -1,0 +1,41 @@
+// Dense batched matvec over `dense-f32` or `dense-f16`: `m[c * n * n + i * n + j]`, one or three
+// channels. Both come in as u32 words so one kernel serves both: f32 bit-cast, f16 unpacked with
+// unpack2x16float (no `shader-f16` feature needed, which lavapipe and some drivers lack).
+
+override HALF: bool = false;
+
+@group(0) @binding(3) var<storage, read> m: array<u32>;
+
+fn value(at: u32) -> f32 {
+    if HALF {
+        let pair = unpack2x16float(m[at / 2u]);
+        return select(pair.x, pair.y, (at & 1u) == 1u);
+    }
+    return bitcast<f32>(m[at]);
+}
+
+fn entry(i: u32, j: u32) -> vec3<f32> {
+    let n = params.n;
+    let at = i * n + j;
+    if params.channels == 1u {
+        return vec3<f32>(value(at));
+    }
+    let nn = n * n;
+    return vec3<f32>(value(at), value(nn + at), value(2u * nn + at));
+}
+
+fn column(l: u32) -> u32 {
+    return l;
+}
+
+fn row(k: u32) -> u32 {
+    return k;
+}
+
+@compute @workgroup_size(64)
+fn dense_matvec(
+    @builtin(workgroup_id) wid: vec3<u32>,
+    @builtin(local_invocation_index) tid: u32,
+) {
+    row_block(wid, tid);
+}

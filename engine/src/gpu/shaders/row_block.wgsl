@@ -1,0 +1,55 @@
+// The body the dense and block kernels share (after common.wgsl, before the kernel's file).
+
+// The shared body of the row-block kernels. The kernel file defines
+//   entry(k, l) -> vec3<f32>  matrix value at storage row k, storage column l (per colour),
+//   column(l) -> u32          the patch whose light storage column l multiplies,
+//   row(k) -> u32             the patch storage row k lights.
+// Storage rows and columns are matrix rows and columns for dense kernels, image rows and
+// columns for block kernels.
+fn row_block(wid: vec3<u32>, tid: u32) {
+    let n = params.n;
+    let row0 = group_index(wid) * ROWS;
+    // Whole workgroup leaves together, so the barriers below stay in uniform control flow.
+    if row0 >= n {
+        return;
+    }
+    let base = wid.z * CHUNK;
+    let sets = min(CHUNK, params.sets - base);
+    var acc: array<vec3<f32>, SLOTS>;
+    for (var l = tid; l < n; l += WG) {
+        let j = column(l);
+        var xs: array<vec3<f32>, CHUNK>;
+        for (var s = 0u; s < CHUNK; s++) {
+            if s < sets {
+                xs[s] = light(base + s, j);
+            }
+        }
+        for (var r = 0u; r < ROWS; r++) {
+            // Rows past the end repeat the last row; their sums are never stored.
+            let m = entry(min(row0 + r, n - 1u), l);
+            for (var s = 0u; s < CHUNK; s++) {
+                acc[r * CHUNK + s] += m * xs[s];
+            }
+        }
+    }
+    for (var round = 0u; round < SLOTS; round += LANES) {
+        // Lanes of a round share a row and cover sets round % CHUNK ..; skip rounds of absent
+        // sets (batch 1 reduces 4 slots, not 32).
+        if round % CHUNK >= sets {
+            continue;
+        }
+        for (var q = 0u; q < LANES; q++) {
+            red[q * WG + tid] = acc[round + q];
+        }
+        reduce_lanes(tid);
+        if tid < LANES {
+            let slot = round + tid;
+            let k = row0 + slot / CHUNK;
+            let s = slot % CHUNK;
+            if k < n && s < sets {
+                store(base + s, row(k), red[tid * WG]);
+            }
+        }
+        workgroupBarrier();
+    }
+}

@@ -1,0 +1,47 @@
+// Sparse part of the `bc1` / `bc4` codecs, added onto the block product: CSR in matrix order,
+// values channel-major (`values[c * nnz + e]`). A workgroup owns one row and one chunk of light
+// sets; its threads stride over the row's entries, each loaded once per chunk.
+
+@group(0) @binding(3) var<storage, read> row_ptr: array<u32>;
+@group(0) @binding(4) var<storage, read> col_idx: array<u32>;
+@group(0) @binding(5) var<storage, read> values: array<f32>;
+
+@compute @workgroup_size(64)
+fn sparse_add(
+    @builtin(workgroup_id) wid: vec3<u32>,
+    @builtin(local_invocation_index) tid: u32,
+) {
+    let i = group_index(wid);
+    if i >= params.n {
+        return;
+    }
+    let base = wid.z * CHUNK;
+    let sets = min(CHUNK, params.sets - base);
+    let nnz = params.nnz;
+    var acc: array<vec3<f32>, CHUNK>;
+    for (var e = row_ptr[i] + tid; e < row_ptr[i + 1u]; e += WG) {
+        let j = col_idx[e];
+        var v = vec3<f32>(values[e]);
+        if params.channels == 3u {
+            v = vec3<f32>(values[e], values[nnz + e], values[2u * nnz + e]);
+        }
+        for (var s = 0u; s < CHUNK; s++) {
+            if s < sets {
+                acc[s] += v * light(base + s, j);
+            }
+        }
+    }
+    for (var round = 0u; round < CHUNK; round += LANES) {
+        if round >= sets {
+            continue;
+        }
+        for (var q = 0u; q < LANES; q++) {
+            red[q * WG + tid] = acc[round + q];
+        }
+        reduce_lanes(tid);
+        if tid < LANES && round + tid < sets {
+            add(base + round + tid, i, red[tid * WG]);
+        }
+        workgroupBarrier();
+    }
+}

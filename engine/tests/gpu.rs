@@ -1,0 +1,300 @@
+//! Every GPU kernel against its CPU twin (the codec's `MatrixOp`) on transport-like matrices.
+//!
+//! These run for real on whatever adapter wgpu finds; in CI that is lavapipe (software Vulkan).
+//! Without an adapter they fail, unless `BOUNCE_ALLOW_NO_GPU=1` says skipping is intended.
+
+use std::sync::OnceLock;
+
+use bounce_core::codec::dense::{DenseF16, DenseF32};
+use bounce_core::codec::logblock::LogBlock;
+use bounce_core::codec::{Codec, decode};
+use bounce_core::matrix::{DenseMatrix, EncodedMatrix};
+use bounce_engine::gpu::{GpuContext, GpuError, GpuMatrix};
+
+fn context() -> Option<&'static GpuContext> {
+    static CTX: OnceLock<Result<GpuContext, String>> = OnceLock::new();
+    match CTX.get_or_init(|| GpuContext::new().map_err(|e| e.to_string())) {
+        Ok(ctx) => {
+            eprintln!("GPU tests on {}", ctx.adapter());
+            Some(ctx)
+        }
+        Err(e) if std::env::var("BOUNCE_ALLOW_NO_GPU").as_deref() == Ok("1") => {
+            eprintln!("SKIPPED (BOUNCE_ALLOW_NO_GPU=1): {e}");
+            None
+        }
+        Err(e) => panic!("GPU tests need an adapter: {e}; set BOUNCE_ALLOW_NO_GPU=1 to skip them"),
+    }
+}
+
+/// Deterministic uniform numbers in [0, 1).
+struct Lcg(u64);
+
+impl Lcg {
+    fn next(&mut self) -> f32 {
+        self.0 = self
+            .0
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (self.0 >> 40) as f32 / (1u64 << 24) as f32
+    }
+}
+
+/// Transport-like: non-negative, entries over about six decades, a zero diagonal and a fifth of
+/// the entries exactly zero (occluded pairs), channels alike but not equal.
+fn transport(n: usize, channels: usize, seed: u64) -> DenseMatrix {
+    let mut rng = Lcg(seed);
+    let mut m = DenseMatrix::zeros(n, channels);
+    for i in 0..n {
+        for j in 0..n {
+            let visible = i != j && rng.next() >= 0.2;
+            let v = (rng.next() * 20.0 - 20.0).exp2() * 0.2;
+            for c in 0..channels {
+                let tint = 0.6 + 0.4 * rng.next();
+                m.channel_mut(c)[i * n + j] = if visible { v * tint } else { 0.0 };
+            }
+        }
+    }
+    m
+}
+
+/// `sets` light configurations: non-negative, some patches unlit, a few bright.
+fn lights(n: usize, sets: usize, seed: u64) -> Vec<[f32; 3]> {
+    let mut rng = Lcg(seed);
+    (0..n * sets)
+        .map(|_| {
+            if rng.next() < 0.3 {
+                [0.0; 3]
+            } else {
+                let s = (rng.next() * 10.0).exp2();
+                [s * rng.next(), s * rng.next(), s * rng.next()]
+            }
+        })
+        .collect()
+}
+
+fn cpu(m: &EncodedMatrix, x: &[[f32; 3]]) -> Vec<[f32; 3]> {
+    let mut out = vec![[0.0; 3]; x.len()];
+    decode(m).unwrap().matvec_batch(x, &mut out).unwrap();
+    out
+}
+
+fn gpu(m: &GpuMatrix, x: &[[f32; 3]]) -> Vec<[f32; 3]> {
+    let mut out = vec![[f32::NAN; 3]; x.len()];
+    m.matvec_batch(x, &mut out).unwrap();
+    out
+}
+
+fn norm(v: &[[f32; 3]]) -> f64 {
+    v.iter()
+        .flatten()
+        .map(|&a| f64::from(a) * f64::from(a))
+        .sum::<f64>()
+        .sqrt()
+}
+
+/// Per light set, `‖got − want‖₂ / ‖want‖₂`; the largest over the batch.
+fn rel_l2(got: &[[f32; 3]], want: &[[f32; 3]], n: usize) -> f64 {
+    got.chunks(n)
+        .zip(want.chunks(n))
+        .map(|(g, w)| {
+            let diff: Vec<[f32; 3]> = g
+                .iter()
+                .zip(w)
+                .map(|(a, b)| [a[0] - b[0], a[1] - b[1], a[2] - b[2]])
+                .collect();
+            let (d, w) = (norm(&diff), norm(w));
+            if w == 0.0 { d } else { d / w }
+        })
+        .fold(0.0, f64::max)
+}
+
+/// Sizes around the kernels' edges: a single patch, fewer patches than a workgroup's threads,
+/// sizes off the multiples of 4 (block rows) and 64 (thread stride).
+const SIZES: [usize; 4] = [1, 5, 37, 130];
+
+fn dense_against_cpu(codec: &dyn Codec) {
+    let Some(ctx) = context() else { return };
+    for channels in [1, 3] {
+        for n in SIZES {
+            let enc = codec.encode(&transport(n, channels, n as u64)).unwrap();
+            let m = GpuMatrix::upload(ctx, &enc).unwrap();
+            for sets in [1, 8, 64] {
+                let x = lights(n, sets, 7 + sets as u64);
+                let err = rel_l2(&gpu(&m, &x), &cpu(&enc, &x), n);
+                // Same f32 products summed in another order: a few ulps times log2(n).
+                assert!(
+                    err <= 1e-4,
+                    "{} n={n} channels={channels} sets={sets}: rel L2 {err:e}",
+                    codec.name()
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn dense_f32_matvec_matches_cpu() {
+    dense_against_cpu(&DenseF32);
+}
+
+#[test]
+fn dense_f16_matvec_matches_cpu() {
+    // Both sides widen the same halves to f32 exactly, so the f32 tolerance holds.
+    dense_against_cpu(&DenseF16);
+}
+
+/// One code step of the log quantisation, relative: `e^{25/255} − 1`.
+const CODE_STEP: f64 = 0.103;
+
+/// The block kernels against the CPU decode of the same blocks. Texture hardware interpolates
+/// BC palettes with its own rounding (see `logblock.wgsl`), which may land up to one 8-bit code
+/// away from the CPU decoder (bcdec's rounding); a code is a factor `e^{25/255}` in value. Codes
+/// 0 decode to exactly 0 on both (zero endpoints, BC1's transparent black). So every block entry
+/// is within CODE_STEP relative of the CPU's, the sparse entries are the same f32s, and with
+/// non-negative entries and lights every output is within CODE_STEP relative, plus f32 rounding.
+/// Any larger deviation is a kernel bug (wrong texel, permutation or channel), not rounding.
+fn blocks_against_cpu(codec: LogBlock) {
+    let Some(ctx) = context() else { return };
+    for channels in [1, 3] {
+        for n in SIZES {
+            let enc = codec
+                .encode(&transport(n, channels, 100 + n as u64))
+                .unwrap();
+            let m = GpuMatrix::upload(ctx, &enc).unwrap();
+            let mut worst = 0.0f64;
+            for sets in [1, 8, 64] {
+                let x = lights(n, sets, 11 + sets as u64);
+                let (got, want) = (gpu(&m, &x), cpu(&enc, &x));
+                for (k, (g, w)) in got.iter().zip(&want).enumerate() {
+                    for c in 0..3 {
+                        let (g, w) = (f64::from(g[c]), f64::from(w[c]));
+                        assert!(
+                            (g - w).abs() <= (CODE_STEP + 1e-4) * w + 1e-30,
+                            "{} n={n} ch={channels} sets={sets} out[{k}][{c}]: gpu {g:e} cpu {w:e}",
+                            enc.codec
+                        );
+                    }
+                }
+                worst = worst.max(rel_l2(&got, &want, n));
+            }
+            eprintln!(
+                "{} n={n} ch={channels}: GPU vs CPU rel L2 {worst:.2e}",
+                enc.codec
+            );
+        }
+    }
+}
+
+#[test]
+fn bc1_matvec_matches_cpu_decode() {
+    blocks_against_cpu(LogBlock::bc1());
+}
+
+#[test]
+fn bc4_matvec_matches_cpu_decode() {
+    blocks_against_cpu(LogBlock::bc4());
+}
+
+/// The matrix the GPU effectively applies, read out column by column with one-hot lights (one
+/// batch of n sets), against the CPU decode: zeros stay exactly zero, others within a code step.
+/// No sparse part, so every entry comes from the texture.
+#[test]
+fn block_entries_decode_like_the_cpu() {
+    let Some(ctx) = context() else { return };
+    let n = 37;
+    for base in [LogBlock::bc1(), LogBlock::bc4()] {
+        for channels in [1, 3] {
+            let codec = LogBlock {
+                sparse_share: 0.0,
+                ..base
+            };
+            let enc = codec.encode(&transport(n, channels, 5)).unwrap();
+            let exact = decode(&enc).unwrap().to_dense();
+            let m = GpuMatrix::upload(ctx, &enc).unwrap();
+            let mut x = vec![[0.0f32; 3]; n * n];
+            for k in 0..n {
+                x[k * n + k] = [1.0; 3];
+            }
+            let got = gpu(&m, &x);
+            let mut off = 0;
+            for k in 0..n {
+                for i in 0..n {
+                    for (c, &g) in got[k * n + i].iter().enumerate() {
+                        let g = f64::from(g);
+                        let w = f64::from(exact.get(c.min(channels - 1), i, k));
+                        if w == 0.0 {
+                            assert_eq!(g, 0.0, "{} ch={channels} ({i},{k}) c{c}", enc.codec);
+                        }
+                        assert!(
+                            (g - w).abs() <= CODE_STEP * w * (1.0 + 1e-4),
+                            "{} ch={channels} ({i},{k}) c{c}: gpu {g:e} cpu {w:e}",
+                            enc.codec
+                        );
+                        if (g - w).abs() > 1e-5 * w {
+                            off += 1;
+                        }
+                    }
+                }
+            }
+            eprintln!(
+                "{} ch={channels}: {off} of {} entries decode off the CPU value by > 1e-5",
+                enc.codec,
+                3 * n * n
+            );
+        }
+    }
+}
+
+/// A batch is the same arithmetic as its sets one by one: each set's sums run in the same order
+/// whatever chunk it lands in, so the results are bit for bit equal.
+#[test]
+fn batched_equals_one_by_one() {
+    let Some(ctx) = context() else { return };
+    let n = 37;
+    let t = transport(n, 3, 9);
+    let codecs: [Box<dyn Codec>; 4] = [
+        Box::new(DenseF32),
+        Box::new(DenseF16),
+        Box::new(LogBlock::bc1()),
+        Box::new(LogBlock::bc4()),
+    ];
+    for codec in codecs {
+        let enc = codec.encode(&t).unwrap();
+        let m = GpuMatrix::upload(ctx, &enc).unwrap();
+        for sets in [1, 8, 64] {
+            let x = lights(n, sets, 3);
+            let batched = gpu(&m, &x);
+            for k in 0..sets {
+                let one = gpu(&m, &x[k * n..(k + 1) * n]);
+                assert_eq!(
+                    &batched[k * n..(k + 1) * n],
+                    &one[..],
+                    "{} set {k} of {sets}",
+                    enc.codec
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn bad_input_is_an_error() {
+    let Some(ctx) = context() else { return };
+    let enc = DenseF32.encode(&transport(6, 1, 1)).unwrap();
+    let m = GpuMatrix::upload(ctx, &enc).unwrap();
+    let mut out = vec![[0.0; 3]; 7];
+    assert!(m.matvec_batch(&[[0.0; 3]; 7], &mut out).is_err());
+    let mut out = vec![[0.0; 3]; 12];
+    assert!(m.matvec_batch(&[[0.0; 3]; 6], &mut out).is_err());
+    let unknown = EncodedMatrix {
+        codec: "bc6h".into(),
+        ..enc.clone()
+    };
+    assert!(matches!(
+        GpuMatrix::upload(ctx, &unknown),
+        Err(GpuError::UnsupportedCodec(_))
+    ));
+    let mut short = enc;
+    short.payload.pop();
+    assert!(GpuMatrix::upload(ctx, &short).is_err());
+}
