@@ -66,7 +66,13 @@ fn dark_columns_are_skipped_without_changing_products() {
     let sparse_light: Vec<[f32; 3]> = full
         .iter()
         .enumerate()
-        .map(|(p, v)| if (p % n) % 13 == (p / n) { *v } else { [0.0; 3] })
+        .map(|(p, v)| {
+            if (p % n) % 13 == (p / n) {
+                *v
+            } else {
+                [0.0; 3]
+            }
+        })
         .collect();
     // Few lit patches: even in BC's 4-column groups most columns are dark, so products gather.
     let few_lit: Vec<[f32; 3]> = full

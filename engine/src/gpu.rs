@@ -1,7 +1,7 @@
 //! wgpu compute for `E_ind = T · B0` on batches of light configurations.
 //!
 //! [`GpuContext`] picks an adapter and opens a device; [`GpuMatrix`] uploads one encoded matrix
-//! (`dense-f32`, `dense-f16`, `bc1`, `bc4`) and multiplies batches against it, blocking until the
+//! (`dense-f32`, `dense-f16`, `bc1`, `bc1-resid`, `bc4`, `log8`) and multiplies batches against it, blocking until the
 //! result is read back. Kernels live in `gpu/shaders/*.wgsl`.
 
 mod context;

@@ -137,6 +137,14 @@ fn dense_f32_matvec_matches_cpu() {
     dense_against_cpu(&DenseF32);
 }
 
+/// `log8`'s codes go up as an 8-bit texture, which decodes exactly (`q / 255`): unlike the BC
+/// formats, the GPU applies the same matrix as the CPU, up to `exp` in f32 against the CPU
+/// table's f64.
+#[test]
+fn log8_matvec_matches_cpu() {
+    dense_against_cpu(&LogBlock::log8());
+}
+
 #[test]
 fn dense_f16_matvec_matches_cpu() {
     // Both sides widen the same halves to f32 exactly, so the f32 tolerance holds.
@@ -188,6 +196,55 @@ fn blocks_against_cpu(codec: LogBlock) {
 #[test]
 fn bc1_matvec_matches_cpu_decode() {
     blocks_against_cpu(LogBlock::bc1());
+}
+
+/// `bc1-resid`: the same blocks plus corrections computed against the CPU decode, which may be
+/// negative. Where the GPU decodes a corrected texel a code away from the CPU, the correction no
+/// longer cancels that difference, so the bound is a code step of the block part alone:
+/// `|gpu − cpu| ≤ CODE_STEP · (cpu + Σ_j |correction_ij| x_j)` (the block part is `cpu − Σ corr·x`).
+#[test]
+fn bc1_resid_matvec_matches_cpu_decode() {
+    let Some(ctx) = context() else { return };
+    for channels in [1, 3] {
+        for n in SIZES {
+            let enc = LogBlock::bc1_resid()
+                .encode(&transport(n, channels, 300 + n as u64))
+                .unwrap();
+            let sparse = bounce_core::codec::logblock::decode(
+                &enc,
+                bounce_core::codec::logblock::Blocks::Bc1,
+            )
+            .unwrap()
+            .sparse()
+            .clone();
+            let m = GpuMatrix::upload(ctx, &enc).unwrap();
+            for sets in [1, 8] {
+                let x = lights(n, sets, 17 + sets as u64);
+                let (got, want) = (gpu(&m, &x), cpu(&enc, &x));
+                for k in 0..sets {
+                    for i in 0..n {
+                        for c in 0..3 {
+                            let cc = c.min(channels - 1);
+                            let corr: f64 = (sparse.row_ptr[i]..sparse.row_ptr[i + 1])
+                                .map(|e| {
+                                    let j = sparse.col_idx[e as usize] as usize;
+                                    f64::from(sparse.values[cc * sparse.nnz() + e as usize]).abs()
+                                        * f64::from(x[k * n + j][c])
+                                })
+                                .sum();
+                            let (g, w) =
+                                (f64::from(got[k * n + i][c]), f64::from(want[k * n + i][c]));
+                            let bound = (CODE_STEP + 1e-4) * (w.abs() + corr) + 1e-30;
+                            assert!(
+                                (g - w).abs() <= bound,
+                                "n={n} ch={channels} sets={sets} out[{k}][{i}][{c}]: gpu {g:e} cpu {w:e}"
+                            );
+                        }
+                    }
+                }
+            }
+        }
+    }
 }
 
 #[test]

@@ -15,11 +15,11 @@ use serde::{Deserialize, Serialize};
 use super::bc;
 use rayon::prelude::*;
 
+use super::lanes::{Lanes, dot};
 use super::transform::{
     SparsePart, gather_positions, greedy_chain, is_permutation, log_dequantize, log_quantize,
     select_largest, split_largest,
 };
-use super::lanes::{Lanes, dot};
 use super::{Codec, CodecError, MatrixOp, batch_len};
 use crate::matrix::{DenseMatrix, EncodedMatrix};
 
@@ -734,43 +734,45 @@ impl MatrixOp for LogBlockOp {
             .flat_map_iter(|s| {
                 let codes = (!lanes.dark()).then(|| self.strip(s, lit));
                 let mut values = vec![vec![0.0f32; lanes.len]; self.channels];
-                (0..4).filter(move |r| 4 * s + r < n).map(move |r| {
-                    let i = self.row_perm[4 * s + r] as usize;
-                    if let Some(codes) = &codes {
-                        // Decoded once per row, used by every light set of the batch.
-                        for (c, v) in values.iter_mut().enumerate() {
-                            let (lut, row) = (&self.lut[c], &codes[c][r]);
-                            match &lanes.cols {
-                                None => v
-                                    .iter_mut()
-                                    .zip(row)
-                                    .for_each(|(v, &q)| *v = lut[q as usize]),
-                                Some(cols) => v
-                                    .iter_mut()
-                                    .zip(cols)
-                                    .for_each(|(v, &l)| *v = lut[row[l as usize] as usize]),
+                (0..4)
+                    .filter(move |r| 4 * s + r < n)
+                    .map(move |r| {
+                        let i = self.row_perm[4 * s + r] as usize;
+                        if let Some(codes) = &codes {
+                            // Decoded once per row, used by every light set of the batch.
+                            for (c, v) in values.iter_mut().enumerate() {
+                                let (lut, row) = (&self.lut[c], &codes[c][r]);
+                                match &lanes.cols {
+                                    None => v
+                                        .iter_mut()
+                                        .zip(row)
+                                        .for_each(|(v, &q)| *v = lut[q as usize]),
+                                    Some(cols) => v
+                                        .iter_mut()
+                                        .zip(cols)
+                                        .for_each(|(v, &l)| *v = lut[row[l as usize] as usize]),
+                                }
                             }
                         }
-                    }
-                    let per_set = (0..batch)
-                        .map(|k| {
-                            let mut acc = [0.0f32; 3];
-                            for (c, a) in acc.iter_mut().enumerate() {
-                                let cc = c.min(self.channels - 1);
-                                if codes.is_some() {
-                                    *a = dot(&values[cc], lanes.lane(k, c));
+                        let per_set = (0..batch)
+                            .map(|k| {
+                                let mut acc = [0.0f32; 3];
+                                for (c, a) in acc.iter_mut().enumerate() {
+                                    let cc = c.min(self.channels - 1);
+                                    if codes.is_some() {
+                                        *a = dot(&values[cc], lanes.lane(k, c));
+                                    }
+                                    for e in sp.row_ptr[i] as usize..sp.row_ptr[i + 1] as usize {
+                                        let j = sp.col_idx[e] as usize;
+                                        *a += sp.values[cc * sp.nnz() + e] * x[k * n + j][c];
+                                    }
                                 }
-                                for e in sp.row_ptr[i] as usize..sp.row_ptr[i + 1] as usize {
-                                    let j = sp.col_idx[e] as usize;
-                                    *a += sp.values[cc * sp.nnz() + e] * x[k * n + j][c];
-                                }
-                            }
-                            acc
-                        })
-                        .collect();
-                    (i, per_set)
-                })
-                .collect::<Vec<_>>()
+                                acc
+                            })
+                            .collect();
+                        (i, per_set)
+                    })
+                    .collect::<Vec<_>>()
             })
             .collect();
         for (i, per_set) in rows {

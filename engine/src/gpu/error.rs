@@ -19,7 +19,9 @@ pub enum GpuError {
         feature: &'static str,
         codec: String,
     },
-    #[error("codec '{0}' has no GPU kernel (have: dense-f32, dense-f16, bc1, bc4)")]
+    #[error(
+        "codec '{0}' has no GPU kernel (have: dense-f32, dense-f16, bc1, bc1-resid, bc4, log8)"
+    )]
     UnsupportedCodec(String),
     #[error(transparent)]
     Codec(#[from] CodecError),

@@ -19,13 +19,15 @@ pub(super) fn upload(
 ) -> Result<(Pass, Option<Pass>, [f32; 4], u32), GpuError> {
     let (device, queue) = (&ctx.device, &ctx.queue);
     let blocks = match m.codec.as_str() {
-        "bc1" => Blocks::Bc1,
+        "bc1" | "bc1-resid" => Blocks::Bc1,
         "bc4" => Blocks::Bc4,
+        "log8" => Blocks::Raw8,
         other => return Err(GpuError::UnsupportedCodec(other.to_string())),
     };
-    if !device
-        .features()
-        .contains(wgpu::Features::TEXTURE_COMPRESSION_BC)
+    if blocks != Blocks::Raw8
+        && !device
+            .features()
+            .contains(wgpu::Features::TEXTURE_COMPRESSION_BC)
     {
         return Err(GpuError::MissingFeature {
             adapter: ctx.adapter().name.clone(),
@@ -39,7 +41,7 @@ pub(super) fn upload(
     let texture = texture(device, queue, &op)?;
     let row_perm = storage(device, "row order", u32_bytes(op.row_perm()))?;
     let col_perm = storage(device, "column order", u32_bytes(op.col_perm()))?;
-    let bc4 = if blocks == Blocks::Bc4 { 1.0 } else { 0.0 };
+    let bc4 = if blocks == Blocks::Bc1 { 0.0 } else { 1.0 };
     let pass = Pass {
         pipeline: pipeline(
             device,
@@ -81,6 +83,8 @@ fn texture(
     let (format, layers) = match op.blocks() {
         Blocks::Bc1 => (wgpu::TextureFormat::Bc1RgbaUnorm, 1),
         Blocks::Bc4 => (wgpu::TextureFormat::Bc4RUnorm, op.channels() as u32),
+        // Raw codes: an 8-bit texture per channel, read like BC4's red layers.
+        Blocks::Raw8 => (wgpu::TextureFormat::R8Unorm, op.channels() as u32),
     };
     let size = wgpu::Extent3d {
         width,
@@ -97,7 +101,11 @@ fn texture(
         usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
         view_formats: &[],
     });
-    let blocks_across = width / 4;
+    // (bytes per row, rows per image) of the upload: 4 × 4 texel blocks of 8 bytes, or bytes.
+    let (row_bytes, rows) = match op.blocks() {
+        Blocks::Raw8 => (width, width),
+        Blocks::Bc1 | Blocks::Bc4 => (width / 4 * 8, width / 4),
+    };
     queue.write_texture(
         wgpu::TexelCopyTextureInfo {
             texture: &texture,
@@ -108,8 +116,8 @@ fn texture(
         op.raw_blocks(),
         wgpu::TexelCopyBufferLayout {
             offset: 0,
-            bytes_per_row: Some(blocks_across * 8),
-            rows_per_image: Some(blocks_across),
+            bytes_per_row: Some(row_bytes),
+            rows_per_image: Some(rows),
         },
         size,
     );

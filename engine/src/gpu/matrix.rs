@@ -55,7 +55,7 @@ impl GpuMatrix {
         m.validate_shape().map_err(CodecError::from)?;
         let (passes, max, nnz) = match m.codec.as_str() {
             "dense-f32" | "dense-f16" => (vec![dense::upload(&ctx.device, m)?], [0.0; 4], 0),
-            "bc1" | "bc4" => {
+            "bc1" | "bc1-resid" | "bc4" | "log8" => {
                 let (block, sparse, max, nnz) = logblock::upload(ctx, m)?;
                 (std::iter::once(block).chain(sparse).collect(), max, nnz)
             }

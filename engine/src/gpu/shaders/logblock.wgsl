@@ -1,6 +1,7 @@
 // Block part of the `bc1` / `bc4` codecs: the log-quantised image sampled with textureLoad, so
 // the texture unit decodes the blocks. BC1: one layer, RGB = the three channels (a one-channel
-// matrix repeats channel 0). BC4: one layer per channel, red only.
+// matrix repeats channel 0). BC4: one layer per channel, red only. `log8`: one R8 layer per
+// channel, read as BC4 is (and decoded exactly, so it matches the CPU bit for bit in codes).
 //
 // Decoded unorm u maps to max * exp(25 * u - 25), the continuous inverse of the quantisation
 // (u = q / 255 gives exactly the CPU table's value). Hardware interpolates BC palettes with its
