@@ -131,7 +131,7 @@ impl<T: Entry> MatrixOp for Dense<T> {
         let n = self.n;
         let batch = batch_len(n, x, out)?;
         let m = self;
-        let lanes = Lanes::new(x, n, None, 1);
+        let lanes = Lanes::new(x, n, None, n);
         if lanes.dark() {
             out.fill([0.0; 3]);
             return Ok(());

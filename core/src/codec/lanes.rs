@@ -14,6 +14,11 @@ use super::dense::Entry;
 /// columns contiguously (a gather costs about twice a contiguous load).
 pub const GATHER_BELOW: f64 = 0.5;
 
+/// Partial sums of a dot product. Column `j` always goes to partial sum `j % LANES`, whether the
+/// product runs over all columns or gathers the lit ones (which are kept in aligned runs of
+/// `LANES`), so a light set's result has the same bits whatever else is in its batch.
+pub const LANES: usize = 8;
+
 /// A batch of light vectors, per light set and channel, over the kept columns.
 pub struct Lanes {
     /// The kept columns in the matrix's storage order, ascending; `None` when all are kept.
@@ -28,13 +33,14 @@ pub struct Lanes {
 
 impl Lanes {
     /// Rearrange `x` (`batch × n`, light set `k` at `x[k*n..]`). Stored column `s` of the matrix
-    /// holds patch `order[s]` (identity without `order`). `group` keeps or drops stored columns in
-    /// aligned runs of that many (a BC block is 4 columns wide).
-    pub fn new(x: &[[f32; 3]], n: usize, order: Option<&[u32]>, group: usize) -> Lanes {
+    /// holds patch `order[s]` (identity without `order`); the matrix stores `width ≥ n` columns
+    /// (BC images are padded to a multiple of 4), the ones past `n` being zero. Columns are kept
+    /// or dropped in aligned runs of [`LANES`].
+    pub fn new(x: &[[f32; 3]], n: usize, order: Option<&[u32]>, width: usize) -> Lanes {
+        let group = LANES;
         let batch = x.len() / n.max(1);
         let patch = |s: usize| order.map_or(s, |o| o[s] as usize);
-        let width = n.div_ceil(group) * group;
-        let lit_group: Vec<bool> = (0..width / group)
+        let lit_group: Vec<bool> = (0..n.div_ceil(group))
             .map(|g| {
                 (g * group..((g + 1) * group).min(n)).any(|s| {
                     let j = patch(s);
@@ -48,10 +54,10 @@ impl Lanes {
                 .iter()
                 .enumerate()
                 .filter(|(_, l)| **l)
-                .flat_map(|(g, _)| (g * group..(g + 1) * group).map(|s| s as u32))
+                .flat_map(|(g, _)| (g * group..((g + 1) * group).min(n)).map(|s| s as u32))
                 .collect()
         });
-        // Without gathering, lanes run over the padded width so block rows line up.
+        // Without gathering, lanes run over the stored width so block rows line up.
         let len = cols.as_ref().map_or(width, Vec::len);
         let mut data = vec![0.0f32; batch * 3 * len];
         for k in 0..batch {
@@ -84,45 +90,41 @@ impl Lanes {
     }
 }
 
-/// `Σ a[m]·b[m]` in eight independent partial sums, which the compiler keeps in one SIMD
-/// register (a single running sum would serialise on the adds).
+/// `Σ a[m]·b[m]` in [`LANES`] independent partial sums, which the compiler keeps in one SIMD
+/// register (a single running sum would serialise on the adds). With `a` and `b` compacted to the
+/// kept columns of a [`Lanes`], the partial sums are the same as over all columns.
 #[inline]
 pub fn dot<T: Entry>(a: &[T], b: &[f32]) -> f32 {
     let len = a.len().min(b.len());
     let (a, b) = (&a[..len], &b[..len]);
-    let mut acc = [0.0f32; 8];
-    let mut ac = a.chunks_exact(8);
-    let mut bc = b.chunks_exact(8);
+    let mut acc = [0.0f32; LANES];
+    let mut ac = a.chunks_exact(LANES);
+    let mut bc = b.chunks_exact(LANES);
     for (x, y) in (&mut ac).zip(&mut bc) {
-        for l in 0..8 {
+        for l in 0..LANES {
             acc[l] += x[l].value() * y[l];
         }
     }
-    let tail: f32 = ac
-        .remainder()
-        .iter()
-        .zip(bc.remainder())
-        .map(|(x, y)| x.value() * y)
-        .sum();
-    acc.iter().sum::<f32>() + tail
+    for (l, (x, y)) in ac.remainder().iter().zip(bc.remainder()).enumerate() {
+        acc[l] += x.value() * y;
+    }
+    acc.iter().sum()
 }
 
-/// `Σ row[cols[m]]·b[m]`: the dot over gathered columns.
+/// `Σ row[cols[m]]·b[m]`: the dot over the kept columns of a [`Lanes`], with the same partial
+/// sums as [`dot`] over the whole row.
 #[inline]
 pub fn dot_gather<T: Entry>(row: &[T], cols: &[u32], b: &[f32]) -> f32 {
-    let mut acc = [0.0f32; 8];
-    let mut cc = cols.chunks_exact(8);
-    let mut bc = b.chunks_exact(8);
+    let mut acc = [0.0f32; LANES];
+    let mut cc = cols.chunks_exact(LANES);
+    let mut bc = b.chunks_exact(LANES);
     for (c, y) in (&mut cc).zip(&mut bc) {
-        for l in 0..8 {
+        for l in 0..LANES {
             acc[l] += row[c[l] as usize].value() * y[l];
         }
     }
-    let tail: f32 = cc
-        .remainder()
-        .iter()
-        .zip(bc.remainder())
-        .map(|(&c, y)| row[c as usize].value() * y)
-        .sum();
-    acc.iter().sum::<f32>() + tail
+    for (l, (&c, y)) in cc.remainder().iter().zip(bc.remainder()).enumerate() {
+        acc[l] += row[c as usize].value() * y;
+    }
+    acc.iter().sum()
 }

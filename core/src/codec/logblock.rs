@@ -719,7 +719,7 @@ impl MatrixOp for LogBlockOp {
         let n = self.n;
         let batch = batch_len(n, x, out)?;
         // Inputs in image column order, dark block columns dropped, once per batch.
-        let lanes = Lanes::new(x, n, Some(&self.col_perm), 4);
+        let lanes = Lanes::new(x, n, Some(&self.col_perm), self.width);
         let lit: Option<Vec<bool>> = lanes.cols.as_ref().map(|cols| {
             let mut lit = vec![false; self.width / 4];
             for &l in cols {

@@ -1,0 +1,271 @@
+//! The engine interface: a device ([`Engine`]), a baked scene made ready on it ([`Scene`]), and
+//! [`Engine::relight`], which turns a batch of light configurations into direct and indirect
+//! irradiance per patch.
+//!
+//! A relight is DESIGN.md §1 end to end: per light set, direct irradiance with shadows
+//! (`bounce_core::direct`, on the CPU for both engines: the shadow rays walk the voxel grid),
+//! `B0 = L_e + ρ ⊙ E_direct`, then `E_ind = T · B0` for the whole batch in one product, on the GPU
+//! or the CPU. The batch is where a GPU wins: one pass over the matrix serves every light set.
+
+use std::fmt;
+use std::str::FromStr;
+use std::time::Instant;
+
+use bounce_core::codec::{self, MatrixOp};
+use bounce_core::direct::{
+    DEFAULT_SAMPLES, ShadowScene, ShadowSource, direct_irradiance, exitance_b0,
+};
+use bounce_core::format::Baked;
+use bounce_core::light::LightSet;
+use bounce_core::patch::PatchLayout;
+
+use crate::EngineError;
+use crate::gpu::{GpuContext, GpuMatrix};
+
+/// Which engine a user asks for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum EngineChoice {
+    /// The GPU when an adapter exists, else the CPU.
+    #[default]
+    Auto,
+    Gpu,
+    Cpu,
+}
+
+impl FromStr for EngineChoice {
+    type Err = EngineError;
+    fn from_str(s: &str) -> Result<Self, EngineError> {
+        match s {
+            "auto" => Ok(EngineChoice::Auto),
+            "gpu" => Ok(EngineChoice::Gpu),
+            "cpu" => Ok(EngineChoice::Cpu),
+            other => Err(EngineError::UnknownEngine(other.to_string())),
+        }
+    }
+}
+
+/// Which engine runs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum EngineKind {
+    Gpu,
+    Cpu,
+}
+
+impl fmt::Display for EngineKind {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            EngineKind::Gpu => "gpu",
+            EngineKind::Cpu => "cpu",
+        })
+    }
+}
+
+/// A device that relights scenes: one per GPU, or the CPU.
+pub struct Engine {
+    gpu: Option<GpuContext>,
+    description: String,
+    /// Why `auto` fell back to the CPU, when it did.
+    fallback: Option<String>,
+    /// Direct-light samples per patch.
+    pub samples: u32,
+}
+
+impl Engine {
+    /// Open the engine asked for. `Auto` takes the GPU when an adapter opens and the CPU
+    /// otherwise, and says which (see [`Engine::describe`], [`Engine::fallback`]); `Gpu` without
+    /// an adapter is an error.
+    pub fn new(choice: EngineChoice) -> Result<Engine, EngineError> {
+        let cpu = |fallback: Option<String>| Engine {
+            gpu: None,
+            description: format!("cpu ({} threads)", rayon::current_num_threads()),
+            fallback,
+            samples: DEFAULT_SAMPLES,
+        };
+        match choice {
+            EngineChoice::Cpu => Ok(cpu(None)),
+            EngineChoice::Gpu | EngineChoice::Auto => match GpuContext::new() {
+                Ok(ctx) => {
+                    let a = ctx.adapter();
+                    let description = format!(
+                        "gpu ({}, {}{})",
+                        a.name,
+                        a.backend,
+                        if a.software { ", software" } else { "" }
+                    );
+                    Ok(Engine {
+                        gpu: Some(ctx),
+                        description,
+                        fallback: None,
+                        samples: DEFAULT_SAMPLES,
+                    })
+                }
+                Err(e) if choice == EngineChoice::Auto => Ok(cpu(Some(e.to_string()))),
+                Err(e) => Err(EngineError::NoGpu(e)),
+            },
+        }
+    }
+
+    pub fn kind(&self) -> EngineKind {
+        if self.gpu.is_some() {
+            EngineKind::Gpu
+        } else {
+            EngineKind::Cpu
+        }
+    }
+
+    /// What runs: the engine kind and, for the GPU, the adapter.
+    pub fn describe(&self) -> &str {
+        &self.description
+    }
+
+    /// Why `auto` chose the CPU, if it did.
+    pub fn fallback(&self) -> Option<&str> {
+        self.fallback.as_deref()
+    }
+
+    /// Make a baked scene ready: shadow geometry built, the transport decoded (CPU) or uploaded
+    /// (GPU).
+    pub fn load(&self, baked: &Baked) -> Result<Scene, EngineError> {
+        let shadow = ShadowScene::new(&baked.layout, baked.occupancy.as_deref());
+        let transport = match &self.gpu {
+            Some(ctx) => Transport::Gpu(GpuMatrix::upload(ctx, &baked.transport)?),
+            None => Transport::Cpu(codec::decode(&baked.transport)?),
+        };
+        Ok(Scene {
+            layout: baked.layout.clone(),
+            shadow,
+            transport,
+            codec: baked.transport.codec.clone(),
+            matrix_bytes: baked.transport.payload.len(),
+        })
+    }
+
+    /// Direct and indirect irradiance for every light set of the batch; each is validated first.
+    pub fn relight(
+        &self,
+        scene: &Scene,
+        lights: &[LightSet],
+    ) -> Result<Vec<Irradiance>, EngineError> {
+        Ok(self.relight_timed(scene, lights)?.0)
+    }
+
+    /// [`Engine::relight`] with the time each half took.
+    pub fn relight_timed(
+        &self,
+        scene: &Scene,
+        lights: &[LightSet],
+    ) -> Result<(Vec<Irradiance>, Timing), EngineError> {
+        for (index, set) in lights.iter().enumerate() {
+            set.validate()
+                .map_err(|error| EngineError::Lights { index, error })?;
+        }
+        let n = scene.layout.len();
+        let start = Instant::now();
+        let direct: Vec<Vec<[f32; 3]>> = lights
+            .iter()
+            .map(|set| direct_irradiance(&scene.shadow, &scene.layout, set, self.samples))
+            .collect();
+        let b0: Vec<[f32; 3]> = direct
+            .iter()
+            .flat_map(|e| exitance_b0(&scene.layout, e))
+            .collect();
+        let direct_s = start.elapsed().as_secs_f64();
+        let start = Instant::now();
+        let mut indirect = vec![[0.0f32; 3]; b0.len()];
+        if !b0.is_empty() {
+            scene.transport.apply(&b0, &mut indirect)?;
+        }
+        let indirect_s = start.elapsed().as_secs_f64();
+        let out = direct
+            .into_iter()
+            .zip(indirect.chunks(n.max(1)))
+            .map(|(direct, ind)| Irradiance {
+                direct,
+                indirect: ind.to_vec(),
+            })
+            .collect();
+        Ok((
+            out,
+            Timing {
+                direct_s,
+                indirect_s,
+            },
+        ))
+    }
+
+    /// `E_ind = T · B0` alone, for a batch of given `B0` vectors (`batch × n`).
+    pub fn indirect(
+        &self,
+        scene: &Scene,
+        b0: &[[f32; 3]],
+        out: &mut [[f32; 3]],
+    ) -> Result<(), EngineError> {
+        scene.transport.apply(b0, out)
+    }
+}
+
+/// Time spent in each half of a relight.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Timing {
+    /// Direct light with shadows and `B0`, all light sets.
+    pub direct_s: f64,
+    /// The batched product `T · B0`.
+    pub indirect_s: f64,
+}
+
+/// Irradiance per patch for one light set (linear RGB).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Irradiance {
+    pub direct: Vec<[f32; 3]>,
+    /// `E_ind`: what the service streams.
+    pub indirect: Vec<[f32; 3]>,
+}
+
+/// A baked scene made ready on one engine.
+pub struct Scene {
+    pub layout: PatchLayout,
+    shadow: ShadowScene,
+    transport: Transport,
+    codec: String,
+    matrix_bytes: usize,
+}
+
+impl Scene {
+    /// The transport's codec.
+    pub fn codec(&self) -> &str {
+        &self.codec
+    }
+
+    /// Bytes of the encoded transport (what a product reads, once per pass).
+    pub fn matrix_bytes(&self) -> usize {
+        self.matrix_bytes
+    }
+
+    /// Whether shadows come from the voxel occupancy or, for old files, the patches alone.
+    pub fn shadow_source(&self) -> ShadowSource {
+        self.shadow.source()
+    }
+
+    /// Passes over the matrix a batch of `sets` costs.
+    pub fn passes_for(&self, sets: usize) -> usize {
+        match self.transport {
+            Transport::Gpu(_) => GpuMatrix::passes_for(sets),
+            Transport::Cpu(_) => usize::from(sets > 0),
+        }
+    }
+}
+
+enum Transport {
+    Cpu(Box<dyn MatrixOp>),
+    Gpu(GpuMatrix),
+}
+
+impl Transport {
+    fn apply(&self, b0: &[[f32; 3]], out: &mut [[f32; 3]]) -> Result<(), EngineError> {
+        match self {
+            Transport::Cpu(op) => op.matvec_batch(b0, out)?,
+            Transport::Gpu(m) => m.matvec_batch(b0, out)?,
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,226 @@
+//! The engine interface end to end on a real bake of the Cornell box: batched relights equal
+//! one-by-one relights, the GPU engine agrees with the CPU engine, the classic-radiosity baseline
+//! agrees with the precomputed transport, and bad lights are refused.
+//!
+//! The GPU engine runs on whatever adapter wgpu finds (lavapipe in CI); without one these tests
+//! fail unless `BOUNCE_ALLOW_NO_GPU=1` says skipping is intended.
+
+use std::path::Path;
+use std::sync::OnceLock;
+
+use bounce_core::bake::{BakeOptions, NoProgress, bake_file};
+use bounce_core::codec::logblock::LogBlock;
+use bounce_core::codec::{Codec, decode};
+use bounce_core::format::Baked;
+use bounce_core::light::{Light, LightSet};
+use bounce_core::meta::Bounces;
+use bounce_core::voxel::Resolution;
+use bounce_engine::baseline::jacobi;
+use bounce_engine::{Engine, EngineChoice, EngineError, EngineKind, Irradiance};
+
+/// The Cornell box at about 300 patches, 3 bounces, with its form factors.
+fn baked() -> &'static Baked {
+    static BAKED: OnceLock<Baked> = OnceLock::new();
+    BAKED.get_or_init(|| {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/cornell-box/scene.gltf");
+        let options = BakeOptions {
+            resolution: Resolution::TargetPatches(300),
+            rays: 1024,
+            bounces: Bounces::K(3),
+            keep_form_factors: true,
+            ..BakeOptions::default()
+        };
+        bake_file(&path, &options, &NoProgress).unwrap()
+    })
+}
+
+fn gpu_engine() -> Option<Engine> {
+    match Engine::new(EngineChoice::Gpu) {
+        Ok(e) => Some(e),
+        Err(e) if std::env::var("BOUNCE_ALLOW_NO_GPU").as_deref() == Ok("1") => {
+            eprintln!("SKIPPED (BOUNCE_ALLOW_NO_GPU=1): {e}");
+            None
+        }
+        Err(e) => {
+            panic!("GPU engine tests need an adapter: {e}; set BOUNCE_ALLOW_NO_GPU=1 to skip")
+        }
+    }
+}
+
+/// Point lights at a few places inside the box (its interior spans the grid's middle).
+fn light_sets(count: usize) -> Vec<LightSet> {
+    let layout = &baked().layout;
+    let s = layout.voxel_size;
+    let size: Vec<f32> = layout.dims.iter().map(|&d| d as f32 * s).collect();
+    (0..count)
+        .map(|k| {
+            let u = [
+                0.3 + 0.4 * ((k * 7) % 5) as f32 / 4.0,
+                0.35 + 0.1 * (k % 3) as f32,
+                0.5,
+            ];
+            let position = std::array::from_fn(|a| layout.origin[a] + size[a] * u[a]);
+            LightSet {
+                lights: vec![Light::Point {
+                    position,
+                    color: [1.0, 0.9 - 0.1 * (k % 3) as f32, 0.8],
+                    intensity: 2.0 + k as f32,
+                    range: None,
+                    name: None,
+                }],
+            }
+        })
+        .collect()
+}
+
+fn rel_l2(a: &[[f32; 3]], b: &[[f32; 3]]) -> f64 {
+    let (mut num, mut den) = (0.0f64, 0.0f64);
+    for (x, y) in a.iter().flatten().zip(b.iter().flatten()) {
+        num += (f64::from(*x) - f64::from(*y)).powi(2);
+        den += f64::from(*y).powi(2);
+    }
+    (num / den.max(1e-300)).sqrt()
+}
+
+fn with_codec(codec: &dyn Codec) -> Baked {
+    let mut b = baked().clone();
+    b.transport = codec.encode(&b.transport.decode().unwrap()).unwrap();
+    b
+}
+
+fn relight(engine: &Engine, baked: &Baked, sets: &[LightSet]) -> Vec<Irradiance> {
+    let scene = engine.load(baked).unwrap();
+    engine.relight(&scene, sets).unwrap()
+}
+
+#[test]
+fn batched_relights_equal_one_by_one() {
+    let sets = light_sets(9);
+    let mut engines = vec![Engine::new(EngineChoice::Cpu).unwrap()];
+    engines.extend(gpu_engine());
+    for engine in &engines {
+        for codec in [
+            Box::new(bounce_core::codec::dense::DenseF32) as Box<dyn Codec>,
+            Box::new(LogBlock::bc1()),
+        ] {
+            let baked = with_codec(codec.as_ref());
+            let batch = relight(engine, &baked, &sets);
+            assert_eq!(batch.len(), sets.len());
+            for (k, set) in sets.iter().enumerate() {
+                let one = relight(engine, &baked, std::slice::from_ref(set));
+                assert_eq!(
+                    one[0].direct,
+                    batch[k].direct,
+                    "{} {}",
+                    engine.describe(),
+                    codec.name()
+                );
+                // The CPU sums each output in one order whatever the batch; the GPU kernels do too
+                // (a light set's sum does not depend on which chunk of the batch it is in).
+                assert_eq!(
+                    one[0].indirect,
+                    batch[k].indirect,
+                    "{} {} set {k}",
+                    engine.describe(),
+                    codec.name()
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn gpu_engine_agrees_with_cpu_engine() {
+    let Some(gpu) = gpu_engine() else { return };
+    assert_eq!(gpu.kind(), EngineKind::Gpu);
+    let cpu = Engine::new(EngineChoice::Cpu).unwrap();
+    let sets = light_sets(4);
+    // Dense: same products in another summation order. bc1: the texture unit may decode a texel
+    // a code (10%) off the CPU decoder; over a whole row that averages to about 1% (engine/tests/gpu.rs
+    // bounds it per output).
+    for (codec, tolerance) in [
+        (
+            Box::new(bounce_core::codec::dense::DenseF32) as Box<dyn Codec>,
+            1e-4,
+        ),
+        (Box::new(LogBlock::bc1()), 0.05),
+    ] {
+        let baked = with_codec(codec.as_ref());
+        let a = relight(&gpu, &baked, &sets);
+        let b = relight(&cpu, &baked, &sets);
+        for (x, y) in a.iter().zip(&b) {
+            assert_eq!(
+                x.direct, y.direct,
+                "direct light is the same CPU code on both"
+            );
+            let err = rel_l2(&x.indirect, &y.indirect);
+            assert!(
+                err <= tolerance,
+                "{}: GPU vs CPU rel L2 {err:e}",
+                codec.name()
+            );
+        }
+    }
+}
+
+#[test]
+fn auto_says_what_it_took() {
+    let engine = Engine::new(EngineChoice::Auto).unwrap();
+    match engine.kind() {
+        EngineKind::Gpu => assert!(engine.describe().starts_with("gpu (")),
+        EngineKind::Cpu => {
+            assert!(engine.describe().starts_with("cpu"));
+            assert!(engine.fallback().is_some(), "a CPU fallback must say why");
+        }
+    }
+}
+
+#[test]
+fn classic_radiosity_agrees_with_the_precomputed_transport() {
+    let baked = baked();
+    let Some(k) = (match baked.meta.settings.bounces {
+        Bounces::K(k) => Some(k),
+        Bounces::All => None,
+    }) else {
+        panic!("the fixture bakes a fixed bounce count")
+    };
+    let cpu = Engine::new(EngineChoice::Cpu).unwrap();
+    let scene = cpu.load(baked).unwrap();
+    let sets = light_sets(3);
+    let lit = cpu.relight(&scene, &sets).unwrap();
+    let b0: Vec<[f32; 3]> = lit
+        .iter()
+        .flat_map(|l| bounce_core::direct::exitance_b0(&baked.layout, &l.direct))
+        .collect();
+    let f = decode(baked.form_factors.as_ref().unwrap()).unwrap();
+    let by_jacobi = jacobi(f.as_ref(), &baked.layout, &b0, k).unwrap();
+    let by_t: Vec<[f32; 3]> = lit.iter().flat_map(|l| l.indirect.clone()).collect();
+    let err = rel_l2(&by_jacobi, &by_t);
+    // Same sums, associated differently (f32): well under a part in ten thousand.
+    assert!(err < 1e-5, "Jacobi vs T_k rel L2 {err:e}");
+    assert!(
+        by_t.iter().flatten().any(|v| *v > 0.0),
+        "the lights reach the box"
+    );
+}
+
+#[test]
+fn bad_lights_are_refused_with_their_place_in_the_batch() {
+    let cpu = Engine::new(EngineChoice::Cpu).unwrap();
+    let scene = cpu.load(baked()).unwrap();
+    let mut sets = light_sets(3);
+    sets[2].lights.push(Light::Point {
+        position: [0.0, f32::NAN, 0.0],
+        color: [1.0; 3],
+        intensity: 1.0,
+        range: None,
+        name: None,
+    });
+    match cpu.relight(&scene, &sets) {
+        Err(EngineError::Lights { index, error }) => {
+            assert_eq!(index, 2);
+            assert!(error.to_string().contains("lights[1].position"), "{error}");
+        }
+        other => panic!("expected a light error, got {:?}", other.map(|_| ())),
+    }
+}
