@@ -128,7 +128,7 @@ impl Engine {
     pub fn load(&self, baked: &Baked) -> Result<Scene, EngineError> {
         let shadow = ShadowScene::new(&baked.layout, baked.occupancy.as_deref());
         let transport = match &self.gpu {
-            Some(ctx) => Transport::Gpu(GpuMatrix::upload(ctx, &baked.transport)?),
+            Some(ctx) => Transport::Gpu(Box::new(GpuMatrix::upload(ctx, &baked.transport)?)),
             None => Transport::Cpu(codec::decode(&baked.transport)?),
         };
         Ok(Scene {
@@ -257,7 +257,7 @@ impl Scene {
 
 enum Transport {
     Cpu(Box<dyn MatrixOp>),
-    Gpu(GpuMatrix),
+    Gpu(Box<GpuMatrix>),
 }
 
 impl Transport {
