@@ -1,7 +1,7 @@
 //! `bounce`: the command line of the bounce lighting service.
 //!
 //! This binary owns argument parsing, terminal output and exit codes; the work itself lives in
-//! `bounce-core`. Errors reach the user through `anyhow` with the library's message on top.
+//! `bounce-core` and `bounce-engine`. Errors reach the user through `anyhow` with the library's message on top.
 
 mod bake_cmd;
 mod bench;
@@ -11,6 +11,7 @@ mod inspect;
 mod memory;
 mod plot;
 mod progress;
+mod relight_cmd;
 
 use std::process::ExitCode;
 
@@ -23,7 +24,8 @@ use clap::{Parser, Subcommand};
     about = "Precomputed-radiosity lighting: bake glTF scenes into transport matrices",
     long_about = "bounce precomputes diffuse global illumination. `bake` turns a glTF scene into a \
                   baked file holding a multi-bounce light-transport matrix over voxel patches; \
-                  `inspect` shows what a baked file holds; `demo` bakes the embedded Cornell box."
+                  `inspect` shows what a baked file holds; `relight` computes direct and indirect \
+                  light per patch for light configurations; `demo` bakes the embedded Cornell box."
 )]
 struct Cli {
     #[command(subcommand)]
@@ -38,6 +40,9 @@ enum Command {
     Inspect(inspect::InspectArgs),
     /// Bake the embedded Cornell box demo scene and inspect the result.
     Demo(demo::DemoArgs),
+    /// Relight a baked scene: direct light with shadows and indirect light per patch for one
+    /// batch of light configurations, on the GPU or the CPU.
+    Relight(relight_cmd::RelightArgs),
     /// Benchmarks: tables (and CSV) comparing variants measured in one run.
     Bench(bench::BenchArgs),
 }
@@ -59,6 +64,7 @@ fn main() -> ExitCode {
         Command::Bake(args) => bake_cmd::run(&args),
         Command::Inspect(args) => inspect::run(&args),
         Command::Demo(args) => demo::run(&args),
+        Command::Relight(args) => relight_cmd::run(&args),
         Command::Bench(args) => bench::run(&args),
     };
     match result {
