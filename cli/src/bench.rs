@@ -32,6 +32,10 @@ pub enum BenchWhat {
     /// indirect-irradiance error, side by side; the thesis' reordering table (0, 1, 2 passes, from
     /// the bake's patch order and from a shuffled one); optionally a sparse-share sweep; a plot.
     Codecs(crate::bench_codecs::BenchCodecsArgs),
+    /// Relight engines (CPU, GPU) × codecs × batch sizes against the exact solve, with the
+    /// thesis' baselines (classic radiosity with F, dense T, compressed T): latency, light sets
+    /// per second, effective bandwidth, E_ind error.
+    Engines(crate::bench_engines::BenchEnginesArgs),
 }
 
 #[derive(Args, Debug)]
@@ -72,6 +76,7 @@ pub fn run(args: &BenchArgs) -> Result<()> {
         BenchWhat::Bake(a) => bench_bake(a),
         BenchWhat::Rays(a) => bench_rays(a),
         BenchWhat::Codecs(a) => crate::bench_codecs::run(a),
+        BenchWhat::Engines(a) => crate::bench_engines::run(a),
     }
 }
 

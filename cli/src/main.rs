@@ -6,6 +6,7 @@
 mod bake_cmd;
 mod bench;
 mod bench_codecs;
+mod bench_engines;
 mod demo;
 mod inspect;
 mod memory;

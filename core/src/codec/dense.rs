@@ -7,7 +7,7 @@
 use half::f16;
 use rayon::prelude::*;
 
-use super::lanes::{Lanes, dot, dot_gather};
+use super::lanes::{Lanes, dots};
 use super::{Codec, CodecError, MatrixOp, batch_len};
 use crate::matrix::{DenseMatrix, EncodedMatrix};
 
@@ -142,18 +142,27 @@ impl<T: Entry> MatrixOp for Dense<T> {
         let rows: Vec<[f32; 3]> = (0..n)
             .into_par_iter()
             .flat_map_iter(|i| {
-                let rows: Vec<&[T]> = (0..m.channels).map(|c| m.row(c, i)).collect();
-                (0..batch).map(move |k| {
-                    let mut acc = [0.0f32; 3];
-                    for (c, a) in acc.iter_mut().enumerate() {
-                        let row = rows[c.min(rows.len() - 1)];
-                        *a = match &lanes.cols {
-                            None => dot(row, lanes.lane(k, c)),
-                            Some(cols) => dot_gather(row, cols, lanes.lane(k, c)),
-                        };
+                let mut acc = vec![[0.0f32; 3]; batch];
+                let mut sums = vec![0.0f32; 3 * batch];
+                // Per stored channel, every (light set, colour) it serves: a one-channel matrix
+                // serves all three colours of every set from the same row.
+                for c in 0..m.channels {
+                    let serves: Vec<(usize, usize)> = (0..batch)
+                        .flat_map(|k| (0..3).map(move |cc| (k, cc)))
+                        .filter(|&(_, cc)| cc.min(m.channels - 1) == c)
+                        .collect();
+                    let ls: Vec<&[f32]> = serves.iter().map(|&(k, cc)| lanes.lane(k, cc)).collect();
+                    dots(
+                        m.row(c, i),
+                        lanes.cols.as_deref(),
+                        &ls,
+                        &mut sums[..ls.len()],
+                    );
+                    for (&(k, cc), &v) in serves.iter().zip(&sums) {
+                        acc[k][cc] = v;
                     }
-                    acc
-                })
+                }
+                acc
             })
             .collect();
         for (i, per_set) in rows.chunks_exact(batch).enumerate() {

@@ -128,3 +128,76 @@ pub fn dot_gather<T: Entry>(row: &[T], cols: &[u32], b: &[f32]) -> f32 {
     }
     acc.iter().sum()
 }
+
+/// Light sets (and channels) whose dots one pass over a row computes together: the row's values
+/// are loaded once for all of them, and their independent partial sums keep the FMA units busy
+/// (one dot alone waits on its own adds).
+const GROUP: usize = 4;
+
+/// `out[t] = Σ_m row[col(m)] · lanes[t][m]` for every lane `t`, with `col(m) = cols[m]` when
+/// gathering and `m` otherwise; each with exactly the partial sums of [`dot`] / [`dot_gather`],
+/// so grouping never changes a result's bits.
+pub fn dots<T: Entry>(row: &[T], cols: Option<&[u32]>, lanes: &[&[f32]], out: &mut [f32]) {
+    let mut t = 0;
+    while t + GROUP <= lanes.len() {
+        let group: [&[f32]; GROUP] = std::array::from_fn(|g| lanes[t + g]);
+        let sums = match cols {
+            None => dot_group(row, &group),
+            Some(cols) => dot_gather_group(row, cols, &group),
+        };
+        out[t..t + GROUP].copy_from_slice(&sums);
+        t += GROUP;
+    }
+    for (lane, o) in lanes[t..].iter().zip(&mut out[t..]) {
+        *o = match cols {
+            None => dot(row, lane),
+            Some(cols) => dot_gather(row, cols, lane),
+        };
+    }
+}
+
+#[inline]
+fn dot_group<T: Entry>(a: &[T], b: &[&[f32]; GROUP]) -> [f32; GROUP] {
+    let len = b.iter().fold(a.len(), |l, x| l.min(x.len()));
+    let mut acc = [[0.0f32; LANES]; GROUP];
+    let full = len / LANES * LANES;
+    for base in (0..full).step_by(LANES) {
+        let x: [f32; LANES] = std::array::from_fn(|l| a[base + l].value());
+        for (acc, b) in acc.iter_mut().zip(b) {
+            let y = &b[base..base + LANES];
+            for l in 0..LANES {
+                acc[l] += x[l] * y[l];
+            }
+        }
+    }
+    for m in full..len {
+        let x = a[m].value();
+        for (acc, b) in acc.iter_mut().zip(b) {
+            acc[m - full] += x * b[m];
+        }
+    }
+    acc.map(|a| a.iter().sum())
+}
+
+#[inline]
+fn dot_gather_group<T: Entry>(row: &[T], cols: &[u32], b: &[&[f32]; GROUP]) -> [f32; GROUP] {
+    let len = b.iter().fold(cols.len(), |l, x| l.min(x.len()));
+    let mut acc = [[0.0f32; LANES]; GROUP];
+    let full = len / LANES * LANES;
+    for base in (0..full).step_by(LANES) {
+        let x: [f32; LANES] = std::array::from_fn(|l| row[cols[base + l] as usize].value());
+        for (acc, b) in acc.iter_mut().zip(b) {
+            let y = &b[base..base + LANES];
+            for l in 0..LANES {
+                acc[l] += x[l] * y[l];
+            }
+        }
+    }
+    for m in full..len {
+        let x = row[cols[m] as usize].value();
+        for (acc, b) in acc.iter_mut().zip(b) {
+            acc[m - full] += x * b[m];
+        }
+    }
+    acc.map(|a| a.iter().sum())
+}

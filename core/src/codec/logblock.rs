@@ -15,7 +15,7 @@ use serde::{Deserialize, Serialize};
 use super::bc;
 use rayon::prelude::*;
 
-use super::lanes::{Lanes, dot};
+use super::lanes::{Lanes, dots};
 use super::transform::{
     SparsePart, gather_positions, greedy_chain, is_permutation, log_dequantize, log_quantize,
     select_largest, split_largest,
@@ -754,22 +754,31 @@ impl MatrixOp for LogBlockOp {
                                 }
                             }
                         }
-                        let per_set = (0..batch)
-                            .map(|k| {
-                                let mut acc = [0.0f32; 3];
-                                for (c, a) in acc.iter_mut().enumerate() {
-                                    let cc = c.min(self.channels - 1);
-                                    if codes.is_some() {
-                                        *a = dot(&values[cc], lanes.lane(k, c));
-                                    }
-                                    for e in sp.row_ptr[i] as usize..sp.row_ptr[i + 1] as usize {
-                                        let j = sp.col_idx[e] as usize;
-                                        *a += sp.values[cc * sp.nnz() + e] * x[k * n + j][c];
-                                    }
+                        let mut per_set = vec![[0.0f32; 3]; batch];
+                        if codes.is_some() {
+                            let mut sums = vec![0.0f32; 3 * batch];
+                            for (c, v) in values.iter().enumerate() {
+                                let serves: Vec<(usize, usize)> = (0..batch)
+                                    .flat_map(|k| (0..3).map(move |cc| (k, cc)))
+                                    .filter(|&(_, cc)| cc.min(self.channels - 1) == c)
+                                    .collect();
+                                let ls: Vec<&[f32]> =
+                                    serves.iter().map(|&(k, cc)| lanes.lane(k, cc)).collect();
+                                dots(v, None, &ls, &mut sums[..ls.len()]);
+                                for (&(k, cc), &s) in serves.iter().zip(&sums) {
+                                    per_set[k][cc] = s;
                                 }
-                                acc
-                            })
-                            .collect();
+                            }
+                        }
+                        for (k, acc) in per_set.iter_mut().enumerate() {
+                            for (c, a) in acc.iter_mut().enumerate() {
+                                let cc = c.min(self.channels - 1);
+                                for e in sp.row_ptr[i] as usize..sp.row_ptr[i + 1] as usize {
+                                    let j = sp.col_idx[e] as usize;
+                                    *a += sp.values[cc * sp.nnz() + e] * x[k * n + j][c];
+                                }
+                            }
+                        }
                         (i, per_set)
                     })
                     .collect::<Vec<_>>()

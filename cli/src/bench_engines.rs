@@ -1,0 +1,368 @@
+//! `bounce bench engines`: every engine × codec × batch size on one baked scene, against the
+//! exact solve, with the thesis' baselines (classic radiosity by Jacobi steps with `F`, the
+//! precomputed dense `T`, the compressed `T`) measured in the same run.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::{Context, Result, bail};
+use bounce_core::codec::{self, Codec};
+use bounce_core::direct::exitance_b0;
+use bounce_core::format::Baked;
+use bounce_core::light::{Light, LightSet};
+use bounce_core::matrix::DENSE_F32;
+use bounce_core::meta::Bounces;
+use bounce_core::patch::PatchLayout;
+use bounce_engine::baseline::jacobi;
+use bounce_engine::{Engine, EngineChoice, EngineKind};
+use clap::Args;
+use rayon::prelude::*;
+
+use crate::bench::emit;
+
+#[derive(Args, Debug)]
+pub struct BenchEnginesArgs {
+    /// A file from `bounce bake` with the exact dense-f32 transport (bake with
+    /// --keep-form-factors to include the classic-radiosity baseline).
+    pub baked: PathBuf,
+    /// Codecs to run, comma separated (each encoded from the exact matrix in this run).
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "dense-f32,dense-f16,bc1,bc1-resid"
+    )]
+    pub codecs: Vec<String>,
+    /// Light sets per product, comma separated.
+    #[arg(long, value_delimiter = ',', default_value = "1,8,64")]
+    pub batches: Vec<usize>,
+    /// Timed products per row (after one warm-up); the table shows the median and the p99.
+    #[arg(long, default_value_t = 10)]
+    pub repeat: usize,
+    /// Engines, comma separated: cpu, gpu. A GPU that cannot be opened is reported, not skipped
+    /// silently.
+    #[arg(long, value_delimiter = ',', default_value = "cpu,gpu")]
+    pub engines: Vec<String>,
+    /// Write the table as CSV here too.
+    #[arg(long, value_name = "OUT.csv")]
+    pub csv: Option<PathBuf>,
+}
+
+/// One timed configuration.
+struct Row {
+    engine: String,
+    codec: String,
+    batch: usize,
+    times: Vec<f64>,
+    /// Bytes one pass over the matrix reads, and passes per product.
+    bytes: usize,
+    passes: usize,
+    rel_l2: f64,
+    rel_max: f64,
+}
+
+pub fn run(args: &BenchEnginesArgs) -> Result<()> {
+    if args.repeat == 0 || args.batches.contains(&0) {
+        bail!("--repeat and every --batches entry must be at least 1");
+    }
+    let baked =
+        Baked::read(&args.baked).with_context(|| format!("reading {}", args.baked.display()))?;
+    if baked.transport.codec != DENSE_F32 {
+        bail!(
+            "{} stores '{}'; the benchmark needs the exact dense-f32 transport to measure against",
+            args.baked.display(),
+            baked.transport.codec
+        );
+    }
+    let n = baked.layout.len();
+    let exact = baked.transport.decode()?;
+    let exact_op = codec::decode(&baked.transport)?;
+    let max_batch = args.batches.iter().copied().max().unwrap_or(1);
+
+    // Light sets and their B0, once: direct light is the same CPU code for every engine.
+    let cpu = Engine::new(EngineChoice::Cpu)?;
+    let cpu_scene = cpu.load(&baked)?;
+    let sets = bench_lights(&baked.layout, max_batch);
+    let start = Instant::now();
+    let lit = cpu.relight(&cpu_scene, &sets)?;
+    let direct_per_set = start.elapsed().as_secs_f64() / sets.len() as f64;
+    let b0: Vec<[f32; 3]> = lit
+        .iter()
+        .flat_map(|l| exitance_b0(&baked.layout, &l.direct))
+        .collect();
+    let dark = b0.iter().filter(|v| **v == [0.0; 3]).count() as f64 / b0.len() as f64;
+    let mut reference = vec![[0.0f32; 3]; b0.len()];
+    exact_op.matvec_batch(&b0, &mut reference)?;
+    let bandwidth = memory_bandwidth();
+    eprintln!(
+        "bench engines: {} ({n} patches, {} channel(s)); direct light {:.1} ms a light set \
+         (CPU, {} samples a patch; {:.0}% of B0 entries dark); CPU memory bandwidth {:.1} GB/s",
+        args.baked.display(),
+        exact.channels,
+        direct_per_set * 1e3,
+        cpu.samples,
+        dark * 100.0,
+        bandwidth / 1e9
+    );
+
+    let mut rows: Vec<Row> = Vec::new();
+    for name in &args.engines {
+        let choice: EngineChoice = name.parse()?;
+        if choice == EngineChoice::Auto {
+            bail!("--engines takes cpu and gpu; auto would measure one of them twice");
+        }
+        let engine = match Engine::new(choice) {
+            Ok(e) => e,
+            Err(e) => {
+                eprintln!("  {name}: not measured: {e}");
+                continue;
+            }
+        };
+        eprintln!("  {name}: {}", engine.describe());
+        for codec_name in &args.codecs {
+            let codec = codec::configured(codec_name, None)?;
+            let mut variant = baked.clone();
+            variant.transport = encode(codec.as_ref(), &exact)?;
+            let scene = match engine.load(&variant) {
+                Ok(s) => s,
+                Err(e) => {
+                    eprintln!("    {codec_name}: not measured on {name}: {e}");
+                    continue;
+                }
+            };
+            for &batch in &args.batches {
+                let x = &b0[..batch * n];
+                let mut out = vec![[0.0f32; 3]; x.len()];
+                engine.indirect(&scene, x, &mut out)?;
+                let mut times = Vec::with_capacity(args.repeat);
+                for _ in 0..args.repeat {
+                    let start = Instant::now();
+                    engine.indirect(&scene, x, &mut out)?;
+                    times.push(start.elapsed().as_secs_f64());
+                }
+                let (rel_l2, rel_max) = errors(&out, &reference[..x.len()]);
+                rows.push(Row {
+                    engine: name.clone(),
+                    codec: codec_name.clone(),
+                    batch,
+                    times,
+                    bytes: scene.matrix_bytes(),
+                    passes: scene.passes_for(batch),
+                    rel_l2,
+                    rel_max,
+                });
+                report(rows.last());
+            }
+        }
+        if engine.kind() == EngineKind::Cpu {
+            rows.extend(jacobi_rows(args, &baked, &b0, &reference)?);
+        }
+    }
+
+    let header = [
+        "engine",
+        "codec",
+        "batch",
+        "latency_ms_p50",
+        "latency_ms_p99",
+        "lightsets_per_s",
+        "matrix_mb",
+        "passes",
+        "effective_gb_per_s",
+        "of_cpu_bandwidth",
+        "eind_rel_l2",
+        "eind_rel_max",
+    ];
+    let table: Vec<Vec<String>> = rows
+        .iter()
+        .map(|r| {
+            let (p50, p99) = percentiles(&r.times);
+            let gbs = (r.bytes * r.passes) as f64 / p50;
+            vec![
+                r.engine.clone(),
+                r.codec.clone(),
+                r.batch.to_string(),
+                format!("{:.3}", p50 * 1e3),
+                format!("{:.3}", p99 * 1e3),
+                format!("{:.1}", r.batch as f64 / p50),
+                format!("{:.1}", r.bytes as f64 / 1e6),
+                r.passes.to_string(),
+                format!("{:.2}", gbs / 1e9),
+                if r.engine == "cpu" {
+                    format!("{:.2}", gbs / bandwidth)
+                } else {
+                    "-".to_string()
+                },
+                format!("{:.3e}", r.rel_l2),
+                format!("{:.3e}", r.rel_max),
+            ]
+        })
+        .collect();
+    emit(&header, &table, args.csv.as_deref())
+}
+
+fn encode(
+    codec: &dyn Codec,
+    exact: &bounce_core::matrix::DenseMatrix,
+) -> Result<bounce_core::matrix::EncodedMatrix> {
+    let start = Instant::now();
+    let enc = codec.encode(exact)?;
+    eprintln!(
+        "    encoded {} in {:.1} s",
+        codec.name(),
+        start.elapsed().as_secs_f64()
+    );
+    Ok(enc)
+}
+
+fn report(row: Option<&Row>) {
+    if let Some(r) = row {
+        let (p50, _) = percentiles(&r.times);
+        eprintln!(
+            "    {} batch {}: {:.2} ms, E_ind rel L2 {:.2e}",
+            r.codec,
+            r.batch,
+            p50 * 1e3,
+            r.rel_l2
+        );
+    }
+}
+
+/// Classic radiosity: `k` Jacobi products with the dense single-bounce `F`, where the file has
+/// it and the bake used a fixed bounce count.
+fn jacobi_rows(
+    args: &BenchEnginesArgs,
+    baked: &Baked,
+    b0: &[[f32; 3]],
+    reference: &[[f32; 3]],
+) -> Result<Vec<Row>> {
+    let n = baked.layout.len();
+    let Some(ff) = &baked.form_factors else {
+        eprintln!(
+            "  jacobi-F: not measured: the file has no form factors (bake --keep-form-factors)"
+        );
+        return Ok(Vec::new());
+    };
+    let Bounces::K(k) = baked.meta.settings.bounces else {
+        eprintln!("  jacobi-F: not measured: the bake is for all bounces, Jacobi would not stop");
+        return Ok(Vec::new());
+    };
+    let f = codec::decode(ff)?;
+    let mut rows = Vec::new();
+    for &batch in &args.batches {
+        let x = &b0[..batch * n];
+        let mut out = jacobi(f.as_ref(), &baked.layout, x, k)?;
+        let mut times = Vec::with_capacity(args.repeat);
+        for _ in 0..args.repeat {
+            let start = Instant::now();
+            out = jacobi(f.as_ref(), &baked.layout, x, k)?;
+            times.push(start.elapsed().as_secs_f64());
+        }
+        let (rel_l2, rel_max) = errors(&out, &reference[..x.len()]);
+        rows.push(Row {
+            engine: "cpu".to_string(),
+            codec: format!("jacobi-F ({k} steps)"),
+            batch,
+            times,
+            bytes: ff.payload.len(),
+            passes: k as usize,
+            rel_l2,
+            rel_max,
+        });
+        report(rows.last());
+    }
+    Ok(rows)
+}
+
+/// Relative L2 over every value, and the worst patch (relative to the brightest patch's value,
+/// so dark patches do not turn rounding into huge ratios).
+fn errors(got: &[[f32; 3]], want: &[[f32; 3]]) -> (f64, f64) {
+    let (mut num, mut den, mut worst, mut top) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
+    for (g, w) in got.iter().zip(want) {
+        for c in 0..3 {
+            let d = f64::from(g[c]) - f64::from(w[c]);
+            num += d * d;
+            den += f64::from(w[c]).powi(2);
+            worst = worst.max(d.abs());
+            top = top.max(f64::from(w[c]).abs());
+        }
+    }
+    ((num / den.max(1e-300)).sqrt(), worst / top.max(1e-300))
+}
+
+fn percentiles(times: &[f64]) -> (f64, f64) {
+    let mut t = times.to_vec();
+    t.sort_by(f64::total_cmp);
+    let at = |q: f64| t[((t.len() - 1) as f64 * q).round() as usize];
+    (at(0.5), at(0.99))
+}
+
+/// Light sets a viewer might send: alternately a point light a little off a surface somewhere in
+/// the scene and a sun from a random direction above the horizon; deterministic.
+fn bench_lights(layout: &PatchLayout, count: usize) -> Vec<LightSet> {
+    let s = layout.voxel_size;
+    let extent = layout
+        .dims
+        .iter()
+        .map(|&d| d as f32 * s)
+        .fold(0.0f32, f32::max);
+    let mut state = 0x2545_f491_4f6c_dd1du64;
+    let mut next = || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        (state >> 40) as f32 / (1u64 << 24) as f32
+    };
+    (0..count)
+        .map(|k| {
+            let light = if k % 2 == 0 && !layout.is_empty() {
+                let p = &layout.patches
+                    [((next() * layout.len() as f32) as usize).min(layout.len() - 1)];
+                let position = std::array::from_fn(|a| p.centroid[a] + p.normal[a] * 2.5 * s);
+                Light::Point {
+                    position,
+                    color: [1.0, 0.9, 0.8],
+                    // About 1 lux at a quarter of the scene away.
+                    intensity: (extent * 0.25).powi(2),
+                    range: None,
+                    name: None,
+                }
+            } else {
+                let (a, e) = (next() * std::f32::consts::TAU, 0.3 + 0.9 * next());
+                Light::Directional {
+                    direction: [a.cos() * e.cos(), -e.sin(), a.sin() * e.cos()],
+                    color: [1.0, 0.97, 0.9],
+                    intensity: 1.0,
+                    name: None,
+                }
+            };
+            LightSet {
+                lights: vec![light],
+            }
+        })
+        .collect()
+}
+
+/// Read bandwidth of this machine's memory: all threads summing a 256 MiB buffer, best of 5
+/// (the figure products are compared with).
+fn memory_bandwidth() -> f64 {
+    let data = vec![1.0f32; 64 << 20];
+    let mut best = f64::INFINITY;
+    for _ in 0..5 {
+        let start = Instant::now();
+        let s: f32 = data
+            .par_chunks(1 << 16)
+            .map(|c| {
+                let mut acc = [0.0f32; 8];
+                for ch in c.chunks_exact(8) {
+                    for l in 0..8 {
+                        acc[l] += ch[l];
+                    }
+                }
+                acc.iter().sum::<f32>()
+            })
+            .sum();
+        std::hint::black_box(s);
+        best = best.min(start.elapsed().as_secs_f64());
+    }
+    (data.len() * 4) as f64 / best
+}
