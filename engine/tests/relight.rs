@@ -115,15 +115,24 @@ fn batched_relights_equal_one_by_one() {
                     engine.describe(),
                     codec.name()
                 );
-                // The CPU sums each output in one order whatever the batch; the GPU kernels do too
-                // (a light set's sum does not depend on which chunk of the batch it is in).
-                assert_eq!(
-                    one[0].indirect,
-                    batch[k].indirect,
-                    "{} {} set {k}",
-                    engine.describe(),
-                    codec.name()
-                );
+                // The GPU kernels and the CPU row kernels sum each output in one order whatever
+                // the batch, so they give the same bits; from GEMM_FROM sets on, dense f32 on the
+                // CPU is a blocked matrix product whose order depends on the batch: f32 rounding.
+                let bit_exact = engine.kind() == EngineKind::Gpu
+                    || codec.name() != "dense-f32"
+                    || sets.len() < bounce_core::codec::dense::GEMM_FROM;
+                if bit_exact {
+                    assert_eq!(
+                        one[0].indirect,
+                        batch[k].indirect,
+                        "{} {} set {k}",
+                        engine.describe(),
+                        codec.name()
+                    );
+                } else {
+                    let err = rel_l2(&batch[k].indirect, &one[0].indirect);
+                    assert!(err < 1e-6, "{} set {k}: rel L2 {err:e}", codec.name());
+                }
             }
         }
     }
