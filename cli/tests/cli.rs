@@ -286,10 +286,124 @@ fn every_command_has_help() {
         vec!["bake", "--help"],
         vec!["inspect", "--help"],
         vec!["demo", "--help"],
+        vec!["relight", "--help"],
+        vec!["bench", "--help"],
+        vec!["bench", "bake", "--help"],
+        vec!["bench", "rays", "--help"],
+        vec!["bench", "codecs", "--help"],
+        vec!["bench", "engines", "--help"],
     ] {
         let out = run(bounce().args(&args));
         assert!(out.status.success(), "{args:?}");
         assert!(String::from_utf8_lossy(&out.stdout).contains("Usage"));
+    }
+}
+
+/// `bounce relight` on both engines: a batch of two light files, JSON and CSV out, the same light
+/// on both engines, and clear errors for bad lights, a scene without lights and a bad output.
+#[test]
+fn relight_the_cornell_box_on_both_engines() {
+    let dir = tempfile::tempdir().unwrap();
+    let baked = dir.path().join("box.bounce");
+    let out = run(bounce()
+        .args(["bake", "--patches", "300", "--rays", "512", "--quiet", "-o"])
+        .arg(&baked)
+        .arg(cornell()));
+    assert!(out.status.success(), "{}", stderr(&out));
+    let lights = dir.path().join("lights.json");
+    std::fs::write(
+        &lights,
+        r#"{"lights": [{"type": "point", "position": [0, 1.5, 0], "intensity": 5},
+                       {"type": "directional", "direction": [0.3, -1, 0.2], "intensity": 3}]}"#,
+    )
+    .unwrap();
+    let dim = dir.path().join("dim.json");
+    std::fs::write(
+        &dim,
+        r#"{"lights": [{"type": "point", "position": [0, 1.5, 0], "intensity": 1}]}"#,
+    )
+    .unwrap();
+
+    let mut results = Vec::new();
+    for engine in ["cpu", "gpu"] {
+        let json = dir.path().join(format!("{engine}.json"));
+        let out = run(bounce()
+            .arg("relight")
+            .arg(&baked)
+            .arg("--lights")
+            .arg(&lights)
+            .arg("--lights")
+            .arg(&dim)
+            .args(["--engine", engine, "--out"])
+            .arg(&json));
+        if engine == "gpu"
+            && !out.status.success()
+            && std::env::var("BOUNCE_ALLOW_NO_GPU").as_deref() == Ok("1")
+        {
+            eprintln!("SKIPPED gpu (BOUNCE_ALLOW_NO_GPU=1): {}", stderr(&out));
+            continue;
+        }
+        assert!(out.status.success(), "{engine}: {}", stderr(&out));
+        assert!(
+            stderr(&out).contains(&format!("engine: {engine}")),
+            "{}",
+            stderr(&out)
+        );
+        let v: Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
+        let sets = v["sets"].as_array().unwrap();
+        assert_eq!(sets.len(), 2);
+        let total = |set: &Value, key: &str| -> f64 {
+            set[key]
+                .as_array()
+                .unwrap()
+                .iter()
+                .flat_map(|p| p.as_array().unwrap().iter().map(|c| c.as_f64().unwrap()))
+                .sum()
+        };
+        let (direct, indirect) = (total(&sets[0], "direct"), total(&sets[0], "indirect"));
+        assert!(direct > 0.0 && indirect > 0.0, "{direct} {indirect}");
+        // The dim file is one fifth of the point light and no sun: less light everywhere.
+        assert!(total(&sets[1], "indirect") < indirect);
+        results.push(indirect);
+    }
+    if let [cpu, gpu] = results[..] {
+        assert!((cpu - gpu).abs() <= 1e-4 * cpu, "cpu {cpu} gpu {gpu}");
+    }
+
+    let csv = dir.path().join("out.csv");
+    let out = run(bounce()
+        .arg("relight")
+        .arg(&baked)
+        .arg("--lights")
+        .arg(&lights)
+        .args(["--engine", "cpu", "--out"])
+        .arg(&csv));
+    assert!(out.status.success(), "{}", stderr(&out));
+    let text = std::fs::read_to_string(&csv).unwrap();
+    assert!(text.starts_with("set,patch,direct_r"));
+    let patches = Baked::read(&baked).unwrap().layout.len();
+    assert_eq!(text.lines().count(), 1 + patches);
+
+    let bad = dir.path().join("bad.json");
+    std::fs::write(&bad, r#"{"lights": [{"type": "spot", "position": [0, 1, 0], "direction": [0, -1, 0], "intensity": -2}]}"#).unwrap();
+    for (args, message) in [
+        (
+            vec!["--lights", bad.to_str().unwrap()],
+            "lights[0].intensity",
+        ),
+        (vec![], "no lights of its own"),
+        (
+            vec!["--lights", lights.to_str().unwrap(), "--out", "x.txt"],
+            ".json or .csv",
+        ),
+        (
+            vec!["--lights", lights.to_str().unwrap(), "--engine", "tpu"],
+            "unknown engine",
+        ),
+    ] {
+        let out = run(bounce().arg("relight").arg(&baked).args(&args));
+        assert!(!out.status.success(), "{args:?}");
+        assert!(stderr(&out).contains(message), "{args:?}: {}", stderr(&out));
     }
 }
 
