@@ -320,6 +320,33 @@ pub fn light_sample(light: &PreparedLight, p: Vec3, n: Vec3) -> Option<LightSamp
     })
 }
 
+/// How far a shadow ray towards a point or spot light must get unblocked: up to where it comes
+/// within one voxel of the light (enters the cube of half-width `size` centred on it), not to the
+/// light itself. Voxels are coarse: a light placed in free space a little off a wall, or inside a
+/// thin lamp shade, often sits in a voxel the wall made occupied (or on the boundary of one), and
+/// would otherwise be shadowed from everything. That cube holds every voxel that contains the
+/// light whatever its place in the grid. The price: such a light also reaches through up to one
+/// voxel of solid around it. A directional light (infinite `distance`) is unchanged.
+///
+/// The result is `min(distance, max(t − size/1000, 0))` with `t` the entry distance of the ray
+/// `p + t·dir` into that cube (the slab method); the margin keeps the grid walk's own rounding of
+/// boundary distances from counting a voxel the cube covers.
+#[inline]
+pub fn shadow_length(p: Vec3, dir: Vec3, distance: f32, light: Vec3, size: f32) -> f32 {
+    if !distance.is_finite() {
+        return distance;
+    }
+    let (lo, hi) = (light - Vec3::splat(size), light + Vec3::splat(size));
+    let mut enter = 0.0f32;
+    for a in 0..3 {
+        if dir[a] != 0.0 {
+            let (t0, t1) = ((lo[a] - p[a]) / dir[a], (hi[a] - p[a]) / dir[a]);
+            enter = enter.max(t0.min(t1));
+        }
+    }
+    distance.min((enter - size * 1e-3).max(0.0))
+}
+
 /// lowbias32 (C. Wellons): a cheap u32 hash with good avalanche, written the same in WGSL.
 #[inline]
 pub fn hash_u32(mut x: u32) -> u32 {
@@ -381,14 +408,14 @@ pub fn direct_irradiance(
     let side = samples_side(samples);
     (0..layout.len())
         .into_par_iter()
-        .map(|i| patch_irradiance(scene, &layout.quad(i), i, &prepared, side))
+        .map(|i| patch_irradiance(scene, layout, i, &prepared, side))
         .collect()
 }
 
 /// One patch's mean over its samples.
 fn patch_irradiance(
     scene: &ShadowScene,
-    quad: &Quad,
+    layout: &PatchLayout,
     patch: usize,
     lights: &[PreparedLight],
     side: u32,
@@ -396,6 +423,7 @@ fn patch_irradiance(
     if lights.is_empty() {
         return [0.0; 3];
     }
+    let quad = layout.quad(patch);
     let n = quad.normal();
     let count = side * side;
     let mut sum = Vec3::ZERO;
@@ -406,7 +434,12 @@ fn patch_irradiance(
         let p = quad.point(u, v);
         for light in lights {
             if let Some(s) = light_sample(light, p, n)
-                && !scene.occluded(patch, p, s.dir, s.distance)
+                && !scene.occluded(
+                    patch,
+                    p,
+                    s.dir,
+                    shadow_length(p, s.dir, s.distance, light.position, layout.voxel_size),
+                )
             {
                 sum += s.irradiance;
             }

@@ -467,3 +467,41 @@ fn no_lights_no_light() {
     let e = direct_irradiance(&scene, &vox.layout, &LightSet::default(), 4);
     assert!(e.iter().all(|v| *v == [0.0; 3]));
 }
+
+/// A lamp hung just under the ceiling sits in the voxel the ceiling made occupied; it must still
+/// light the room (the light's own voxel does not block its shadow rays).
+#[test]
+fn a_light_in_an_occupied_voxel_still_lights_the_room() {
+    let vox = voxelize(&closed_box(None));
+    let layout = &vox.layout;
+    let scene = ShadowScene::new(layout, Some(&vox.occupied));
+    // On grid planes in x and z (a light's voxel is then ambiguous), just under the ceiling.
+    let pos = Vec3::new(2.0, SIZE - 0.05, 2.0);
+    let cell = ((pos - Vec3::splat(ORIGIN)) / VOXEL).floor();
+    let index = cell.x as u64 + 12 * (cell.y as u64 + 12 * cell.z as u64);
+    assert!(
+        vox.occupied.binary_search(&index).is_ok(),
+        "the lamp's voxel is occupied"
+    );
+    let set = lights(vec![Light::Point {
+        position: pos.to_array(),
+        color: [1.0; 3],
+        intensity: 10.0,
+        range: None,
+        name: None,
+    }]);
+    let e = direct_irradiance(&scene, layout, &set, 64);
+    let floor: Vec<usize> = (0..layout.len())
+        .filter(|&i| layout.patches[i].face == Face::PosY && layout.patches[i].centroid[1] < 0.5)
+        .collect();
+    assert!(!floor.is_empty());
+    for &i in &floor {
+        let n = layout.patches[i].face.normal();
+        let want = over_samples(layout, i, 64, |x| point_formula(pos, 10.0, None, x, n));
+        let got = f64::from(e[i][0]);
+        assert!(
+            (got - f64::from(want)).abs() <= 1e-4 * f64::from(want),
+            "floor patch {i}: {got} against the unshadowed {want}"
+        );
+    }
+}
