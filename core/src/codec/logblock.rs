@@ -44,8 +44,8 @@ pub struct LogBlock {
     /// Reorder passes; a pass chains the rows, then the columns (thesis: up to 2).
     pub passes: u32,
     /// Fraction of the sparse positions chosen by the blocks' own error rather than by size
-    /// (thesis: 0). Those positions are picked after the blocks are encoded, where the decoded
-    /// blocks are furthest from the exact matrix, and store the correction `exact − decoded`.
+    /// (thesis: 0). Those positions are picked after a first encoding, where the decoded blocks
+    /// are furthest from the exact matrix; then they are zeroed and the blocks encoded again.
     pub residual: f64,
     /// How the sparse part is stored.
     pub store: SparseStore,
@@ -115,10 +115,10 @@ impl LogBlock {
     }
 
     /// Beyond the thesis: the whole matrix log-quantised into BC1 blocks, then the 8% of
-    /// positions where the decoded blocks are furthest from the exact matrix corrected, the
-    /// corrections stored as f16 with u16 columns (8 bytes a position instead of 16). At the
-    /// thesis codec's bytes this keeps twice the positions, and chooses them by the error that
-    /// is actually left rather than by size.
+    /// positions where the decoded blocks are furthest from the exact matrix kept exactly (zeroed
+    /// in the blocks, which are encoded again), stored as scaled f16 with u16 columns (8 bytes a
+    /// position instead of 16). At the thesis codec's bytes this keeps twice the positions, and
+    /// chooses them by the error the blocks actually leave rather than by size.
     pub const fn bc1_resid() -> Self {
         LogBlock {
             name: BC1_RESID,
@@ -186,34 +186,16 @@ impl Codec for LogBlock {
         }
 
         let width = n.div_ceil(4) * 4;
-        let image = |c: usize| -> Vec<u8> {
-            let mut img = vec![0u8; width * width];
-            for (k, &r) in row_perm.iter().enumerate() {
-                let src = &codes[c][r as usize * n..(r as usize + 1) * n];
-                for (l, &col) in col_perm.iter().enumerate() {
-                    img[k * width + l] = src[col as usize];
-                }
-            }
-            img
+        let mut codes = codes;
+        let blocks = encode_blocks(self.blocks, &codes, n, width, &row_perm, &col_perm);
+        let lut: Vec<[f32; 256]> = max.iter().map(|&m| lut(m)).collect();
+        let no_sparse = SparsePart {
+            n,
+            channels: ch,
+            row_ptr: vec![0; n + 1],
+            col_idx: Vec::new(),
+            values: Vec::new(),
         };
-        let blocks = match self.blocks {
-            Blocks::Bc1 => {
-                let planes: Vec<Vec<u8>> = (0..ch).map(image).collect();
-                let rgb: Vec<[u8; 3]> = (0..width * width)
-                    .map(|p| {
-                        let v = |c: usize| planes[c.min(ch - 1)][p];
-                        [v(0), v(1), v(2)]
-                    })
-                    .collect();
-                bc::encode_bc1(&rgb, width, width)
-            }
-            Blocks::Bc4 => (0..ch)
-                .flat_map(|c| bc::encode_bc4(&image(c), width, width))
-                .collect(),
-            Blocks::Raw8 => (0..ch).flat_map(image).collect(),
-        };
-        drop(codes);
-
         let mut op = LogBlockOp::assemble(
             n,
             ch,
@@ -221,21 +203,40 @@ impl Codec for LogBlock {
             width,
             row_perm,
             col_perm,
-            max.iter().map(|&m| lut(m)).collect(),
-            SparsePart {
-                n,
-                channels: ch,
-                row_ptr: vec![0; n + 1],
-                col_idx: Vec::new(),
-                values: Vec::new(),
-            },
+            lut,
+            no_sparse,
             blocks,
         );
-        op.sparse = if by_size == total {
-            sparse
+        if by_size == total {
+            op.sparse = sparse;
         } else {
-            corrections(t, &op, &sparse, total)
-        };
+            // Where the blocks miss most, the entries are zeroed (code 0, which every BC1 and
+            // BC4 decoder returns as exactly 0) and the blocks encoded again, so the sparse part
+            // holds exact values that add to a decoded zero on any decoder, GPU texture units
+            // included, rather than corrections tied to one decoder's rounding.
+            let positions = worst_positions(t, &op, &sparse, total);
+            for code in codes.iter_mut() {
+                for &p in &positions {
+                    code[p as usize] = 0;
+                }
+            }
+            let blocks =
+                encode_blocks(self.blocks, &codes, n, width, &op.row_perm, &op.col_perm);
+            let channels: Vec<&[f32]> = (0..ch).map(|c| t.channel(c)).collect();
+            let sparse = gather_positions(&channels, n, &positions);
+            op = LogBlockOp::assemble(
+                n,
+                ch,
+                self.blocks,
+                width,
+                op.row_perm,
+                op.col_perm,
+                op.lut,
+                sparse,
+                blocks,
+            );
+        }
+        drop(codes);
 
         let store = if n <= 1 << 16 {
             self.store
@@ -342,29 +343,18 @@ fn lut(max: f32) -> [f32; 256] {
     t
 }
 
-/// The sparse part as corrections to the encoded blocks: the positions already taken by size
-/// (`by_size`, zeroed before encoding) plus, up to `total` positions, those where the decoded
-/// blocks miss the exact matrix the most (largest absolute error over the channels). Each stores
-/// `exact − decoded`, so block product plus sparse product is exact at every kept position.
-fn corrections(
+/// The `total` positions the sparse part keeps: those already taken by size (`by_size`, zeroed
+/// before encoding) plus those where the decoded `blocks` are furthest from the exact matrix
+/// (largest absolute error over the channels), ascending.
+fn worst_positions(
     t: &DenseMatrix,
     blocks: &LogBlockOp,
     by_size: &SparsePart,
     total: usize,
-) -> SparsePart {
+) -> Vec<u32> {
     let n = t.n;
     let ch = t.channels;
     let decoded = blocks.to_dense();
-    let residual: Vec<Vec<f32>> = (0..ch)
-        .map(|c| {
-            t.channel(c)
-                .iter()
-                .zip(decoded.channel(c))
-                .map(|(e, d)| e - d)
-                .collect()
-        })
-        .collect();
-    drop(decoded);
     let mut taken = vec![false; n * n];
     for i in 0..n {
         for &j in &by_size.col_idx[by_size.row_ptr[i] as usize..by_size.row_ptr[i + 1] as usize] {
@@ -376,12 +366,56 @@ fn corrections(
         if taken[p] {
             return 0.0;
         }
-        residual.iter().map(|r| r[p].abs()).fold(0.0f32, f32::max)
+        (0..ch)
+            .map(|c| (t.channel(c)[p] - decoded.channel(c)[p]).abs())
+            .fold(0.0f32, f32::max)
     });
-    let mut positions: Vec<u32> = (0..n * n).filter(|&p| taken[p]).map(|p| p as u32).collect();
+    let mut positions: Vec<u32> = (0..n * n)
+        .filter(|&p| taken[p])
+        .map(|p| p as u32)
+        .collect();
     positions.extend(extra);
     positions.sort_unstable();
-    gather_positions(&residual, n, &positions)
+    positions
+}
+
+/// The block image of `codes` (one `n × n` plane per channel) under the permutations: BC1 packs
+/// the channels as RGB (a single channel repeated), BC4 and raw codes store one image each.
+fn encode_blocks(
+    blocks: Blocks,
+    codes: &[Vec<u8>],
+    n: usize,
+    width: usize,
+    row_perm: &[u32],
+    col_perm: &[u32],
+) -> Vec<u8> {
+    let ch = codes.len();
+    let image = |c: usize| -> Vec<u8> {
+        let mut img = vec![0u8; width * width];
+        for (k, &r) in row_perm.iter().enumerate() {
+            let src = &codes[c][r as usize * n..(r as usize + 1) * n];
+            for (l, &col) in col_perm.iter().enumerate() {
+                img[k * width + l] = src[col as usize];
+            }
+        }
+        img
+    };
+    match blocks {
+        Blocks::Bc1 => {
+            let planes: Vec<Vec<u8>> = (0..ch).map(image).collect();
+            let rgb: Vec<[u8; 3]> = (0..width * width)
+                .map(|p| {
+                    let v = |c: usize| planes[c.min(ch - 1)][p];
+                    [v(0), v(1), v(2)]
+                })
+                .collect();
+            bc::encode_bc1(&rgb, width, width)
+        }
+        Blocks::Bc4 => (0..ch)
+            .flat_map(|c| bc::encode_bc4(&image(c), width, width))
+            .collect(),
+        Blocks::Raw8 => (0..ch).flat_map(image).collect(),
+    }
 }
 
 /// The quantised matrix under the current permutations, as rows (or, `by_column`, as columns)
