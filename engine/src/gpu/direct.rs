@@ -7,6 +7,14 @@
 //! flattened with per-set offsets, and one thread per (patch, light set), which sums its samples
 //! in the CPU's order (`shaders/direct.wgsl`).
 //!
+//! Why one thread per (patch, light set) rather than per (patch, sample): it keeps the CPU's
+//! summation order (sample, then light) without a reduction, so lavapipe reproduces the CPU bit
+//! for bit, and a batch of light sets already multiplies the thread count. Measured on lavapipe
+//! (software Vulkan, 2 cores) on a 2,140-patch room with a pillar, 16 samples, 1–3 lights a set:
+//! 1 set 5.3 ms (CPU engine 4.2 ms), 8 sets 25.5 ms (34.6 ms), 32 sets 113 ms (147 ms). On a
+//! hardware GPU a single light set is only `n` threads; splitting samples over threads is the
+//! next step if one-set relights turn out latency-bound there (not measured: no GPU here).
+//!
 //! It is a twin, not a copy: f32 division and `sqrt` may round differently on a GPU and drivers
 //! may fuse multiply-adds, so values agree to a few ulps and a shadow ray that grazes a voxel edge
 //! may flip (`engine/tests/gpu_direct.rs` bounds both).
