@@ -2,10 +2,12 @@
 //!
 //! [`GpuContext`] picks an adapter and opens a device; [`GpuMatrix`] uploads one encoded matrix
 //! (`dense-f32`, `dense-f16`, `bc1`, `bc1-resid`, `bc4`, `log8`) and multiplies batches against it, blocking until the
-//! result is read back. Kernels live in `gpu/shaders/*.wgsl`.
+//! result is read back. [`GpuDirect`] computes direct light with voxel-grid shadows, the twin of
+//! `bounce_core::direct::direct_irradiance`. Kernels live in `gpu/shaders/*.wgsl`.
 
 mod context;
 mod dense;
+mod direct;
 mod error;
 mod kernel;
 mod logblock;
@@ -13,6 +15,7 @@ mod matrix;
 mod sparse;
 
 pub use context::{AdapterSummary, GpuContext};
+pub use direct::{DIRECT_WG, DirectParams, GpuDirect, GpuLight, GpuPatch};
 pub use error::GpuError;
 pub use kernel::{CHUNK, Params, ROWS};
 pub use matrix::GpuMatrix;
@@ -20,5 +23,6 @@ pub use matrix::GpuMatrix;
 /// WGSL sources as compiled (the shared prelude plus the kernel's file), for tools and the naga
 /// layout tests.
 pub mod sources {
+    pub use super::direct::direct_source;
     pub use super::kernel::{dense_source, logblock_source, sparse_source};
 }

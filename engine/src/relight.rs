@@ -2,10 +2,14 @@
 //! [`Engine::relight`], which turns a batch of light configurations into direct and indirect
 //! irradiance per patch.
 //!
-//! A relight is DESIGN.md §1 end to end: per light set, direct irradiance with shadows
-//! (`bounce_core::direct`, on the CPU for both engines: the shadow rays walk the voxel grid),
+//! A relight is DESIGN.md §1 end to end: per light set, direct irradiance with shadows,
 //! `B0 = L_e + ρ ⊙ E_direct`, then `E_ind = T · B0` for the whole batch in one product, on the GPU
 //! or the CPU. The batch is where a GPU wins: one pass over the matrix serves every light set.
+//!
+//! Direct light runs where its shadows can: the GPU engine computes it with
+//! [`GpuDirect`] (shadow rays walk the voxel occupancy, the twin of `bounce_core::direct`) when the
+//! baked file has occupancy; a file without it (shadows from the patches alone, a BVH the GPU
+//! kernel does not have) is lit on the CPU on either engine. [`Scene::direct_engine`] says which.
 
 use std::fmt;
 use std::str::FromStr;
@@ -20,7 +24,7 @@ use bounce_core::light::LightSet;
 use bounce_core::patch::PatchLayout;
 
 use crate::EngineError;
-use crate::gpu::{GpuContext, GpuMatrix};
+use crate::gpu::{GpuContext, GpuDirect, GpuError, GpuMatrix};
 
 /// Which engine a user asks for.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -123,17 +127,42 @@ impl Engine {
         self.fallback.as_deref()
     }
 
-    /// Make a baked scene ready: shadow geometry built, the transport decoded (CPU) or uploaded
-    /// (GPU).
+    /// Make a baked scene ready: shadow geometry built (CPU) or patches and occupancy uploaded
+    /// (GPU), the transport decoded (CPU) or uploaded (GPU).
+    ///
+    /// On the GPU engine a grid too large for the direct kernel's bindings is lit on the CPU
+    /// instead (see [`Scene::direct_fallback`]); any other GPU error is an error.
     pub fn load(&self, baked: &Baked) -> Result<Scene, EngineError> {
-        let shadow = ShadowScene::new(&baked.layout, baked.occupancy.as_deref());
+        let cpu_direct = |why: Option<String>| {
+            DirectLight::Cpu(
+                Box::new(ShadowScene::new(&baked.layout, baked.occupancy.as_deref())),
+                why,
+            )
+        };
+        let direct = match (&self.gpu, baked.occupancy.as_deref()) {
+            (Some(ctx), Some(occupied)) => match GpuDirect::upload(ctx, &baked.layout, occupied) {
+                Ok(d) => DirectLight::Gpu(Box::new(d)),
+                Err(e @ GpuError::TooLarge { .. }) => cpu_direct(Some(e.to_string())),
+                Err(e) => return Err(e.into()),
+            },
+            (Some(_), None) => cpu_direct(Some(
+                "no occupancy in the baked file: shadows from the patches alone, on the CPU".into(),
+            )),
+            (None, _) => cpu_direct(None),
+        };
+        let shadow_source = if baked.occupancy.is_some() {
+            ShadowSource::Occupancy
+        } else {
+            ShadowSource::PatchesOnly
+        };
         let transport = match &self.gpu {
             Some(ctx) => Transport::Gpu(Box::new(GpuMatrix::upload(ctx, &baked.transport)?)),
             None => Transport::Cpu(codec::decode(&baked.transport)?),
         };
         Ok(Scene {
             layout: baked.layout.clone(),
-            shadow,
+            direct,
+            shadow_source,
             transport,
             codec: baked.transport.codec.clone(),
             matrix_bytes: baked.transport.payload.len(),
@@ -161,10 +190,13 @@ impl Engine {
         }
         let n = scene.layout.len();
         let start = Instant::now();
-        let direct: Vec<Vec<[f32; 3]>> = lights
-            .iter()
-            .map(|set| direct_irradiance(&scene.shadow, &scene.layout, set, self.samples))
-            .collect();
+        let direct: Vec<Vec<[f32; 3]>> = match &scene.direct {
+            DirectLight::Gpu(gpu) => gpu.irradiance(lights, self.samples)?,
+            DirectLight::Cpu(shadow, _) => lights
+                .iter()
+                .map(|set| direct_irradiance(shadow, &scene.layout, set, self.samples))
+                .collect(),
+        };
         let b0: Vec<[f32; 3]> = direct
             .iter()
             .flat_map(|e| exitance_b0(&scene.layout, e))
@@ -191,6 +223,12 @@ impl Engine {
                 indirect_s,
             },
         ))
+    }
+
+    /// Which engine computes `scene`'s direct light: this one's kind, but the CPU for a scene
+    /// the GPU direct kernel cannot take (see [`Scene::direct_fallback`]).
+    pub fn direct_engine(&self, scene: &Scene) -> EngineKind {
+        scene.direct_engine()
     }
 
     /// `E_ind = T · B0` alone, for a batch of given `B0` vectors (`batch × n`).
@@ -224,7 +262,8 @@ pub struct Irradiance {
 /// A baked scene made ready on one engine.
 pub struct Scene {
     pub layout: PatchLayout,
-    shadow: ShadowScene,
+    direct: DirectLight,
+    shadow_source: ShadowSource,
     transport: Transport,
     codec: String,
     matrix_bytes: usize,
@@ -243,7 +282,24 @@ impl Scene {
 
     /// Whether shadows come from the voxel occupancy or, for old files, the patches alone.
     pub fn shadow_source(&self) -> ShadowSource {
-        self.shadow.source()
+        self.shadow_source
+    }
+
+    /// Where direct light is computed: the GPU kernel (voxel occupancy on a GPU engine) or the
+    /// CPU (the CPU engine, a file without occupancy, or a grid over the kernel's limits).
+    pub fn direct_engine(&self) -> EngineKind {
+        match self.direct {
+            DirectLight::Gpu(_) => EngineKind::Gpu,
+            DirectLight::Cpu(..) => EngineKind::Cpu,
+        }
+    }
+
+    /// Why a scene on the GPU engine has its direct light on the CPU, if it does.
+    pub fn direct_fallback(&self) -> Option<&str> {
+        match &self.direct {
+            DirectLight::Cpu(_, why) => why.as_deref(),
+            DirectLight::Gpu(_) => None,
+        }
     }
 
     /// Passes over the matrix a batch of `sets` costs.
@@ -253,6 +309,15 @@ impl Scene {
             Transport::Cpu(_) => usize::from(sets > 0),
         }
     }
+}
+
+/// Where a scene's direct light is computed.
+enum DirectLight {
+    /// Shadow rays traced on the host, with why the GPU engine did not take it (`None` on the
+    /// CPU engine).
+    Cpu(Box<ShadowScene>, Option<String>),
+    /// [`GpuDirect`]: the scene's patches and occupancy resident on the device.
+    Gpu(Box<GpuDirect>),
 }
 
 enum Transport {

@@ -81,3 +81,94 @@ fn work_split_constants_match_wgsl() {
         assert_eq!(CHUNK % constant(&module, "LANES"), 0, "{name}");
     }
 }
+
+/// A struct's size and `(member, offset)` list as naga lays it out in `source`.
+fn wgsl_struct(source_name: &str, source: &str, name: &str) -> (usize, Vec<(String, usize)>) {
+    let module = parse(source_name, source);
+    module
+        .types
+        .iter()
+        .find_map(|(_, ty)| match (&ty.name, &ty.inner) {
+            (Some(n), TypeInner::Struct { members, span }) if n == name => Some((
+                *span as usize,
+                members
+                    .iter()
+                    .map(|m| (m.name.clone().unwrap_or_default(), m.offset as usize))
+                    .collect(),
+            )),
+            _ => None,
+        })
+        .unwrap_or_else(|| panic!("{source_name}: no struct {name}"))
+}
+
+fn named(list: &[(&str, usize)]) -> Vec<(String, usize)> {
+    list.iter().map(|(n, o)| (n.to_string(), *o)).collect()
+}
+
+#[test]
+fn direct_structs_match_wgsl() {
+    use bounce_engine::gpu::{DIRECT_WG, DirectParams, GpuLight, GpuPatch};
+    use std::mem::{offset_of, size_of};
+    let source = sources::direct_source();
+
+    let (size, members) = wgsl_struct("direct", &source, "DirectParams");
+    assert_eq!(size, size_of::<DirectParams>(), "DirectParams size");
+    assert_eq!(
+        members,
+        named(&[
+            ("n", offset_of!(DirectParams, n)),
+            ("sets", offset_of!(DirectParams, sets)),
+            ("side", offset_of!(DirectParams, side)),
+            ("groups_x", offset_of!(DirectParams, groups_x)),
+            ("dims", offset_of!(DirectParams, dims)),
+            ("voxel_size", offset_of!(DirectParams, voxel_size)),
+            ("origin", offset_of!(DirectParams, origin)),
+            ("pad", offset_of!(DirectParams, pad)),
+        ])
+    );
+
+    let (size, members) = wgsl_struct("direct", &source, "GpuPatch");
+    assert_eq!(
+        size,
+        size_of::<GpuPatch>(),
+        "GpuPatch size (the array stride)"
+    );
+    assert_eq!(
+        members,
+        named(&[
+            ("face", offset_of!(GpuPatch, face)),
+            ("plane", offset_of!(GpuPatch, plane)),
+            ("lo0", offset_of!(GpuPatch, lo)),
+            ("lo1", offset_of!(GpuPatch, lo) + 4),
+            ("hi0", offset_of!(GpuPatch, hi)),
+            ("hi1", offset_of!(GpuPatch, hi) + 4),
+            ("cell_x", offset_of!(GpuPatch, cell)),
+            ("cell_y", offset_of!(GpuPatch, cell) + 4),
+            ("cell_z", offset_of!(GpuPatch, cell) + 8),
+        ])
+    );
+
+    let (size, members) = wgsl_struct("direct", &source, "GpuLight");
+    assert_eq!(
+        size,
+        size_of::<GpuLight>(),
+        "GpuLight size (the array stride)"
+    );
+    assert_eq!(
+        members,
+        named(&[
+            ("position", offset_of!(GpuLight, position)),
+            ("kind", offset_of!(GpuLight, kind)),
+            ("axis", offset_of!(GpuLight, axis)),
+            ("inv_range", offset_of!(GpuLight, inv_range)),
+            ("radiant", offset_of!(GpuLight, radiant)),
+            ("angle_scale", offset_of!(GpuLight, angle_scale)),
+            ("angle_offset", offset_of!(GpuLight, angle_offset)),
+            ("pad0", offset_of!(GpuLight, pad)),
+            ("pad1", offset_of!(GpuLight, pad) + 4),
+            ("pad2", offset_of!(GpuLight, pad) + 8),
+        ])
+    );
+
+    assert_eq!(constant(&parse("direct", &source), "WG"), DIRECT_WG);
+}
