@@ -118,6 +118,7 @@ pub fn run(args: &BenchEnginesArgs) -> Result<()> {
             }
         };
         eprintln!("  {name}: {}", engine.describe());
+        rows.extend(direct_rows(args, &engine, &baked, &sets, &lit)?);
         for codec_name in &args.codecs {
             let codec = codec::configured(codec_name, None)?;
             let mut variant = baked.clone();
@@ -186,8 +187,12 @@ pub fn run(args: &BenchEnginesArgs) -> Result<()> {
                 format!("{:.1}", r.batch as f64 / p50),
                 format!("{:.1}", r.bytes as f64 / 1e6),
                 r.passes.to_string(),
-                format!("{:.2}", gbs / 1e9),
-                if r.engine == "cpu" {
+                if r.bytes > 0 {
+                    format!("{:.2}", gbs / 1e9)
+                } else {
+                    "-".to_string()
+                },
+                if r.engine == "cpu" && r.bytes > 0 {
                     format!("{:.2}", gbs / bandwidth)
                 } else {
                     "-".to_string()
@@ -225,6 +230,48 @@ fn report(row: Option<&Row>) {
             r.rel_l2
         );
     }
+}
+
+/// Direct light with shadows for the first `batch` light sets, on the engine's own device (the
+/// GPU kernel, or the CPU rays), against the CPU result.
+fn direct_rows(
+    args: &BenchEnginesArgs,
+    engine: &Engine,
+    baked: &Baked,
+    sets: &[LightSet],
+    reference: &[bounce_engine::Irradiance],
+) -> Result<Vec<Row>> {
+    let scene = engine.load(baked)?;
+    let label = format!("direct light ({})", engine.direct_engine(&scene));
+    let mut rows = Vec::new();
+    for &batch in &args.batches {
+        let sets = &sets[..batch];
+        let (mut lit, _) = engine.relight_timed(&scene, sets)?;
+        let mut times = Vec::with_capacity(args.repeat);
+        for _ in 0..args.repeat {
+            let (l, timing) = engine.relight_timed(&scene, sets)?;
+            times.push(timing.direct_s);
+            lit = l;
+        }
+        let got: Vec<[f32; 3]> = lit.iter().flat_map(|l| l.direct.clone()).collect();
+        let want: Vec<[f32; 3]> = reference[..batch]
+            .iter()
+            .flat_map(|l| l.direct.clone())
+            .collect();
+        let (rel_l2, rel_max) = errors(&got, &want);
+        rows.push(Row {
+            engine: engine.kind().to_string(),
+            codec: label.clone(),
+            batch,
+            times,
+            bytes: 0,
+            passes: 0,
+            rel_l2,
+            rel_max,
+        });
+        report(rows.last());
+    }
+    Ok(rows)
 }
 
 /// Classic radiosity: `k` Jacobi products with the dense single-bounce `F`, where the file has

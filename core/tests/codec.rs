@@ -224,7 +224,11 @@ fn residual_positions_are_kept_exactly_and_are_the_worst() {
             for c in 0..t.channels {
                 let v = sp.values[c * sp.nnz() + e];
                 // Block value 0 plus the stored value, bit for bit.
-                assert_eq!(dense.channel(c)[p], v, "position {p}: the blocks are not zero");
+                assert_eq!(
+                    dense.channel(c)[p],
+                    v,
+                    "position {p}: the blocks are not zero"
+                );
                 let exact = t.channel(c)[p];
                 assert!((v - exact).abs() <= exact.abs() * 1e-3, "{v} for {exact}");
             }
@@ -247,9 +251,18 @@ fn residual_positions_are_kept_exactly_and_are_the_worst() {
             .map(|c| (t.channel(c)[p] - blocks_only.channel(c)[p]).abs())
             .fold(0.0f32, f32::max)
     };
-    let kept_min = (0..n * n).filter(|&p| kept[p]).map(miss).fold(f32::INFINITY, f32::min);
-    let left_max = (0..n * n).filter(|&p| !kept[p]).map(miss).fold(0.0f32, f32::max);
-    assert!(kept_min >= left_max, "kept down to {kept_min}, but left a miss of {left_max}");
+    let kept_min = (0..n * n)
+        .filter(|&p| kept[p])
+        .map(miss)
+        .fold(f32::INFINITY, f32::min);
+    let left_max = (0..n * n)
+        .filter(|&p| !kept[p])
+        .map(miss)
+        .fold(0.0f32, f32::max);
+    assert!(
+        kept_min >= left_max,
+        "kept down to {kept_min}, but left a miss of {left_max}"
+    );
 }
 
 /// What the codec is for: at no more bytes than the thesis codec, a smaller error.

@@ -220,8 +220,7 @@ impl Codec for LogBlock {
                     code[p as usize] = 0;
                 }
             }
-            let blocks =
-                encode_blocks(self.blocks, &codes, n, width, &op.row_perm, &op.col_perm);
+            let blocks = encode_blocks(self.blocks, &codes, n, width, &op.row_perm, &op.col_perm);
             let channels: Vec<&[f32]> = (0..ch).map(|c| t.channel(c)).collect();
             let sparse = gather_positions(&channels, n, &positions);
             op = LogBlockOp::assemble(
@@ -370,10 +369,7 @@ fn worst_positions(
             .map(|c| (t.channel(c)[p] - decoded.channel(c)[p]).abs())
             .fold(0.0f32, f32::max)
     });
-    let mut positions: Vec<u32> = (0..n * n)
-        .filter(|&p| taken[p])
-        .map(|p| p as u32)
-        .collect();
+    let mut positions: Vec<u32> = (0..n * n).filter(|&p| taken[p]).map(|p| p as u32).collect();
     positions.extend(extra);
     positions.sort_unstable();
     positions

@@ -111,6 +111,25 @@ fn spot_attenuation(cd: f32, scale: f32, offset: f32) -> f32 {
     return a * a;
 }
 
+// `bounce_core::direct::shadow_length`: a shadow ray towards a point or spot light stops where it
+// comes within one voxel of the light (the light's own voxel never shadows it).
+fn shadow_length(p: vec3<f32>, dir: vec3<f32>, distance: f32, light: vec3<f32>, size: f32) -> f32 {
+    if !(distance < BIG) {
+        return distance;
+    }
+    let lo = light - vec3<f32>(size);
+    let hi = light + vec3<f32>(size);
+    var enter = 0.0;
+    for (var a = 0u; a < 3u; a++) {
+        if dir[a] != 0.0 {
+            let t0 = (lo[a] - p[a]) / dir[a];
+            let t1 = (hi[a] - p[a]) / dir[a];
+            enter = max(enter, min(t0, t1));
+        }
+    }
+    return min(distance, max(enter - size * 1e-3, 0.0));
+}
+
 struct Sample {
     lit: bool,
     dir: vec3<f32>,
@@ -242,7 +261,13 @@ fn direct(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_index)
         let p = quad_point(q, u, v);
         for (var l = first; l < last; l++) {
             let s = light_sample(lights[l], p, n);
-            if s.lit && !occluded(q, p, s.dir, s.distance) {
+            if s.lit
+                && !occluded(
+                    q,
+                    p,
+                    s.dir,
+                    shadow_length(p, s.dir, s.distance, lights[l].position, params.voxel_size),
+                ) {
                 sum += s.irradiance;
             }
         }
