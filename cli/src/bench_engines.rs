@@ -118,7 +118,7 @@ pub fn run(args: &BenchEnginesArgs) -> Result<()> {
             }
         };
         eprintln!("  {name}: {}", engine.describe());
-        rows.extend(direct_rows(args, &engine, &baked, &sets, &lit)?);
+        let mut direct_measured = false;
         for codec_name in &args.codecs {
             let codec = codec::configured(codec_name, None)?;
             let mut variant = baked.clone();
@@ -130,6 +130,11 @@ pub fn run(args: &BenchEnginesArgs) -> Result<()> {
                     continue;
                 }
             };
+            // Direct light does not depend on the codec: once, on the first scene that loads.
+            if !direct_measured {
+                rows.extend(direct_rows(args, &engine, &scene, &sets, &lit)?);
+                direct_measured = true;
+            }
             for &batch in &args.batches {
                 let x = &b0[..batch * n];
                 let mut out = vec![[0.0f32; 3]; x.len()];
@@ -237,19 +242,18 @@ fn report(row: Option<&Row>) {
 fn direct_rows(
     args: &BenchEnginesArgs,
     engine: &Engine,
-    baked: &Baked,
+    scene: &bounce_engine::Scene,
     sets: &[LightSet],
     reference: &[bounce_engine::Irradiance],
 ) -> Result<Vec<Row>> {
-    let scene = engine.load(baked)?;
-    let label = format!("direct light ({})", engine.direct_engine(&scene));
+    let label = format!("direct light ({})", engine.direct_engine(scene));
     let mut rows = Vec::new();
     for &batch in &args.batches {
         let sets = &sets[..batch];
-        let (mut lit, _) = engine.relight_timed(&scene, sets)?;
+        let (mut lit, _) = engine.relight_timed(scene, sets)?;
         let mut times = Vec::with_capacity(args.repeat);
         for _ in 0..args.repeat {
-            let (l, timing) = engine.relight_timed(&scene, sets)?;
+            let (l, timing) = engine.relight_timed(scene, sets)?;
             times.push(timing.direct_s);
             lit = l;
         }

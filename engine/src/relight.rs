@@ -75,9 +75,10 @@ pub struct Engine {
 }
 
 impl Engine {
-    /// Open the engine asked for. `Auto` takes the GPU when an adapter opens and the CPU
-    /// otherwise, and says which (see [`Engine::describe`], [`Engine::fallback`]); `Gpu` without
-    /// an adapter is an error.
+    /// Open the engine asked for. `Auto` takes the GPU when a hardware adapter opens and the CPU
+    /// otherwise (no adapter, or only a software one), and says which (see [`Engine::describe`],
+    /// [`Engine::fallback`]); `Gpu` takes any adapter, software included, and without one is an
+    /// error.
     pub fn new(choice: EngineChoice) -> Result<Engine, EngineError> {
         let cpu = |fallback: Option<String>| Engine {
             gpu: None,
@@ -88,6 +89,15 @@ impl Engine {
         match choice {
             EngineChoice::Cpu => Ok(cpu(None)),
             EngineChoice::Gpu | EngineChoice::Auto => match GpuContext::new() {
+                // A software rasteriser (lavapipe) runs on the same cores as the CPU engine,
+                // 5–40× slower (`bounce bench engines`): auto does not take it; `gpu` still does,
+                // which is how CI tests the kernels.
+                Ok(ctx) if choice == EngineChoice::Auto && ctx.adapter().software => {
+                    Ok(cpu(Some(format!(
+                        "the only adapter is a software one ({}); the CPU engine is faster",
+                        ctx.adapter().name
+                    ))))
+                }
                 Ok(ctx) => {
                     let a = ctx.adapter();
                     let description = format!(

@@ -233,11 +233,24 @@ fn cpu_engine_computes_direct_light_on_the_cpu() {
 fn auto_says_what_it_took() {
     let engine = Engine::new(EngineChoice::Auto).unwrap();
     match engine.kind() {
-        EngineKind::Gpu => assert!(engine.describe().starts_with("gpu (")),
+        EngineKind::Gpu => {
+            assert!(engine.describe().starts_with("gpu ("));
+            assert!(
+                !engine.describe().contains("software"),
+                "auto never takes lavapipe"
+            );
+        }
         EngineKind::Cpu => {
             assert!(engine.describe().starts_with("cpu"));
             assert!(engine.fallback().is_some(), "a CPU fallback must say why");
         }
+    }
+    // Where the GPU is software (CI's lavapipe), auto says so and `gpu` still opens it.
+    if let Some(gpu) = gpu_engine()
+        && gpu.describe().contains("software")
+    {
+        assert_eq!(engine.kind(), EngineKind::Cpu);
+        assert!(engine.fallback().is_some_and(|w| w.contains("software")));
     }
 }
 

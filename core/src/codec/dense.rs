@@ -80,6 +80,12 @@ pub trait Entry: Copy + Send + Sync {
         let _ = entries;
         None
     }
+    /// Widen `src` into `dst` (same length), as fast as the type allows.
+    fn widen(src: &[Self], dst: &mut [f32]) {
+        for (d, s) in dst.iter_mut().zip(src) {
+            *d = s.value();
+        }
+    }
 }
 
 impl Entry for f32 {
@@ -103,6 +109,13 @@ impl Entry for f16 {
     #[inline]
     fn value(self) -> f32 {
         self.to_f32()
+    }
+
+    /// `half`'s slice conversion uses F16C where the CPU has it, eight values an instruction;
+    /// one at a time it is a software routine per value.
+    fn widen(src: &[f16], dst: &mut [f32]) {
+        use half::slice::HalfFloatSliceExt;
+        src.convert_to_f32_slice(dst);
     }
 }
 
@@ -165,6 +178,7 @@ impl<T: Entry> MatrixOp for Dense<T> {
             .flat_map_iter(|i| {
                 let mut acc = vec![[0.0f32; 3]; batch];
                 let mut sums = vec![0.0f32; 3 * batch];
+                let mut wide = Vec::new();
                 // Per stored channel, every (light set, colour) it serves: a one-channel matrix
                 // serves all three colours of every set from the same row.
                 for c in 0..m.channels {
@@ -173,12 +187,16 @@ impl<T: Entry> MatrixOp for Dense<T> {
                         .filter(|&(_, cc)| cc.min(m.channels - 1) == c)
                         .collect();
                     let ls: Vec<&[f32]> = serves.iter().map(|&(k, cc)| lanes.lane(k, cc)).collect();
-                    dots(
-                        m.row(c, i),
-                        lanes.cols.as_deref(),
-                        &ls,
-                        &mut sums[..ls.len()],
-                    );
+                    // Rows not stored as f32 are widened once and used by the whole batch.
+                    let row: &[f32] = match T::as_f32(m.row(c, i)) {
+                        Some(row) => row,
+                        None => {
+                            wide.resize(n, 0.0);
+                            T::widen(m.row(c, i), &mut wide);
+                            &wide
+                        }
+                    };
+                    dots(row, lanes.cols.as_deref(), &ls, &mut sums[..ls.len()]);
                     for (&(k, cc), &v) in serves.iter().zip(&sums) {
                         acc[k][cc] = v;
                     }
