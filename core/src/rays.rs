@@ -209,6 +209,26 @@ impl RayScene {
     }
 }
 
+/// The voxel a walk from a point on `quad` starts in: the one in front of the face. The origin
+/// lies on the patch's plane, a grid plane, inside the patch's face; taking the cell from the
+/// quad rather than from the origin keeps rounding (an origin on the face's far edge) out of it.
+/// Shared with the GPU shadow walk, which takes its start cells from here.
+pub fn start_cell(quad: &Quad, origin: [f32; 3], size: f32) -> [i32; 3] {
+    let a = quad.face.axis();
+    let index = |coord: f32, ax: usize| ((coord - origin[ax]) / size).round() as i32;
+    let mut cell = [0i32; 3];
+    let plane = index(quad.plane, a);
+    cell[a] = if quad.face.sign() > 0.0 {
+        plane
+    } else {
+        plane - 1
+    };
+    let (u, v) = quad.tangent_axes();
+    cell[u] = index(quad.lo[0], u);
+    cell[v] = index(quad.lo[1], v);
+    cell
+}
+
 fn occluded_bvh(quads: &[Quad], bvh: &Bvh2, origin: Vec3, dir: Vec3, max_t: f32) -> bool {
     if quads.is_empty() || max_t.is_nan() || max_t <= 0.0 {
         return false;
@@ -319,21 +339,7 @@ impl VoxelGrid {
     /// occupied voxel entered before `max_t`, at the grid's edge, or once the next voxel
     /// boundary lies at or beyond `max_t`.
     fn walk(&self, quad: &Quad, origin: Vec3, dir: Vec3, max_t: f32) -> Walk {
-        // The origin lies on the patch's plane, a grid plane, inside the patch's face: the walk
-        // starts in the voxel on the patch's front side. Taking the cell from the quad rather
-        // than from the origin keeps rounding (an origin on the face's far edge) out of it.
-        let a = quad.face.axis();
-        let index = |coord: f32, ax: usize| ((coord - self.origin[ax]) / self.size).round() as i32;
-        let mut cell = [0i32; 3];
-        let plane = index(quad.plane, a);
-        cell[a] = if quad.face.sign() > 0.0 {
-            plane
-        } else {
-            plane - 1
-        };
-        let (u, v) = quad.tangent_axes();
-        cell[u] = index(quad.lo[0], u);
-        cell[v] = index(quad.lo[1], v);
+        let mut cell = start_cell(quad, self.origin.to_array(), self.size);
 
         let mut step = [0i32; 3];
         let mut t_max = [f32::INFINITY; 3];

@@ -3,28 +3,15 @@
 //! These run for real on whatever adapter wgpu finds; in CI that is lavapipe (software Vulkan).
 //! Without an adapter they fail, unless `BOUNCE_ALLOW_NO_GPU=1` says skipping is intended.
 
-use std::sync::OnceLock;
+mod common;
 
 use bounce_core::codec::dense::{DenseF16, DenseF32};
 use bounce_core::codec::logblock::LogBlock;
 use bounce_core::codec::{Codec, decode};
 use bounce_core::matrix::{DenseMatrix, EncodedMatrix};
-use bounce_engine::gpu::{GpuContext, GpuError, GpuMatrix};
+use bounce_engine::gpu::{GpuError, GpuMatrix};
 
-fn context() -> Option<&'static GpuContext> {
-    static CTX: OnceLock<Result<GpuContext, String>> = OnceLock::new();
-    match CTX.get_or_init(|| GpuContext::new().map_err(|e| e.to_string())) {
-        Ok(ctx) => {
-            eprintln!("GPU tests on {}", ctx.adapter());
-            Some(ctx)
-        }
-        Err(e) if std::env::var("BOUNCE_ALLOW_NO_GPU").as_deref() == Ok("1") => {
-            eprintln!("SKIPPED (BOUNCE_ALLOW_NO_GPU=1): {e}");
-            None
-        }
-        Err(e) => panic!("GPU tests need an adapter: {e}; set BOUNCE_ALLOW_NO_GPU=1 to skip them"),
-    }
-}
+use common::context;
 
 /// Deterministic uniform numbers in [0, 1).
 struct Lcg(u64);

@@ -17,7 +17,7 @@
 //! These run on whatever adapter wgpu finds (lavapipe in CI); without one they fail unless
 //! `BOUNCE_ALLOW_NO_GPU=1` says skipping is intended.
 
-use std::sync::OnceLock;
+mod common;
 
 use bounce_core::direct::{DEFAULT_SAMPLES, ShadowScene, direct_irradiance, samples_side};
 use bounce_core::formfactor::Tracer;
@@ -28,20 +28,7 @@ use bounce_core::voxel::{Voxelization, voxelize_at};
 use bounce_engine::gpu::{GpuContext, GpuDirect, GpuError};
 use glam::Vec3;
 
-fn context() -> Option<&'static GpuContext> {
-    static CTX: OnceLock<Result<GpuContext, String>> = OnceLock::new();
-    match CTX.get_or_init(|| GpuContext::new().map_err(|e| e.to_string())) {
-        Ok(ctx) => {
-            eprintln!("GPU tests on {}", ctx.adapter());
-            Some(ctx)
-        }
-        Err(e) if std::env::var("BOUNCE_ALLOW_NO_GPU").as_deref() == Ok("1") => {
-            eprintln!("SKIPPED (BOUNCE_ALLOW_NO_GPU=1): {e}");
-            None
-        }
-        Err(e) => panic!("GPU tests need an adapter: {e}; set BOUNCE_ALLOW_NO_GPU=1 to skip them"),
-    }
-}
+use common::context;
 
 const SIZE: f32 = 4.0;
 

@@ -97,24 +97,9 @@ pub fn direct_source() -> String {
     include_str!("shaders/direct.wgsl").to_string()
 }
 
-/// The start voxel of a shadow walk from `patch`, as `VoxelGrid::walk` takes it: the voxel in
-/// front of the face, found from the quad's own coordinates.
+/// The start voxel of a shadow walk from `patch`, from the CPU walk's own function.
 fn start_cell(layout: &PatchLayout, patch: usize) -> [i32; 3] {
-    let quad = layout.quad(patch);
-    let a = quad.face.axis();
-    let index =
-        |coord: f32, ax: usize| ((coord - layout.origin[ax]) / layout.voxel_size).round() as i32;
-    let mut cell = [0i32; 3];
-    let plane = index(quad.plane, a);
-    cell[a] = if quad.face.sign() > 0.0 {
-        plane
-    } else {
-        plane - 1
-    };
-    let (u, v) = quad.tangent_axes();
-    cell[u] = index(quad.lo[0], u);
-    cell[v] = index(quad.lo[1], v);
-    cell
+    bounce_core::rays::start_cell(&layout.quad(patch), layout.origin, layout.voxel_size)
 }
 
 /// A scene's patches and occupancy resident on the GPU, ready for batches of light sets.
