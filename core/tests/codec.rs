@@ -101,6 +101,34 @@ fn dark_columns_are_skipped_without_changing_products() {
     }
 }
 
+/// Batches of GEMM_FROM sets or more take the matrix-product path (dense f32 directly, the block
+/// codecs on decoded panels): it must multiply like the decoded matrix too.
+#[test]
+fn large_batches_multiply_like_the_decoded_matrix() {
+    let (t, layout) = cornell();
+    let b0 = probe_light_sets(layout, bounce_core::codec::dense::GEMM_FROM + 1);
+    for codec in all() {
+        let op = decode(&codec.encode(t).unwrap()).unwrap();
+        let dense = bounce_core::codec::dense::DenseOp::from(op.to_dense());
+        let mut a = vec![[0.0; 3]; b0.len()];
+        let mut b = vec![[0.0; 3]; b0.len()];
+        op.matvec_batch(&b0, &mut a).unwrap();
+        // One set at a time: the row kernel, the other summation order.
+        let n = t.n;
+        for (set, out) in b0.chunks(n).zip(b.chunks_mut(n)) {
+            bounce_core::codec::MatrixOp::matvec_batch(&dense, set, out).unwrap();
+        }
+        let scale = b.iter().flatten().fold(0.0f32, |m, v| m.max(v.abs()));
+        for (x, y) in a.iter().flatten().zip(b.iter().flatten()) {
+            assert!(
+                (x - y).abs() <= 1e-5 * scale,
+                "{}: {x} against {y} (scale {scale})",
+                codec.name()
+            );
+        }
+    }
+}
+
 #[test]
 fn with_everything_sparse_the_thesis_codec_is_exact_in_any_order() {
     let (t, _) = cornell();

@@ -116,10 +116,9 @@ fn batched_relights_equal_one_by_one() {
                     codec.name()
                 );
                 // The GPU kernels and the CPU row kernels sum each output in one order whatever
-                // the batch, so they give the same bits; from GEMM_FROM sets on, dense f32 on the
-                // CPU is a blocked matrix product whose order depends on the batch: f32 rounding.
+                // the batch, so they give the same bits; from GEMM_FROM sets on, the CPU product
+                // is a blocked matrix product whose order depends on the batch: f32 rounding.
                 let bit_exact = engine.kind() == EngineKind::Gpu
-                    || codec.name() != "dense-f32"
                     || sets.len() < bounce_core::codec::dense::GEMM_FROM;
                 if bit_exact {
                     assert_eq!(

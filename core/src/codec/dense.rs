@@ -99,10 +99,10 @@ impl Entry for f32 {
     }
 }
 
-/// From this many light sets on, an f32 product is a matrix–matrix product by faer's blocked
-/// kernels (2.5× our row kernel at 64 sets on pandora-sized matrices); below, the row kernel,
-/// which also skips dark columns. Either way a light set's result is the same to f32 rounding,
-/// but only the row kernel keeps its bits whatever else is in the batch.
+/// From this many light sets on, a CPU product is a matrix–matrix product by faer's blocked
+/// kernels (dense f32 directly; the block codecs on panels decoded to f32); below, the row
+/// kernel, which also skips dark columns. Either way a light set's result is the same to f32
+/// rounding, but only the row kernel keeps its bits whatever else is in the batch.
 pub const GEMM_FROM: usize = 8;
 
 impl Entry for f16 {

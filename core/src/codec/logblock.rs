@@ -333,6 +333,10 @@ fn image_bytes(blocks: Blocks, w: usize) -> usize {
     }
 }
 
+/// Strips (4 image rows each) a larger-batch product decodes and multiplies at a time: 64 rows,
+/// a few MB of f32 per panel at 4,000 patches, so panels spread over the threads and stay in cache.
+const PANEL_STRIPS: usize = 16;
+
 /// Value of every code in a channel whose maximum is `max`.
 fn lut(max: f32) -> [f32; 256] {
     let mut t = [0.0f32; 256];
@@ -677,6 +681,103 @@ impl LogBlockOp {
         &self.raw
     }
 
+    /// The product for larger batches: panels of [`PANEL_STRIPS`] strips decoded to f32 and
+    /// multiplied by the whole batch with faer's blocked matrix product, panels in parallel. Per
+    /// value decoded, the row kernel does one multiply-add per light set and colour from memory;
+    /// the matrix product keeps them in registers, which is what batches of 8 and more need.
+    fn matvec_panels(&self, x: &[[f32; 3]], out: &mut [[f32; 3]], batch: usize) {
+        use faer::{Accum, MatMut, MatRef, Par};
+        let (n, w, ch) = (self.n, self.width, self.channels);
+        // Per stored channel: the (light set, colour) columns it serves, and the light in image
+        // column order, `xs[c][l·m + col]`.
+        let serves: Vec<Vec<(usize, usize)>> = (0..ch)
+            .map(|c| {
+                (0..batch)
+                    .flat_map(|k| (0..3).map(move |cc| (k, cc)))
+                    .filter(|&(_, cc)| cc.min(ch - 1) == c)
+                    .collect()
+            })
+            .collect();
+        let xs: Vec<Vec<f32>> = serves
+            .iter()
+            .map(|sv| {
+                let m = sv.len();
+                let mut v = vec![0.0f32; w * m];
+                for (l, &j) in self.col_perm.iter().enumerate() {
+                    for (col, &(k, cc)) in sv.iter().enumerate() {
+                        v[l * m + col] = x[k * n + j as usize][cc];
+                    }
+                }
+                v
+            })
+            .collect();
+        let strips = w / 4;
+        let panels: Vec<(usize, Vec<Vec<f32>>)> = (0..strips.div_ceil(PANEL_STRIPS))
+            .into_par_iter()
+            .map(|p| {
+                let s0 = p * PANEL_STRIPS;
+                let s1 = (s0 + PANEL_STRIPS).min(strips);
+                let rows = 4 * (s1 - s0);
+                let mut vals = vec![vec![0.0f32; rows * w]; ch];
+                for s in s0..s1 {
+                    let codes = self.strip(s, None);
+                    for (c, plane) in codes.iter().enumerate() {
+                        let lut = &self.lut[c];
+                        for (r, row) in plane.iter().enumerate() {
+                            let at = (4 * (s - s0) + r) * w;
+                            for (v, &q) in vals[c][at..at + w].iter_mut().zip(row) {
+                                *v = lut[q as usize];
+                            }
+                        }
+                    }
+                }
+                let ys: Vec<Vec<f32>> = (0..ch)
+                    .map(|c| {
+                        let m = serves[c].len();
+                        let mut y = vec![0.0f32; rows * m];
+                        faer::linalg::matmul::matmul(
+                            MatMut::from_row_major_slice_mut(&mut y, rows, m),
+                            Accum::Replace,
+                            MatRef::from_row_major_slice(&vals[c], rows, w),
+                            MatRef::from_row_major_slice(&xs[c], w, m),
+                            1.0f32,
+                            Par::Seq,
+                        );
+                        y
+                    })
+                    .collect();
+                (s0, ys)
+            })
+            .collect();
+        for (s0, ys) in panels {
+            for (c, y) in ys.iter().enumerate() {
+                let m = serves[c].len();
+                for (r, yr) in y.chunks_exact(m).enumerate() {
+                    let k_img = 4 * s0 + r;
+                    if k_img >= n {
+                        break;
+                    }
+                    let i = self.row_perm[k_img] as usize;
+                    for (&(k, cc), &v) in serves[c].iter().zip(yr) {
+                        out[k * n + i][cc] = v;
+                    }
+                }
+            }
+        }
+        let sp = &self.sparse;
+        out.par_chunks_mut(n).enumerate().for_each(|(k, o)| {
+            for (i, oi) in o.iter_mut().enumerate() {
+                for e in sp.row_ptr[i] as usize..sp.row_ptr[i + 1] as usize {
+                    let j = sp.col_idx[e] as usize;
+                    for (c, v) in oi.iter_mut().enumerate() {
+                        let cc = c.min(ch - 1);
+                        *v += sp.values[cc * sp.nnz() + e] * x[k * n + j][c];
+                    }
+                }
+            }
+        });
+    }
+
     /// Codes of image rows `4·strip .. 4·strip + 4`, per channel: `[channel][row][column]`.
     /// Blocks that decode to zeros, and block columns `lit` marks dark, are left at code 0.
     fn strip(&self, strip: usize, lit: Option<&[bool]>) -> Vec<[Vec<u8>; 4]> {
@@ -748,6 +849,10 @@ impl MatrixOp for LogBlockOp {
     fn matvec_batch(&self, x: &[[f32; 3]], out: &mut [[f32; 3]]) -> Result<(), CodecError> {
         let n = self.n;
         let batch = batch_len(n, x, out)?;
+        if batch >= super::dense::GEMM_FROM {
+            self.matvec_panels(x, out, batch);
+            return Ok(());
+        }
         // Inputs in image column order, dark block columns dropped, once per batch.
         let lanes = Lanes::new(x, n, Some(&self.col_perm), self.width);
         let lit: Option<Vec<bool>> = lanes.cols.as_ref().map(|cols| {
