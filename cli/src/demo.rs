@@ -3,7 +3,7 @@
 //! The scene ships inside the binary so the first command of the README works on a fresh
 //! machine; it is written next to the baked file because a viewer needs the original meshes.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use bounce_core::bake::BakeOptions;
@@ -14,6 +14,41 @@ use clap::Args;
 const SCENE_GLTF: &[u8] = include_bytes!("../../assets/cornell-box/scene.gltf");
 const SCENE_BIN: &[u8] = include_bytes!("../../assets/cornell-box/scene.bin");
 const LICENSE: &[u8] = include_bytes!("../../assets/cornell-box/license.txt");
+
+/// Writes the embedded Cornell box (glTF, buffer, licence) into `dir/cornell-box/` and returns
+/// the glTF's path.
+pub fn write_scene(dir: &Path) -> Result<PathBuf> {
+    let scene_dir = dir.join("cornell-box");
+    std::fs::create_dir_all(&scene_dir)
+        .with_context(|| format!("creating {}", scene_dir.display()))?;
+    for (name, bytes) in [
+        ("scene.gltf", SCENE_GLTF),
+        ("scene.bin", SCENE_BIN),
+        ("license.txt", LICENSE),
+    ] {
+        let path = scene_dir.join(name);
+        std::fs::write(&path, bytes).with_context(|| format!("writing {}", path.display()))?;
+    }
+    Ok(scene_dir.join("scene.gltf"))
+}
+
+/// Writes the embedded scene into `dir` and bakes it to `out`.
+pub fn bake_demo(
+    dir: &Path,
+    out: &Path,
+    patches: u32,
+    bounces: Bounces,
+    quiet: bool,
+) -> Result<()> {
+    let gltf = write_scene(dir)?;
+    let options = BakeOptions {
+        resolution: Resolution::TargetPatches(patches),
+        bounces,
+        ..BakeOptions::default()
+    };
+    crate::bake_cmd::bake(&gltf, out, &options, quiet)?;
+    Ok(())
+}
 
 #[derive(Args, Debug)]
 pub struct DemoArgs {
@@ -31,24 +66,8 @@ pub struct DemoArgs {
 }
 
 pub fn run(args: &DemoArgs) -> Result<()> {
-    let scene_dir = args.dir.join("cornell-box");
-    std::fs::create_dir_all(&scene_dir)
-        .with_context(|| format!("creating {}", scene_dir.display()))?;
-    for (name, bytes) in [
-        ("scene.gltf", SCENE_GLTF),
-        ("scene.bin", SCENE_BIN),
-        ("license.txt", LICENSE),
-    ] {
-        let path = scene_dir.join(name);
-        std::fs::write(&path, bytes).with_context(|| format!("writing {}", path.display()))?;
-    }
     let out = args.dir.join("cornell-box.bounce");
-    let options = BakeOptions {
-        resolution: Resolution::TargetPatches(args.patches),
-        bounces: args.bounces,
-        ..BakeOptions::default()
-    };
-    crate::bake_cmd::bake(&scene_dir.join("scene.gltf"), &out, &options, args.quiet)?;
+    bake_demo(&args.dir, &out, args.patches, args.bounces, args.quiet)?;
     println!();
     crate::inspect::run(&crate::inspect::InspectArgs {
         file: out,

@@ -13,6 +13,7 @@ mod memory;
 mod plot;
 mod progress;
 mod relight_cmd;
+mod serve_cmd;
 
 use std::process::ExitCode;
 
@@ -26,7 +27,8 @@ use clap::{Parser, Subcommand};
     long_about = "bounce precomputes diffuse global illumination. `bake` turns a glTF scene into a \
                   baked file holding a multi-bounce light-transport matrix over voxel patches; \
                   `inspect` shows what a baked file holds; `relight` computes direct and indirect \
-                  light per patch for light configurations; `demo` bakes the embedded Cornell box."
+                  light per patch for light configurations; `demo` bakes the embedded Cornell box; \
+                  `serve` streams per-patch light to viewers over gRPC."
 )]
 struct Cli {
     #[command(subcommand)]
@@ -46,6 +48,9 @@ enum Command {
     Relight(relight_cmd::RelightArgs),
     /// Benchmarks: tables (and CSV) comparing variants measured in one run.
     Bench(bench::BenchArgs),
+    /// Serve baked scenes over gRPC: sessions, light changes, frames streamed to every viewer.
+    /// With no --scenes, the embedded Cornell box demo.
+    Serve(serve_cmd::ServeArgs),
 }
 
 /// Rust ignores SIGPIPE, so `bounce inspect x | head` would panic on the closed pipe; a command
@@ -67,6 +72,7 @@ fn main() -> ExitCode {
         Command::Demo(args) => demo::run(&args),
         Command::Relight(args) => relight_cmd::run(&args),
         Command::Bench(args) => bench::run(&args),
+        Command::Serve(args) => serve_cmd::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -1,0 +1,152 @@
+//! `bounce serve`: the lighting service on gRPC, with the embedded demo when no scenes are given.
+//!
+//! This is the binary's edge: flags and environment, logging, the tokio runtime, signals. The
+//! service itself is `bounce-server`.
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+
+use anyhow::{Context, Result};
+use bounce_core::format::Baked;
+use bounce_core::meta::Bounces;
+use bounce_engine::EngineChoice;
+use bounce_server::{Hub, HubConfig};
+use clap::Args;
+use tracing::info;
+
+#[derive(Args, Debug)]
+pub struct ServeArgs {
+    /// Directory of baked scenes: every `NAME.bounce` in it is served as scene NAME. Without it,
+    /// the embedded Cornell box demo, baked into the cache directory on first start.
+    #[arg(long, value_name = "DIR", env = "BOUNCE_SCENES")]
+    pub scenes: Option<PathBuf>,
+    /// Address of the gRPC service (with health and reflection, so `grpcurl` works).
+    #[arg(
+        long,
+        value_name = "ADDR",
+        default_value = "127.0.0.1:50051",
+        env = "BOUNCE_GRPC"
+    )]
+    pub grpc: SocketAddr,
+    /// `auto` takes the GPU when a hardware adapter exists, else the CPU, and says which.
+    #[arg(
+        long,
+        value_name = "auto|gpu|cpu",
+        default_value = "auto",
+        env = "BOUNCE_ENGINE"
+    )]
+    pub engine: String,
+    /// Where the demo scene is baked [default: $XDG_CACHE_HOME/bounce, else ~/.cache/bounce].
+    #[arg(long, value_name = "DIR", env = "BOUNCE_CACHE_DIR")]
+    pub cache_dir: Option<PathBuf>,
+}
+
+/// Patches of the demo bake: the same as `bounce demo`.
+const DEMO_PATCHES: u32 = 2000;
+
+pub fn run(args: &ServeArgs) -> Result<()> {
+    init_logging();
+    let engine: EngineChoice = args.engine.parse()?;
+    let scenes_dir = match &args.scenes {
+        Some(dir) => dir.clone(),
+        None => demo_scenes(args.cache_dir.clone())?,
+    };
+    // Blocking (reads files, may upload to a GPU): before the runtime serves.
+    let hub = Hub::start(&HubConfig {
+        scenes_dir: scenes_dir.clone(),
+        engine,
+    })
+    .with_context(|| format!("starting the service on {}", scenes_dir.display()))?;
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .thread_name("bounce-serve")
+        .build()
+        .context("starting the async runtime")?;
+    runtime.block_on(async {
+        let listener = tokio::net::TcpListener::bind(args.grpc)
+            .await
+            .with_context(|| format!("binding the gRPC address {}", args.grpc))?;
+        let addr = listener.local_addr().context("reading the bound address")?;
+        let names: Vec<&str> = hub.scenes().iter().map(|s| s.name.as_str()).collect();
+        println!("bounce: serving {} on {}", names.join(", "), hub.engine());
+        println!("  gRPC  http://{addr}   (try: grpcurl -plaintext {addr} list)");
+        info!(%addr, "listening");
+        bounce_server::serve_grpc(hub, listener, shutdown_signal())
+            .await
+            .context("serving gRPC")
+    })?;
+    info!("stopped");
+    Ok(())
+}
+
+/// Logs to stderr; `RUST_LOG` takes `tracing` target filters (`info`, `bounce_server=debug`).
+fn init_logging() {
+    use std::io::IsTerminal;
+    use tracing_subscriber::filter::Targets;
+    use tracing_subscriber::prelude::*;
+    let filter = std::env::var("RUST_LOG")
+        .ok()
+        .and_then(|s| s.parse::<Targets>().ok())
+        .unwrap_or_else(|| Targets::new().with_default(tracing::Level::INFO));
+    let _ = tracing_subscriber::registry()
+        .with(
+            tracing_subscriber::fmt::layer()
+                .with_writer(std::io::stderr)
+                .with_ansi(std::io::stderr().is_terminal()),
+        )
+        .with(filter)
+        .try_init();
+}
+
+/// Ctrl-C or SIGTERM.
+async fn shutdown_signal() {
+    let ctrl_c = async {
+        if tokio::signal::ctrl_c().await.is_err() {
+            std::future::pending::<()>().await;
+        }
+    };
+    #[cfg(unix)]
+    let term = async {
+        use tokio::signal::unix::{SignalKind, signal};
+        match signal(SignalKind::terminate()) {
+            Ok(mut s) => {
+                s.recv().await;
+            }
+            Err(_) => std::future::pending::<()>().await,
+        }
+    };
+    #[cfg(not(unix))]
+    let term = std::future::pending::<()>();
+    tokio::select! {
+        _ = ctrl_c => {}
+        _ = term => {}
+    }
+}
+
+/// The demo's scene directory, baking the embedded Cornell box there unless a readable baked
+/// file is already in it.
+fn demo_scenes(cache_dir: Option<PathBuf>) -> Result<PathBuf> {
+    let cache = cache_dir
+        .or_else(|| std::env::var_os("XDG_CACHE_HOME").map(|d| PathBuf::from(d).join("bounce")))
+        .or_else(|| std::env::var_os("HOME").map(|d| PathBuf::from(d).join(".cache/bounce")))
+        .unwrap_or_else(|| std::env::temp_dir().join("bounce-cache"));
+    let demo = cache.join("demo");
+    let scenes = demo.join("scenes");
+    let baked = scenes.join("cornell-box.bounce");
+    match Baked::read(&baked) {
+        Ok(_) => info!(file = %baked.display(), "demo scene from the cache"),
+        Err(e) => {
+            if baked.exists() {
+                info!(file = %baked.display(), error = %e, "cached demo unreadable, baking again");
+            }
+            std::fs::create_dir_all(&scenes)
+                .with_context(|| format!("creating {}", scenes.display()))?;
+            eprintln!(
+                "bounce: baking the demo Cornell box into {} (first start only)",
+                demo.display()
+            );
+            crate::demo::bake_demo(&demo, &baked, DEMO_PATCHES, Bounces::K(3), false)?;
+        }
+    }
+    Ok(scenes)
+}

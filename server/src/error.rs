@@ -1,0 +1,69 @@
+//! What can go wrong serving, and which gRPC status each is.
+
+use std::path::PathBuf;
+
+use bounce_core::format::FormatError;
+use bounce_core::light::LightError;
+use bounce_engine::EngineError;
+use thiserror::Error;
+
+use crate::frame::FrameError;
+
+#[derive(Debug, Error)]
+pub enum ServerError {
+    #[error("reading the scene directory {path}: {source}")]
+    ScenesDir {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("no usable .bounce file in {0}")]
+    NoScenes(PathBuf),
+    // Boxed: engine errors are large and every hub call returns this type.
+    #[error("opening the engine: {0}")]
+    Engine(Box<EngineError>),
+    #[error("loading scene {name:?} on the engine: {source}")]
+    Load {
+        name: String,
+        source: Box<EngineError>,
+    },
+    /// The engine failed on a batch (the message, as one error may answer several callers).
+    #[error("relighting scene {scene:?}: {message}")]
+    Relight { scene: String, message: String },
+    #[error("the engine worker has stopped")]
+    WorkerGone,
+    #[error("unknown scene {0:?}")]
+    UnknownScene(String),
+    #[error("unknown session {0:?}")]
+    UnknownSession(String),
+    /// A refused light configuration; the message starts with the field's path.
+    #[error(transparent)]
+    Lights(#[from] LightError),
+    #[error(transparent)]
+    Frame(#[from] FrameError),
+    #[error("gRPC reflection: {0}")]
+    Reflection(String),
+    #[error("gRPC transport: {0}")]
+    Transport(#[from] tonic::transport::Error),
+}
+
+/// A baked file the server could not read: skipped with this reason, the others still serve.
+#[derive(Debug, Error)]
+#[error("{path}: {source}")]
+pub struct SkippedScene {
+    pub path: PathBuf,
+    pub source: FormatError,
+}
+
+impl From<ServerError> for tonic::Status {
+    fn from(e: ServerError) -> tonic::Status {
+        use tonic::Status;
+        match e {
+            ServerError::UnknownScene(_) | ServerError::UnknownSession(_) => {
+                Status::not_found(e.to_string())
+            }
+            ServerError::Lights(_) => Status::invalid_argument(e.to_string()),
+            ServerError::WorkerGone => Status::unavailable(e.to_string()),
+            _ => Status::internal(e.to_string()),
+        }
+    }
+}

@@ -1,0 +1,37 @@
+//! `bounce-server`: the lighting service of DESIGN.md §2 "Serve" and §5.
+//!
+//! It owns what happens between a baked scene on disk and a viewer's frames: the scenes loaded
+//! from a directory ([`scenes`]), sessions (a scene, a light configuration and its version,
+//! [`session`]), the engine worker that solves every changed session of a scene in one batch
+//! ([`worker`]), frames and their byte layout ([`frame`]), the hub tying these together
+//! ([`hub`]), and the gRPC front end ([`grpc`], [`serve`]) with health and reflection. A
+//! WebSocket/HTTP front end will call the same hub and send the same frame bytes.
+//!
+//! Not here: the math (`bounce-core`), the engines themselves (`bounce-engine`), the command
+//! line and its runtime, logging setup and signals (`bounce serve` in `bounce-cli`).
+
+pub mod error;
+pub mod frame;
+pub mod grpc;
+pub mod hub;
+pub mod lights;
+pub mod scenes;
+pub mod serve;
+pub mod session;
+mod worker;
+
+pub use error::ServerError;
+pub use frame::Frame;
+pub use hub::{Hub, HubConfig, LightsVersion};
+pub use serve::serve_grpc;
+pub use worker::MAX_BATCH;
+
+/// Code generated from `proto/bounce/v1/bounce.proto`: messages, the server trait and a client.
+pub mod proto {
+    #![allow(clippy::all, missing_docs)]
+    tonic::include_proto!("bounce.v1");
+
+    /// The proto's file descriptor set, served by gRPC reflection.
+    pub const FILE_DESCRIPTOR_SET: &[u8] =
+        tonic::include_file_descriptor_set!("bounce_v1_descriptor");
+}

@@ -1,0 +1,201 @@
+//! Light messages of the proto into [`LightSet`], refused with the same field paths as the JSON
+//! form (`lights[2].intensity: ...`), so a gRPC client reads the errors a CLI user would.
+//!
+//! The messages mirror the JSON objects field for field (vectors as three numbers, optional
+//! numbers as proto3 `optional`), so the checks here are only those protobuf cannot express:
+//! the type's name, vector lengths, required and unused fields. Values are checked by
+//! [`LightSet::validate`], the one place that knows what a light engine accepts.
+
+use bounce_core::light::{Light, LightError, LightSet, MAX_LIGHTS};
+
+use crate::proto;
+
+/// Converts and validates a light configuration.
+pub fn light_set(lights: &[proto::Light]) -> Result<LightSet, LightError> {
+    // Before converting any light, so a huge list costs no more than its decode.
+    if lights.len() > MAX_LIGHTS {
+        return Err(LightError::TooMany {
+            count: lights.len(),
+            max: MAX_LIGHTS,
+        });
+    }
+    let lights = lights
+        .iter()
+        .enumerate()
+        .map(|(i, l)| {
+            light(l).map_err(|(field, reason)| LightError::Invalid {
+                path: if field.is_empty() {
+                    format!("lights[{i}]")
+                } else {
+                    format!("lights[{i}].{field}")
+                },
+                reason,
+            })
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    let set = LightSet { lights };
+    set.validate()?;
+    Ok(set)
+}
+
+/// A field name (empty for the light itself) and why it was refused.
+type FieldError = (&'static str, String);
+
+fn light(l: &proto::Light) -> Result<Light, FieldError> {
+    let name = l.name.clone();
+    let intensity = l.intensity.ok_or(("intensity", "missing".to_string()))?;
+    let color = match l.color.as_slice() {
+        [] => [1.0; 3],
+        c => vec3("color", c)?,
+    };
+    match l.r#type.as_str() {
+        "directional" => {
+            unused(l.position.is_empty(), "position", "directional")?;
+            unused(l.range.is_none(), "range", "directional")?;
+            no_cones(l, "directional")?;
+            Ok(Light::Directional {
+                direction: vec3("direction", &l.direction)?,
+                color,
+                intensity,
+                name,
+            })
+        }
+        "point" => {
+            unused(l.direction.is_empty(), "direction", "point")?;
+            no_cones(l, "point")?;
+            Ok(Light::Point {
+                position: vec3("position", &l.position)?,
+                color,
+                intensity,
+                range: l.range,
+                name,
+            })
+        }
+        "spot" => Ok(Light::Spot {
+            position: vec3("position", &l.position)?,
+            direction: vec3("direction", &l.direction)?,
+            color,
+            intensity,
+            range: l.range,
+            inner_cone_angle: l.inner_cone_angle.unwrap_or(0.0),
+            outer_cone_angle: l.outer_cone_angle.unwrap_or(std::f32::consts::FRAC_PI_4),
+            name,
+        }),
+        "" => Err(("type", "missing".to_string())),
+        other => Err((
+            "type",
+            format!("unknown light type {other:?} (expected point, directional or spot)"),
+        )),
+    }
+}
+
+fn vec3(field: &'static str, v: &[f32]) -> Result<[f32; 3], FieldError> {
+    match v {
+        [x, y, z] => Ok([*x, *y, *z]),
+        [] => Err((field, "missing".to_string())),
+        _ => Err((field, format!("must have 3 components (got {})", v.len()))),
+    }
+}
+
+/// Refuses a field the light's type has no use for, as the JSON form refuses unknown fields: a
+/// client that sets it believes it does something.
+fn unused(absent: bool, field: &'static str, kind: &str) -> Result<(), FieldError> {
+    if absent {
+        Ok(())
+    } else {
+        Err((field, format!("not used by a {kind} light")))
+    }
+}
+
+fn no_cones(l: &proto::Light, kind: &str) -> Result<(), FieldError> {
+    unused(l.inner_cone_angle.is_none(), "inner_cone_angle", kind)?;
+    unused(l.outer_cone_angle.is_none(), "outer_cone_angle", kind)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn point() -> proto::Light {
+        proto::Light {
+            r#type: "point".into(),
+            position: vec![0.0, 1.5, 0.0],
+            intensity: Some(10.0),
+            ..Default::default()
+        }
+    }
+
+    fn refused(l: proto::Light) -> String {
+        match light_set(&[point(), l]) {
+            Ok(set) => panic!("accepted {set:?}"),
+            Err(e) => e.to_string(),
+        }
+    }
+
+    #[test]
+    fn the_design_example_converts_like_its_json() {
+        let lights = [
+            point(),
+            proto::Light {
+                r#type: "directional".into(),
+                direction: vec![0.3, -1.0, 0.2],
+                color: vec![1.0, 0.95, 0.9],
+                intensity: Some(3.0),
+                ..Default::default()
+            },
+            proto::Light {
+                r#type: "spot".into(),
+                position: vec![0.0, 2.0, 0.0],
+                direction: vec![0.0, -1.0, 0.0],
+                color: vec![1.0, 1.0, 1.0],
+                intensity: Some(50.0),
+                inner_cone_angle: Some(0.3),
+                outer_cone_angle: Some(0.6),
+                ..Default::default()
+            },
+        ];
+        let json = LightSet::from_json(
+            r#"{"lights": [
+            {"type": "point", "position": [0, 1.5, 0], "color": [1, 1, 1], "intensity": 10},
+            {"type": "directional", "direction": [0.3, -1, 0.2], "color": [1, 0.95, 0.9], "intensity": 3},
+            {"type": "spot", "position": [0, 2, 0], "direction": [0, -1, 0], "color": [1, 1, 1],
+             "intensity": 50, "inner_cone_angle": 0.3, "outer_cone_angle": 0.6}]}"#,
+        )
+        .unwrap();
+        assert_eq!(light_set(&lights).unwrap(), json);
+    }
+
+    #[test]
+    fn refusals_name_the_field() {
+        let mut l = point();
+        l.intensity = Some(f32::NAN);
+        assert!(refused(l).starts_with("lights[1].intensity: must be finite"));
+        let mut l = point();
+        l.intensity = None;
+        assert_eq!(refused(l), "lights[1].intensity: missing");
+        let mut l = point();
+        l.r#type = "area".into();
+        assert!(refused(l).starts_with("lights[1].type: unknown light type \"area\""));
+        let mut l = point();
+        l.position = vec![1.0, 2.0];
+        assert_eq!(
+            refused(l),
+            "lights[1].position: must have 3 components (got 2)"
+        );
+        let mut l = point();
+        l.outer_cone_angle = Some(0.5);
+        assert_eq!(
+            refused(l),
+            "lights[1].outer_cone_angle: not used by a point light"
+        );
+        let mut l = point();
+        l.color = vec![1.0, -1.0, 0.0];
+        assert!(refused(l).starts_with("lights[1].color:"));
+        let e = light_set(&vec![point(); MAX_LIGHTS + 1]).unwrap_err();
+        assert_eq!(e.path(), "lights");
+        assert_eq!(
+            light_set(&vec![point(); MAX_LIGHTS]).unwrap().lights.len(),
+            MAX_LIGHTS
+        );
+    }
+}

@@ -1,0 +1,70 @@
+//! Serving a hub over gRPC: the bounce service, standard health and reflection, graceful
+//! shutdown that ends every frame stream.
+
+use std::future::Future;
+
+use tokio::net::TcpListener;
+use tokio_stream::StreamExt as _;
+use tokio_stream::wrappers::TcpListenerStream;
+use tonic::transport::Server;
+use tracing::info;
+
+use crate::error::ServerError;
+use crate::grpc::BounceService;
+use crate::hub::Hub;
+use crate::proto;
+use crate::proto::bounce_server::BounceServer;
+
+/// Largest request accepted: 256 lights take a few tens of kilobytes, so 1 MiB is generous and
+/// still refuses a client that tries to make the server buffer megabytes.
+pub const MAX_REQUEST_BYTES: usize = 1 << 20;
+
+/// Serves `hub` on `listener` until `shutdown` resolves; then health turns NOT_SERVING, the hub
+/// shuts down (every frame stream ends), and in-flight calls finish.
+pub async fn serve_grpc(
+    hub: Hub,
+    listener: TcpListener,
+    shutdown: impl Future<Output = ()> + Send + 'static,
+) -> Result<(), ServerError> {
+    let (health, health_service) = tonic_health::server::health_reporter();
+    health.set_serving::<BounceServer<BounceService>>().await;
+    let reflection = || {
+        tonic_reflection::server::Builder::configure()
+            .register_encoded_file_descriptor_set(proto::FILE_DESCRIPTOR_SET)
+            .register_encoded_file_descriptor_set(tonic_health::pb::FILE_DESCRIPTOR_SET)
+    };
+    let reflection_v1 = reflection()
+        .build_v1()
+        .map_err(|e| ServerError::Reflection(e.to_string()))?;
+    // grpcurl and many tools still ask v1alpha.
+    let reflection_v1alpha = reflection()
+        .build_v1alpha()
+        .map_err(|e| ServerError::Reflection(e.to_string()))?;
+    let bounce = BounceServer::new(BounceService::new(hub.clone()))
+        .max_decoding_message_size(MAX_REQUEST_BYTES);
+
+    // Frames are small and latency matters: no Nagle delay on accepted connections.
+    let incoming = TcpListenerStream::new(listener).map(|s| {
+        if let Ok(s) = &s {
+            let _ = s.set_nodelay(true);
+        }
+        s
+    });
+    let stopping = async move {
+        shutdown.await;
+        info!("shutting down");
+        health
+            .set_not_serving::<BounceServer<BounceService>>()
+            .await;
+        // The worker may be mid-batch: wait for it off the runtime's threads.
+        let _ = tokio::task::spawn_blocking(move || hub.shutdown()).await;
+    };
+    Server::builder()
+        .add_service(health_service)
+        .add_service(reflection_v1)
+        .add_service(reflection_v1alpha)
+        .add_service(bounce)
+        .serve_with_incoming_shutdown(incoming, stopping)
+        .await?;
+    Ok(())
+}

@@ -1,0 +1,668 @@
+//! The gRPC service end to end: a real server on `127.0.0.1:0` serving a small Cornell box baked
+//! here, the CPU engine, real tonic clients.
+
+use std::path::PathBuf;
+use std::sync::OnceLock;
+use std::time::{Duration, Instant};
+
+use bounce_core::bake::{BakeOptions, NoProgress, bake_file};
+use bounce_core::format::Baked;
+use bounce_core::light::{Light, LightSet};
+use bounce_core::voxel::Resolution;
+use bounce_engine::{Engine, EngineChoice};
+use bounce_server::frame::Frame;
+use bounce_server::proto::bounce_client::BounceClient;
+use bounce_server::proto::{self, Light as PbLight};
+use bounce_server::{Hub, HubConfig, serve_grpc};
+use tokio::net::TcpListener;
+use tokio::sync::oneshot;
+use tokio::task::JoinHandle;
+use tonic::transport::Channel;
+use tonic::{Code, Status, Streaming};
+
+const SCENE: &str = "cornell-box";
+/// Long enough for a loaded CI machine, short enough to fail rather than hang.
+const PATIENCE: Duration = Duration::from_secs(60);
+
+/// A directory holding `cornell-box.bounce`, baked once per test binary at about 300 patches.
+fn scenes_dir() -> PathBuf {
+    static DIR: OnceLock<tempfile::TempDir> = OnceLock::new();
+    DIR.get_or_init(|| {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let gltf =
+            PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../assets/cornell-box/scene.gltf");
+        let options = BakeOptions {
+            resolution: Resolution::TargetPatches(300),
+            rays: 512,
+            ..BakeOptions::default()
+        };
+        let baked = bake_file(&gltf, &options, &NoProgress).expect("baking the Cornell box");
+        baked
+            .write_atomic(&dir.path().join(format!("{SCENE}.bounce")))
+            .expect("writing the baked file");
+        // Not a baked file: must be skipped, not fatal.
+        std::fs::write(dir.path().join("broken.bounce"), b"not a baked file").expect("write");
+        dir
+    })
+    .path()
+    .to_path_buf()
+}
+
+fn baked() -> Baked {
+    Baked::read(&scenes_dir().join(format!("{SCENE}.bounce"))).expect("reading the baked file")
+}
+
+struct TestServer {
+    addr: std::net::SocketAddr,
+    stop: Option<oneshot::Sender<()>>,
+    task: JoinHandle<Result<(), bounce_server::ServerError>>,
+}
+
+impl TestServer {
+    async fn start() -> TestServer {
+        let dir = scenes_dir();
+        let hub = tokio::task::spawn_blocking(move || {
+            Hub::start(&HubConfig {
+                scenes_dir: dir,
+                engine: EngineChoice::Cpu,
+            })
+        })
+        .await
+        .expect("join")
+        .expect("hub");
+        let listener = TcpListener::bind("127.0.0.1:0").await.expect("bind");
+        let addr = listener.local_addr().expect("addr");
+        let (stop, stopped) = oneshot::channel::<()>();
+        let task = tokio::spawn(serve_grpc(hub, listener, async {
+            let _ = stopped.await;
+        }));
+        TestServer {
+            addr,
+            stop: Some(stop),
+            task,
+        }
+    }
+
+    /// A client on its own connection, as separate viewers are.
+    async fn client(&self) -> BounceClient<Channel> {
+        BounceClient::new(self.channel().await)
+    }
+
+    async fn channel(&self) -> Channel {
+        Channel::from_shared(format!("http://{}", self.addr))
+            .expect("uri")
+            .connect()
+            .await
+            .expect("connect")
+    }
+
+    /// Graceful shutdown: must end open streams and return.
+    async fn stop(mut self) {
+        if let Some(stop) = self.stop.take() {
+            let _ = stop.send(());
+        }
+        tokio::time::timeout(PATIENCE, self.task)
+            .await
+            .expect("shutdown timed out")
+            .expect("join")
+            .expect("serve");
+    }
+}
+
+fn point(intensity: f32) -> PbLight {
+    PbLight {
+        r#type: "point".into(),
+        position: vec![0.0, 1.0, 0.0],
+        color: vec![1.0, 0.9, 0.8],
+        intensity: Some(intensity),
+        ..Default::default()
+    }
+}
+
+async fn create_session(c: &mut BounceClient<Channel>, lights: Vec<PbLight>) -> (String, u64) {
+    let r = c
+        .create_session(proto::CreateSessionRequest {
+            scene: SCENE.into(),
+            lights,
+        })
+        .await
+        .expect("create session")
+        .into_inner();
+    (r.session_id, r.lights_version)
+}
+
+async fn subscribe(c: &mut BounceClient<Channel>, id: &str) -> Streaming<proto::Frame> {
+    c.subscribe(proto::SubscribeRequest {
+        session_id: id.into(),
+    })
+    .await
+    .expect("subscribe")
+    .into_inner()
+}
+
+/// Reads frames until one answers `version`; checks order on the way and returns the
+/// (sequence, version) of every frame seen.
+async fn read_until(stream: &mut Streaming<proto::Frame>, version: u64) -> Vec<(u64, u64)> {
+    let mut seen: Vec<(u64, u64)> = Vec::new();
+    let read = async {
+        while let Some(f) = stream.message().await.expect("frame") {
+            let parsed = Frame::parse(f.data.clone()).expect("frame bytes");
+            assert_eq!(parsed.header.sequence, f.sequence);
+            assert_eq!(parsed.header.lights_version, f.lights_version);
+            if let Some(&(seq, ver)) = seen.last() {
+                assert!(f.sequence > seq, "sequence {} after {seq}", f.sequence);
+                assert!(
+                    f.lights_version > ver,
+                    "version {} after {ver}",
+                    f.lights_version
+                );
+            }
+            seen.push((f.sequence, f.lights_version));
+            if f.lights_version >= version {
+                return;
+            }
+        }
+        panic!("stream ended before version {version}: saw {seen:?}");
+    };
+    tokio::time::timeout(PATIENCE, read)
+        .await
+        .unwrap_or_else(|_| panic!("no frame for version {version}"));
+    seen
+}
+
+#[track_caller]
+fn assert_status(result: Result<impl std::fmt::Debug, Status>, code: Code, contains: &str) {
+    match result {
+        Ok(v) => panic!("expected {code:?}, got {v:?}"),
+        Err(s) => {
+            assert_eq!(s.code(), code, "{s:?}");
+            assert!(
+                s.message().contains(contains),
+                "{:?} does not contain {contains:?}",
+                s.message()
+            );
+        }
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn list_scenes_and_layout_describe_the_baked_file() {
+    let server = TestServer::start().await;
+    let mut c = server.client().await;
+    let baked = baked();
+    let list = c
+        .list_scenes(proto::ListScenesRequest {})
+        .await
+        .expect("list")
+        .into_inner();
+    // The broken file was skipped; the good one serves.
+    assert_eq!(list.scenes.len(), 1, "{list:?}");
+    assert_eq!(list.scenes[0].name, SCENE);
+    assert_eq!(list.scenes[0].patch_count as usize, baked.layout.len());
+    assert_eq!(list.scenes[0].codec, baked.transport.codec);
+    assert!(list.engine.starts_with("cpu"), "{}", list.engine);
+
+    let layout = c
+        .get_layout(proto::GetLayoutRequest {
+            scene: SCENE.into(),
+        })
+        .await
+        .expect("layout")
+        .into_inner();
+    let l = &baked.layout;
+    assert_eq!(layout.origin, l.origin.to_vec());
+    assert_eq!(layout.voxel_size, l.voxel_size);
+    assert_eq!(layout.dims, l.dims.to_vec());
+    assert_eq!(layout.patch_count as usize, l.len());
+    assert_eq!(layout.voxels.len(), 3 * l.len());
+    assert_eq!(layout.faces.len(), l.len());
+    for (i, p) in l.patches.iter().enumerate() {
+        assert_eq!(&layout.voxels[3 * i..3 * i + 3], &p.voxel);
+        assert_eq!(layout.faces[i], i32::from(p.face.code()));
+        assert!(proto::Face::try_from(layout.faces[i]).is_ok());
+    }
+    server.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn many_viewers_end_on_the_last_version_in_order() {
+    let server = TestServer::start().await;
+    let mut writer = server.client().await;
+    let (id, v1) = create_session(&mut writer, vec![point(1.0)]).await;
+    assert_eq!(v1, 1);
+    // Each viewer on its own connection; the clients live as long as their streams.
+    let mut clients = Vec::new();
+    let mut viewers = Vec::new();
+    for _ in 0..5 {
+        let mut c = server.client().await;
+        viewers.push(subscribe(&mut c, &id).await);
+        clients.push(c);
+    }
+    // A burst: each call returns at once, the frames follow.
+    const UPDATES: u64 = 30;
+    let mut last = v1;
+    for k in 0..UPDATES {
+        let r = writer
+            .set_lights(proto::SetLightsRequest {
+                session_id: id.clone(),
+                lights: vec![point(2.0 + k as f32)],
+                token: String::new(),
+            })
+            .await
+            .expect("set lights")
+            .into_inner();
+        assert!(r.changed);
+        assert_eq!(r.lights_version, last + 1);
+        last = r.lights_version;
+    }
+    let tasks: Vec<_> = viewers
+        .into_iter()
+        .map(|mut s| tokio::spawn(async move { read_until(&mut s, last).await }))
+        .collect();
+    let mut frames_seen = Vec::new();
+    for t in tasks {
+        let seen = t.await.expect("viewer");
+        assert_eq!(seen.last().map(|s| s.1), Some(last));
+        frames_seen.push(seen.len());
+    }
+    // Setting identical lights changes nothing: same version, no new frame.
+    let r = writer
+        .set_lights(proto::SetLightsRequest {
+            session_id: id.clone(),
+            lights: vec![point(2.0 + (UPDATES - 1) as f32)],
+            token: String::new(),
+        })
+        .await
+        .expect("set lights")
+        .into_inner();
+    assert_eq!((r.lights_version, r.changed), (last, false));
+    let mut late_client = server.client().await;
+    let mut late = subscribe(&mut late_client, &id).await;
+    let newest = late
+        .message()
+        .await
+        .expect("frame")
+        .expect("a frame at once");
+    assert_eq!(newest.lights_version, last);
+    assert!(
+        tokio::time::timeout(Duration::from_millis(300), late.message())
+            .await
+            .is_err(),
+        "a frame arrived though the lights did not change"
+    );
+    eprintln!(
+        "{UPDATES} updates: frames solved {} (batched/coalesced), frames seen per viewer {frames_seen:?}",
+        newest.sequence
+    );
+    server.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_stalled_viewer_does_not_delay_the_others() {
+    let server = TestServer::start().await;
+    let mut writer = server.client().await;
+    let (id, _) = create_session(&mut writer, vec![point(1.0)]).await;
+    // Subscribed and never read while the updates run: its connection's flow-control windows
+    // fill and the server cannot send it more.
+    // Its HTTP/2 windows are small (16 KiB: a dozen frames), so the server soon has to stop
+    // sending to it, as to a viewer on a slow link.
+    let small_windows = Channel::from_shared(format!("http://{}", server.addr))
+        .expect("uri")
+        .initial_stream_window_size(Some(16 * 1024))
+        .initial_connection_window_size(Some(16 * 1024))
+        .connect()
+        .await
+        .expect("connect");
+    let mut clients = [
+        BounceClient::new(small_windows),
+        server.client().await,
+        server.client().await,
+    ];
+    let mut stalled = subscribe(&mut clients[0], &id).await;
+    let mut readers = Vec::new();
+    for c in &mut clients[1..] {
+        readers.push(subscribe(c, &id).await);
+    }
+    // More frame bytes than the HTTP/2 windows hold (300 patches: 1.2 kB a frame), with a frame
+    // solved between updates so that the server really tries to send each one.
+    let mut last = 0;
+    let mut readers_time = Duration::ZERO;
+    for round in 0..12 {
+        for k in 0..20 {
+            let r = writer
+                .set_lights(proto::SetLightsRequest {
+                    session_id: id.clone(),
+                    lights: vec![point(1.0 + (round * 20 + k) as f32)],
+                    token: String::new(),
+                })
+                .await
+                .expect("set lights")
+                .into_inner();
+            last = r.lights_version;
+            tokio::time::sleep(Duration::from_millis(2)).await;
+        }
+        let start = Instant::now();
+        for r in &mut readers {
+            read_until(r, last).await;
+        }
+        readers_time = readers_time.max(start.elapsed());
+    }
+    // The stalled viewer, read at last: in order, it ends on the newest version, having
+    // skipped what it could not take.
+    let seen = read_until(&mut stalled, last).await;
+    assert_eq!(seen.last().map(|s| s.1), Some(last));
+    assert!(
+        (seen.len() as u64) < last,
+        "the stalled viewer received every one of {last} versions: nothing was skipped"
+    );
+    eprintln!(
+        "{last} versions; the stalled viewer got {} frames; slowest catch-up of the readers {:.1} ms",
+        seen.len(),
+        readers_time.as_secs_f64() * 1e3
+    );
+    server.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn bad_input_is_refused_naming_the_field_and_the_server_keeps_serving() {
+    let server = TestServer::start().await;
+    let mut c = server.client().await;
+    let (id, _) = create_session(&mut c, vec![point(1.0)]).await;
+    let set = |lights: Vec<PbLight>| proto::SetLightsRequest {
+        session_id: id.clone(),
+        lights,
+        token: String::new(),
+    };
+
+    assert_status(
+        c.set_lights(set(vec![point(1.0), point(f32::NAN)])).await,
+        Code::InvalidArgument,
+        "lights[1].intensity: must be finite",
+    );
+    let mut area = point(1.0);
+    area.r#type = "area".into();
+    assert_status(
+        c.set_lights(set(vec![area.clone()])).await,
+        Code::InvalidArgument,
+        "lights[0].type: unknown light type \"area\"",
+    );
+    let mut negative = point(1.0);
+    negative.color = vec![1.0, -1.0, 0.0];
+    assert_status(
+        c.set_lights(set(vec![negative])).await,
+        Code::InvalidArgument,
+        "lights[0].color",
+    );
+    assert_status(
+        c.set_lights(set(vec![point(1.0); 257])).await,
+        Code::InvalidArgument,
+        "lights: 257 lights, more than the 256",
+    );
+    assert_status(
+        c.create_session(proto::CreateSessionRequest {
+            scene: SCENE.into(),
+            lights: vec![area.clone()],
+        })
+        .await,
+        Code::InvalidArgument,
+        "lights[0].type",
+    );
+    assert_status(
+        c.relight_once(proto::RelightOnceRequest {
+            scene: SCENE.into(),
+            lights: vec![point(f32::INFINITY)],
+        })
+        .await,
+        Code::InvalidArgument,
+        "lights[0].intensity",
+    );
+    // Unknown names.
+    assert_status(
+        c.create_session(proto::CreateSessionRequest {
+            scene: "nope".into(),
+            lights: vec![],
+        })
+        .await,
+        Code::NotFound,
+        "unknown scene \"nope\"",
+    );
+    assert_status(
+        c.get_layout(proto::GetLayoutRequest {
+            scene: "nope".into(),
+        })
+        .await,
+        Code::NotFound,
+        "unknown scene",
+    );
+    assert_status(
+        c.relight_once(proto::RelightOnceRequest {
+            scene: "nope".into(),
+            lights: vec![],
+        })
+        .await,
+        Code::NotFound,
+        "unknown scene",
+    );
+    assert_status(
+        c.set_lights(proto::SetLightsRequest {
+            session_id: "nope".into(),
+            lights: vec![point(1.0)],
+            token: String::new(),
+        })
+        .await,
+        Code::NotFound,
+        "unknown session \"nope\"",
+    );
+    assert_status(
+        c.subscribe(proto::SubscribeRequest {
+            session_id: "nope".into(),
+        })
+        .await,
+        Code::NotFound,
+        "unknown session",
+    );
+    // A refused change left the session as it was, and it still takes good ones.
+    let r = c
+        .set_lights(set(vec![point(5.0)]))
+        .await
+        .expect("still serving")
+        .into_inner();
+    assert_eq!((r.lights_version, r.changed), (2, true));
+    let mut s = subscribe(&mut c, &id).await;
+    read_until(&mut s, 2).await;
+    server.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn relight_once_matches_the_engine_within_rgb9e5() {
+    let server = TestServer::start().await;
+    let mut c = server.client().await;
+    let lights = vec![
+        point(3.0),
+        PbLight {
+            r#type: "spot".into(),
+            position: vec![0.0, 1.9, 0.0],
+            direction: vec![0.1, -1.0, 0.0],
+            intensity: Some(20.0),
+            outer_cone_angle: Some(0.8),
+            ..Default::default()
+        },
+    ];
+    let frame = c
+        .relight_once(proto::RelightOnceRequest {
+            scene: SCENE.into(),
+            lights: lights.clone(),
+        })
+        .await
+        .expect("relight once")
+        .into_inner();
+    let got = Frame::parse(frame.data).expect("frame").irradiance();
+
+    let set = LightSet {
+        lights: vec![
+            Light::Point {
+                position: [0.0, 1.0, 0.0],
+                color: [1.0, 0.9, 0.8],
+                intensity: 3.0,
+                range: None,
+                name: None,
+            },
+            Light::Spot {
+                position: [0.0, 1.9, 0.0],
+                direction: [0.1, -1.0, 0.0],
+                color: [1.0; 3],
+                intensity: 20.0,
+                range: None,
+                inner_cone_angle: 0.0,
+                outer_cone_angle: 0.8,
+                name: None,
+            },
+        ],
+    };
+    assert_eq!(bounce_server::lights::light_set(&lights), Ok(set.clone()));
+    let engine = Engine::new(EngineChoice::Cpu).expect("cpu engine");
+    let scene = engine.load(&baked()).expect("load");
+    let want = engine
+        .relight(&scene, &[set])
+        .expect("relight")
+        .remove(0)
+        .indirect;
+    assert_eq!(got.len(), want.len());
+    let mut worst = 0.0f64;
+    for (g, w) in got.iter().zip(&want) {
+        let max = w.iter().fold(0.0f64, |m, &x| m.max(f64::from(x)));
+        // RGB9E5's bound, and a hair for summation order.
+        let bound = max / 511.0 + 2f64.powi(-25) + 1e-5 * max;
+        for k in 0..3 {
+            let err = (f64::from(g[k]) - f64::from(w[k])).abs();
+            assert!(err <= bound, "{g:?} vs {w:?}");
+            if max > 0.0 {
+                worst = worst.max(err / max);
+            }
+        }
+    }
+    assert!(want.iter().any(|w| w[0] > 0.0), "the lights lit nothing");
+    eprintln!("RelightOnce vs Engine::relight: worst error {worst:.2e} of the patch's max");
+    server.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn relight_stream_takes_lights_and_returns_frames() {
+    let server = TestServer::start().await;
+    let mut c = server.client().await;
+    let (tx, rx) = tokio::sync::mpsc::channel(4);
+    tx.send(proto::RelightRequest {
+        scene: SCENE.into(),
+        set_lights: true,
+        lights: vec![point(2.0)],
+        ..Default::default()
+    })
+    .await
+    .expect("send");
+    let mut frames = c
+        .relight(tokio_stream::wrappers::ReceiverStream::new(rx))
+        .await
+        .expect("relight")
+        .into_inner();
+    let first = read_until(&mut frames, 1).await;
+    assert_eq!(first.last(), Some(&(1, 1)));
+    tx.send(proto::RelightRequest {
+        set_lights: true,
+        lights: vec![point(4.0)],
+        ..Default::default()
+    })
+    .await
+    .expect("send");
+    let second = read_until(&mut frames, 2).await;
+    assert_eq!(second.last(), Some(&(2, 2)));
+    // A bad message ends the stream with its status.
+    tx.send(proto::RelightRequest {
+        set_lights: true,
+        lights: vec![point(-1.0)],
+        ..Default::default()
+    })
+    .await
+    .expect("send");
+    let end = tokio::time::timeout(PATIENCE, frames.message())
+        .await
+        .expect("no answer");
+    assert_status(end, Code::InvalidArgument, "lights[0].intensity");
+    // A first message naming neither a session nor a scene.
+    let (tx, rx) = tokio::sync::mpsc::channel(1);
+    tx.send(proto::RelightRequest::default())
+        .await
+        .expect("send");
+    assert_status(
+        c.relight(tokio_stream::wrappers::ReceiverStream::new(rx))
+            .await
+            .map(|_| ()),
+        Code::InvalidArgument,
+        "session_id, scene",
+    );
+    server.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn health_and_reflection_answer() {
+    use tonic_health::pb::health_check_response::ServingStatus;
+    use tonic_health::pb::health_client::HealthClient;
+    use tonic_reflection::pb::v1::ServerReflectionRequest;
+    use tonic_reflection::pb::v1::server_reflection_client::ServerReflectionClient;
+    use tonic_reflection::pb::v1::server_reflection_request::MessageRequest;
+    use tonic_reflection::pb::v1::server_reflection_response::MessageResponse;
+
+    let server = TestServer::start().await;
+    let mut health = HealthClient::new(server.channel().await);
+    for service in ["", "bounce.v1.Bounce"] {
+        let r = health
+            .check(tonic_health::pb::HealthCheckRequest {
+                service: service.into(),
+            })
+            .await
+            .expect("health")
+            .into_inner();
+        assert_eq!(r.status(), ServingStatus::Serving, "{service:?}");
+    }
+
+    let mut reflection = ServerReflectionClient::new(server.channel().await);
+    let request = ServerReflectionRequest {
+        host: String::new(),
+        message_request: Some(MessageRequest::ListServices(String::new())),
+    };
+    let mut answers = reflection
+        .server_reflection_info(tokio_stream::iter([request]))
+        .await
+        .expect("reflection")
+        .into_inner();
+    let answer = answers.message().await.expect("answer").expect("one");
+    let Some(MessageResponse::ListServicesResponse(list)) = answer.message_response else {
+        panic!("not a service list: {answer:?}");
+    };
+    let names: Vec<_> = list.service.iter().map(|s| s.name.as_str()).collect();
+    assert!(names.contains(&"bounce.v1.Bounce"), "{names:?}");
+    assert!(names.contains(&"grpc.health.v1.Health"), "{names:?}");
+    server.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn shutdown_ends_open_streams() {
+    let server = TestServer::start().await;
+    let mut c = server.client().await;
+    let (id, v) = create_session(&mut c, vec![point(1.0)]).await;
+    let mut s = subscribe(&mut c, &id).await;
+    read_until(&mut s, v).await;
+    let reader = tokio::spawn(async move {
+        // After the newest frame, the stream's end (or the connection's).
+        loop {
+            match s.message().await {
+                Ok(Some(_)) => continue,
+                Ok(None) | Err(_) => return,
+            }
+        }
+    });
+    server.stop().await;
+    tokio::time::timeout(PATIENCE, reader)
+        .await
+        .expect("the stream outlived the server")
+        .expect("join");
+}
