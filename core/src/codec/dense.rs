@@ -7,7 +7,7 @@
 use half::f16;
 use rayon::prelude::*;
 
-use super::lanes::{Lanes, dots};
+use super::lanes::{Lanes, dots, served};
 use super::{Codec, CodecError, MatrixOp, batch_len};
 use crate::matrix::{DenseMatrix, EncodedMatrix};
 
@@ -171,6 +171,8 @@ impl<T: Entry> MatrixOp for Dense<T> {
             return Ok(());
         }
         let lanes = &lanes;
+        let served = served(m.channels, batch);
+        let served = &served;
         // Rows in parallel; every light set of the batch shares the row's one pass over memory,
         // which is what makes batching pay.
         let rows: Vec<[f32; 3]> = (0..n)
@@ -179,13 +181,7 @@ impl<T: Entry> MatrixOp for Dense<T> {
                 let mut acc = vec![[0.0f32; 3]; batch];
                 let mut sums = vec![0.0f32; 3 * batch];
                 let mut wide = Vec::new();
-                // Per stored channel, every (light set, colour) it serves: a one-channel matrix
-                // serves all three colours of every set from the same row.
-                for c in 0..m.channels {
-                    let serves: Vec<(usize, usize)> = (0..batch)
-                        .flat_map(|k| (0..3).map(move |cc| (k, cc)))
-                        .filter(|&(_, cc)| cc.min(m.channels - 1) == c)
-                        .collect();
+                for (c, serves) in served.iter().enumerate() {
                     let ls: Vec<&[f32]> = serves.iter().map(|&(k, cc)| lanes.lane(k, cc)).collect();
                     // Rows not stored as f32 are widened once and used by the whole batch.
                     let row: &[f32] = match T::as_f32(m.row(c, i)) {
@@ -226,11 +222,7 @@ impl<T: Entry> MatrixOp for Dense<T> {
 /// every set in one product.
 fn gemm(t: &[f32], n: usize, channels: usize, batch: usize, x: &[[f32; 3]], out: &mut [[f32; 3]]) {
     use faer::{Accum, MatMut, MatRef, Par};
-    for tc in 0..channels {
-        let serves: Vec<(usize, usize)> = (0..batch)
-            .flat_map(|k| (0..3).map(move |c| (k, c)))
-            .filter(|&(_, c)| c.min(channels - 1) == tc)
-            .collect();
+    for (tc, serves) in served(channels, batch).iter().enumerate() {
         let m = serves.len();
         let mut xs = vec![0.0f32; n * m];
         for (col, &(k, c)) in serves.iter().enumerate() {

@@ -129,6 +129,20 @@ pub fn dot_gather<T: Entry>(row: &[T], cols: &[u32], b: &[f32]) -> f32 {
     acc.iter().sum()
 }
 
+/// Per stored channel `c` of a matrix with `channels` channels, the (light set, colour) pairs it
+/// serves in a batch of `batch`: a three-channel matrix serves colour `c` of every set, a
+/// one-channel matrix all three colours of every set from the same row.
+pub fn served(channels: usize, batch: usize) -> Vec<Vec<(usize, usize)>> {
+    (0..channels)
+        .map(|c| {
+            (0..batch)
+                .flat_map(|k| (0..3).map(move |cc| (k, cc)))
+                .filter(|&(_, cc)| cc.min(channels - 1) == c)
+                .collect()
+        })
+        .collect()
+}
+
 /// Light sets (and channels) whose dots one pass over a row computes together: the row's values
 /// are loaded once for all of them, and their independent partial sums keep the FMA units busy
 /// (one dot alone waits on its own adds).

@@ -15,7 +15,7 @@ use serde::{Deserialize, Serialize};
 use super::bc;
 use rayon::prelude::*;
 
-use super::lanes::{Lanes, dots};
+use super::lanes::{Lanes, dots, served};
 use super::transform::{
     SparsePart, gather_positions, greedy_chain, is_permutation, log_dequantize, log_quantize,
     select_largest, split_largest,
@@ -690,14 +690,7 @@ impl LogBlockOp {
         let (n, w, ch) = (self.n, self.width, self.channels);
         // Per stored channel: the (light set, colour) columns it serves, and the light in image
         // column order, `xs[c][l·m + col]`.
-        let serves: Vec<Vec<(usize, usize)>> = (0..ch)
-            .map(|c| {
-                (0..batch)
-                    .flat_map(|k| (0..3).map(move |cc| (k, cc)))
-                    .filter(|&(_, cc)| cc.min(ch - 1) == c)
-                    .collect()
-            })
-            .collect();
+        let serves = served(ch, batch);
         let xs: Vec<Vec<f32>> = serves
             .iter()
             .map(|sv| {
@@ -863,6 +856,8 @@ impl MatrixOp for LogBlockOp {
             lit
         });
         let (lanes, lit) = (&lanes, lit.as_deref());
+        let served = served(self.channels, batch);
+        let served = &served;
         let sp = &self.sparse;
         let rows: Vec<(usize, Vec<[f32; 3]>)> = (0..self.width / 4)
             .into_par_iter()
@@ -892,11 +887,7 @@ impl MatrixOp for LogBlockOp {
                         let mut per_set = vec![[0.0f32; 3]; batch];
                         if codes.is_some() {
                             let mut sums = vec![0.0f32; 3 * batch];
-                            for (c, v) in values.iter().enumerate() {
-                                let serves: Vec<(usize, usize)> = (0..batch)
-                                    .flat_map(|k| (0..3).map(move |cc| (k, cc)))
-                                    .filter(|&(_, cc)| cc.min(self.channels - 1) == c)
-                                    .collect();
+                            for (v, serves) in values.iter().zip(served) {
                                 let ls: Vec<&[f32]> =
                                     serves.iter().map(|&(k, cc)| lanes.lane(k, cc)).collect();
                                 dots(v, None, &ls, &mut sums[..ls.len()]);
