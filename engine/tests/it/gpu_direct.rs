@@ -17,8 +17,6 @@
 //! These run on whatever adapter wgpu finds (lavapipe in CI); without one they fail unless
 //! `BOUNCE_ALLOW_NO_GPU=1` says skipping is intended.
 
-mod common;
-
 use bounce_core::direct::{DEFAULT_SAMPLES, ShadowScene, direct_irradiance, samples_side};
 use bounce_core::formfactor::Tracer;
 use bounce_core::light::{Light, LightSet};
@@ -28,7 +26,7 @@ use bounce_core::voxel::{Voxelization, voxelize_at};
 use bounce_engine::gpu::{GpuContext, GpuDirect, GpuError};
 use glam::Vec3;
 
-use common::context;
+use crate::common::context;
 
 const SIZE: f32 = 4.0;
 

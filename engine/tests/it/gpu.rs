@@ -3,15 +3,13 @@
 //! These run for real on whatever adapter wgpu finds; in CI that is lavapipe (software Vulkan).
 //! Without an adapter they fail, unless `BOUNCE_ALLOW_NO_GPU=1` says skipping is intended.
 
-mod common;
-
 use bounce_core::codec::dense::{DenseF16, DenseF32};
 use bounce_core::codec::logblock::LogBlock;
 use bounce_core::codec::{Codec, decode};
 use bounce_core::matrix::{DenseMatrix, EncodedMatrix};
 use bounce_engine::gpu::{GpuError, GpuMatrix};
 
-use common::context;
+use crate::common::context;
 
 /// Deterministic uniform numbers in [0, 1).
 struct Lcg(u64);

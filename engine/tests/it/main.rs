@@ -1,0 +1,7 @@
+//! bounce-engine's integration tests, in one binary (one link, one shared GPU adapter).
+
+mod common;
+mod gpu;
+mod gpu_direct;
+mod layout;
+mod relight;
