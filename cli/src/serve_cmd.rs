@@ -5,6 +5,7 @@
 
 use std::net::SocketAddr;
 use std::path::PathBuf;
+use std::time::Duration;
 
 use anyhow::{Context, Result};
 use bounce_core::format::Baked;
@@ -39,6 +40,49 @@ pub struct ServeArgs {
     /// Where the demo scene is baked [default: $XDG_CACHE_HOME/bounce, else ~/.cache/bounce].
     #[arg(long, value_name = "DIR", env = "BOUNCE_CACHE_DIR")]
     pub cache_dir: Option<PathBuf>,
+    /// Where sessions are stored so they survive restarts and crashes
+    /// [default: $XDG_DATA_HOME/bounce, else ~/.local/share/bounce].
+    #[arg(
+        long,
+        value_name = "DIR",
+        env = "BOUNCE_DATA_DIR",
+        conflicts_with = "memory"
+    )]
+    pub data_dir: Option<PathBuf>,
+    /// Keep sessions in memory only: they end with the process.
+    #[arg(long)]
+    pub memory: bool,
+    /// A session nobody watches or writes for this long is removed (`90s`, `30m`, `24h`).
+    #[arg(long, value_name = "DURATION", default_value = "24h", value_parser = parse_duration, env = "BOUNCE_SESSION_TTL")]
+    pub session_ttl: Duration,
+    /// How often the scene directory is checked for new or changed baked files (`0` never).
+    #[arg(long, value_name = "DURATION", default_value = "2s", value_parser = parse_duration, env = "BOUNCE_RELOAD_EVERY")]
+    pub reload_every: Duration,
+    /// Writes (creating sessions, changing lights, one-shot relights) must present this token:
+    /// gRPC metadata `authorization: Bearer T`. Viewing needs none.
+    #[arg(long, value_name = "T", env = "BOUNCE_TOKEN", hide_env_values = true)]
+    pub token: Option<String>,
+}
+
+/// `250ms`, `90s`, `30m`, `24h`, or plain seconds.
+fn parse_duration(s: &str) -> Result<Duration, String> {
+    let s = s.trim();
+    let split = s
+        .find(|c: char| !(c.is_ascii_digit() || c == '.'))
+        .unwrap_or(s.len());
+    let (number, unit) = s.split_at(split);
+    let n: f64 = number
+        .parse()
+        .map_err(|_| format!("{s:?} is not a duration like 250ms, 90s, 30m or 24h"))?;
+    let seconds = match unit {
+        "" | "s" => n,
+        "ms" => n / 1e3,
+        "m" => n * 60.0,
+        "h" => n * 3600.0,
+        "d" => n * 86400.0,
+        _ => return Err(format!("{unit:?}: the unit is one of ms, s, m, h, d")),
+    };
+    Duration::try_from_secs_f64(seconds).map_err(|e| format!("{s:?}: {e}"))
 }
 
 /// Patches of the demo bake: the same as `bounce demo`.
@@ -51,12 +95,19 @@ pub fn run(args: &ServeArgs) -> Result<()> {
         Some(dir) => dir.clone(),
         None => demo_scenes(args.cache_dir.clone())?,
     };
+    let data_dir = if args.memory {
+        None
+    } else {
+        Some(args.data_dir.clone().unwrap_or_else(default_data_dir))
+    };
+    let mut config = HubConfig::new(&scenes_dir, engine);
+    config.data_dir = data_dir.clone();
+    config.session_ttl = args.session_ttl;
+    config.token = args.token.clone();
+    config.reload_interval = (!args.reload_every.is_zero()).then_some(args.reload_every);
     // Blocking (reads files, may upload to a GPU): before the runtime serves.
-    let hub = Hub::start(&HubConfig {
-        scenes_dir: scenes_dir.clone(),
-        engine,
-    })
-    .with_context(|| format!("starting the service on {}", scenes_dir.display()))?;
+    let hub = Hub::start(&config)
+        .with_context(|| format!("starting the service on {}", scenes_dir.display()))?;
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .thread_name("bounce-serve")
@@ -67,8 +118,12 @@ pub fn run(args: &ServeArgs) -> Result<()> {
             .await
             .with_context(|| format!("binding the gRPC address {}", args.grpc))?;
         let addr = listener.local_addr().context("reading the bound address")?;
-        let names: Vec<&str> = hub.scenes().iter().map(|s| s.name.as_str()).collect();
+        let names: Vec<String> = hub.scenes().iter().map(|s| s.name.clone()).collect();
         println!("bounce: serving {} on {}", names.join(", "), hub.engine());
+        match &data_dir {
+            Some(d) => println!("  sessions stored in {}", d.display()),
+            None => println!("  sessions in memory only"),
+        }
         println!("  gRPC  http://{addr}   (try: grpcurl -plaintext {addr} list)");
         info!(%addr, "listening");
         bounce_server::serve_grpc(hub, listener, shutdown_signal())
@@ -121,6 +176,13 @@ async fn shutdown_signal() {
         _ = ctrl_c => {}
         _ = term => {}
     }
+}
+
+fn default_data_dir() -> PathBuf {
+    std::env::var_os("XDG_DATA_HOME")
+        .map(|d| PathBuf::from(d).join("bounce"))
+        .or_else(|| std::env::var_os("HOME").map(|d| PathBuf::from(d).join(".local/share/bounce")))
+        .unwrap_or_else(|| std::env::temp_dir().join("bounce-data"))
 }
 
 /// The demo's scene directory, baking the embedded Cornell box there unless a readable baked

@@ -40,6 +40,16 @@ pub enum ServerError {
     Lights(#[from] LightError),
     #[error(transparent)]
     Frame(#[from] FrameError),
+    /// A request that is malformed in a way the light validator does not cover.
+    #[error("{0}")]
+    Invalid(String),
+    #[error("this server needs a token for writes; none or a wrong one was given")]
+    Unauthenticated,
+    #[error(transparent)]
+    Store(#[from] crate::store::StoreError),
+    /// A baked file that failed validation on reload: the previous scene keeps serving.
+    #[error("{path}: {source}")]
+    SceneFile { path: PathBuf, source: FormatError },
     #[error("gRPC reflection: {0}")]
     Reflection(String),
     #[error("gRPC transport: {0}")]
@@ -61,8 +71,11 @@ impl From<ServerError> for tonic::Status {
             ServerError::UnknownScene(_) | ServerError::UnknownSession(_) => {
                 Status::not_found(e.to_string())
             }
-            ServerError::Lights(_) => Status::invalid_argument(e.to_string()),
-            ServerError::WorkerGone => Status::unavailable(e.to_string()),
+            ServerError::Lights(_) | ServerError::Invalid(_) => {
+                Status::invalid_argument(e.to_string())
+            }
+            ServerError::Unauthenticated => Status::unauthenticated(e.to_string()),
+            ServerError::WorkerGone | ServerError::Store(_) => Status::unavailable(e.to_string()),
             _ => Status::internal(e.to_string()),
         }
     }

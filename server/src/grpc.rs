@@ -4,15 +4,18 @@
 use std::pin::Pin;
 
 use futures_util::Stream;
-use tokio::sync::{mpsc, watch};
+use tokio::sync::mpsc;
 use tonic::{Request, Response, Status, Streaming};
 use tracing::debug;
 
+use crate::error::ServerError;
 use crate::frame::Frame;
 use crate::hub::Hub;
 use crate::lights::light_set;
+use crate::metrics::{Metrics, Transport};
 use crate::proto;
 use crate::proto::bounce_server::Bounce;
+use crate::viewer::Viewer;
 
 /// The service; cheap to clone (it is a [`Hub`] handle).
 #[derive(Clone)]
@@ -24,12 +27,41 @@ impl BounceService {
     pub fn new(hub: Hub) -> BounceService {
         BounceService { hub }
     }
+
+    /// Counts a refusal and turns it into its status.
+    fn refuse(&self, status: Status) -> Status {
+        self.hub
+            .metrics()
+            .requests_refused
+            .get_or_create(&Metrics::transport(Transport::Grpc))
+            .inc();
+        status
+    }
+
+    /// Checks a write's token: the request's `authorization: Bearer T` metadata, or `field`
+    /// where the message has one.
+    fn authorize<T>(&self, request: &Request<T>, field: Option<&str>) -> Result<(), Status> {
+        let token = field
+            .filter(|t| !t.is_empty())
+            .or_else(|| bearer(request.metadata()));
+        self.hub.authorize(token).map_err(|e| self.refuse(e.into()))
+    }
+}
+
+/// The token of an `authorization: Bearer T` header.
+fn bearer(metadata: &tonic::metadata::MetadataMap) -> Option<&str> {
+    metadata
+        .get("authorization")?
+        .to_str()
+        .ok()?
+        .strip_prefix("Bearer ")
+        .map(str::trim)
 }
 
 type FrameStream = Pin<Box<dyn Stream<Item = Result<proto::Frame, Status>> + Send>>;
 
-fn lights(l: &[proto::Light]) -> Result<bounce_core::light::LightSet, Status> {
-    light_set(l).map_err(|e| Status::invalid_argument(e.to_string()))
+fn lights(l: &[proto::Light]) -> Result<bounce_core::light::LightSet, ServerError> {
+    Ok(light_set(l)?)
 }
 
 fn to_proto(session_id: &str, frame: &Frame) -> proto::Frame {
@@ -68,7 +100,7 @@ impl Bounce for BounceService {
         request: Request<proto::GetLayoutRequest>,
     ) -> Result<Response<proto::Layout>, Status> {
         let name = request.into_inner().scene;
-        let scene = self.hub.scene(&name)?;
+        let scene = self.hub.scene(&name).map_err(|e| self.refuse(e.into()))?;
         let l = &scene.layout;
         Ok(Response::new(proto::Layout {
             scene: scene.name.clone(),
@@ -86,9 +118,13 @@ impl Bounce for BounceService {
         &self,
         request: Request<proto::CreateSessionRequest>,
     ) -> Result<Response<proto::CreateSessionResponse>, Status> {
+        self.authorize(&request, None)?;
         let r = request.into_inner();
-        let set = lights(&r.lights)?;
-        let session = self.hub.create_session(&r.scene, set)?;
+        let created = async {
+            let set = lights(&r.lights)?;
+            self.hub.create_session(&r.scene, set).await
+        };
+        let session = created.await.map_err(|e| self.refuse(e.into()))?;
         Ok(Response::new(proto::CreateSessionResponse {
             session_id: session.id.clone(),
             lights_version: session.lights_version(),
@@ -99,11 +135,15 @@ impl Bounce for BounceService {
         &self,
         request: Request<proto::SetLightsRequest>,
     ) -> Result<Response<proto::SetLightsResponse>, Status> {
+        self.authorize(&request, Some(&request.get_ref().token))?;
         let r = request.into_inner();
-        // The session first: an unknown session is NOT_FOUND whatever the lights hold.
-        self.hub.session(&r.session_id)?;
-        let set = lights(&r.lights)?;
-        let v = self.hub.set_lights(&r.session_id, set)?;
+        let changed = async {
+            // The session first: an unknown session is NOT_FOUND whatever the lights hold.
+            self.hub.session(&r.session_id)?;
+            let set = lights(&r.lights)?;
+            self.hub.set_lights(&r.session_id, set).await
+        };
+        let v = changed.await.map_err(|e| self.refuse(e.into()))?;
         Ok(Response::new(proto::SetLightsResponse {
             lights_version: v.version,
             changed: v.changed,
@@ -117,13 +157,11 @@ impl Bounce for BounceService {
         request: Request<proto::SubscribeRequest>,
     ) -> Result<Response<FrameStream>, Status> {
         let id = request.into_inner().session_id;
-        let frames = self.hub.session(&id)?.subscribe();
-        Ok(Response::new(frame_stream(
-            id,
-            frames,
-            self.hub.shutdown_signal(),
-            None,
-        )))
+        let viewer = self
+            .hub
+            .viewer(&id, Transport::Grpc)
+            .map_err(|e| self.refuse(e.into()))?;
+        Ok(Response::new(frame_stream(viewer, None)))
     }
 
     type RelightStream = FrameStream;
@@ -132,45 +170,57 @@ impl Bounce for BounceService {
         &self,
         request: Request<Streaming<proto::RelightRequest>>,
     ) -> Result<Response<FrameStream>, Status> {
+        // A stream that writes presents its token once, in the call's metadata.
+        let authorized = self.authorize(&request, None);
         let mut inbound = request.into_inner();
-        let first = inbound
-            .message()
-            .await?
-            .ok_or_else(|| Status::invalid_argument("the stream ended before its first message"))?;
-        let session = match (first.session_id.is_empty(), first.scene.is_empty()) {
-            (false, true) => {
-                let session = self.hub.session(&first.session_id)?;
-                if first.set_lights {
-                    self.hub.set_lights(&session.id, lights(&first.lights)?)?;
+        let first = inbound.message().await?.ok_or_else(|| {
+            self.refuse(Status::invalid_argument(
+                "the stream ended before its first message",
+            ))
+        })?;
+        let writes = first.set_lights || !first.scene.is_empty();
+        if writes {
+            authorized.clone()?;
+        }
+        let opened = async {
+            match (first.session_id.is_empty(), first.scene.is_empty()) {
+                (false, true) => {
+                    let session = self.hub.session(&first.session_id)?;
+                    if first.set_lights {
+                        self.hub
+                            .set_lights(&session.id, lights(&first.lights)?)
+                            .await?;
+                    }
+                    Ok(session)
                 }
-                session
-            }
-            (true, false) => {
-                let set = if first.set_lights {
-                    lights(&first.lights)?
-                } else {
-                    Default::default()
-                };
-                self.hub.create_session(&first.scene, set)?
-            }
-            _ => {
-                return Err(Status::invalid_argument(
-                    "session_id, scene: the first message names exactly one of them",
-                ));
+                (true, false) => {
+                    let set = if first.set_lights {
+                        lights(&first.lights)?
+                    } else {
+                        Default::default()
+                    };
+                    self.hub.create_session(&first.scene, set).await
+                }
+                _ => Err(ServerError::Invalid(
+                    "session_id, scene: the first message names exactly one of them".into(),
+                )),
             }
         };
-        let frames = session.subscribe();
-        let id = session.id.clone();
+        let session = opened.await.map_err(|e| self.refuse(e.into()))?;
+        let viewer = self
+            .hub
+            .viewer(&session.id, Transport::Grpc)
+            .map_err(|e| self.refuse(e.into()))?;
         // Later messages are read on their own task; a refused one ends the frame stream with
         // its status, through `errors`.
         let (errors_tx, errors_rx) = mpsc::channel(1);
-        let hub = self.hub.clone();
+        let service = self.clone();
         let mut shutdown = self.hub.shutdown_signal();
-        let task_id = id.clone();
+        let task_id = session.id.clone();
         tokio::spawn(async move {
             loop {
                 let message = tokio::select! {
-                    _ = until_true(&mut shutdown) => return,
+                    _ = shutdown.wait_for(|&s| s) => return,
                     m = inbound.message() => m,
                 };
                 let m = match message {
@@ -180,13 +230,23 @@ impl Bounce for BounceService {
                 let result = if !m.scene.is_empty()
                     || (!m.session_id.is_empty() && m.session_id != task_id)
                 {
-                    Err(Status::invalid_argument(
+                    Err(service.refuse(Status::invalid_argument(
                         "session_id, scene: only the first message names the session",
-                    ))
+                    )))
                 } else if m.set_lights {
-                    lights(&m.lights)
-                        .and_then(|set| hub.set_lights(&task_id, set).map_err(Status::from))
-                        .map(|_| ())
+                    match authorized.clone() {
+                        Err(status) => Err(status),
+                        Ok(()) => {
+                            let changed = async {
+                                let set = lights(&m.lights)?;
+                                service.hub.set_lights(&task_id, set).await
+                            };
+                            changed
+                                .await
+                                .map(|_| ())
+                                .map_err(|e| service.refuse(e.into()))
+                        }
+                    }
                 } else {
                     Ok(())
                 };
@@ -197,29 +257,23 @@ impl Bounce for BounceService {
                 }
             }
         });
-        Ok(Response::new(frame_stream(
-            id,
-            frames,
-            self.hub.shutdown_signal(),
-            Some(errors_rx),
-        )))
+        Ok(Response::new(frame_stream(viewer, Some(errors_rx))))
     }
 
     async fn relight_once(
         &self,
         request: Request<proto::RelightOnceRequest>,
     ) -> Result<Response<proto::Frame>, Status> {
+        self.authorize(&request, None)?;
         let r = request.into_inner();
-        self.hub.scene(&r.scene)?;
-        let set = lights(&r.lights)?;
-        let frame = self.hub.relight_once(&r.scene, set).await?;
+        let solved = async {
+            self.hub.scene(&r.scene)?;
+            let set = lights(&r.lights)?;
+            self.hub.relight_once(&r.scene, set).await
+        };
+        let frame = solved.await.map_err(|e| self.refuse(e.into()))?;
         Ok(Response::new(to_proto("", &frame)))
     }
-}
-
-async fn until_true(rx: &mut watch::Receiver<bool>) {
-    // An error means the hub is gone: as good as shut down.
-    let _ = rx.wait_for(|&s| s).await;
 }
 
 async fn next_error(errors: &mut Option<mpsc::Receiver<Status>>) -> Option<Status> {
@@ -229,28 +283,16 @@ async fn next_error(errors: &mut Option<mpsc::Receiver<Status>>) -> Option<Statu
     }
 }
 
-/// A session's frames as a stream: the newest at once, then each newer one as it is published.
-/// Reading from the `watch` receiver means a reader that falls behind gets the newest frame
-/// next, never a backlog. Ends on shutdown, or with the first status sent on `errors`.
-fn frame_stream(
-    session_id: String,
-    mut frames: watch::Receiver<Option<Frame>>,
-    shutdown: watch::Receiver<bool>,
-    errors: Option<mpsc::Receiver<Status>>,
-) -> FrameStream {
-    // The current frame counts as news to a new viewer.
-    frames.mark_changed();
+/// A viewer's frames as a stream. Ends on shutdown, when the session goes, or with the first
+/// status sent on `errors`.
+fn frame_stream(viewer: Viewer, errors: Option<mpsc::Receiver<Status>>) -> FrameStream {
     struct State {
-        id: String,
-        frames: watch::Receiver<Option<Frame>>,
-        shutdown: watch::Receiver<bool>,
+        viewer: Viewer,
         errors: Option<mpsc::Receiver<Status>>,
         done: bool,
     }
     let state = State {
-        id: session_id,
-        frames,
-        shutdown,
+        viewer,
         errors,
         done: false,
     };
@@ -261,7 +303,6 @@ fn frame_stream(
         loop {
             tokio::select! {
                 biased;
-                _ = until_true(&mut st.shutdown) => return None,
                 status = next_error(&mut st.errors) => match status {
                     Some(status) => {
                         st.done = true;
@@ -270,15 +311,10 @@ fn frame_stream(
                     // The reader task ended quietly (the client closed its side): keep sending.
                     None => st.errors = None,
                 },
-                changed = st.frames.changed() => {
-                    if changed.is_err() {
-                        return None;
-                    }
-                    let frame = st.frames.borrow_and_update().clone();
-                    if let Some(frame) = frame {
-                        let msg = to_proto(&st.id, &frame);
-                        return Some((Ok(msg), st));
-                    }
+                frame = st.viewer.next() => {
+                    let frame = frame?;
+                    let msg = to_proto(&st.viewer.session().id, &frame);
+                    return Some((Ok(msg), st));
                 }
             }
         }

@@ -1,11 +1,15 @@
-//! The hub: the scenes, the sessions and the engine worker, behind the calls every front end
-//! (gRPC now, WebSocket later) makes. Front ends convert and validate their input, then call
+//! The hub: the scenes, the sessions, their store and the engine worker, behind the calls every
+//! front end (gRPC, WebSocket) makes. Front ends convert and validate their input, then call
 //! here; nothing here knows about a wire format.
 
 use std::collections::HashMap;
 use std::path::PathBuf;
-use std::sync::{Arc, RwLock};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex, RwLock, Weak};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
 
+use bounce_core::format::Baked;
 use bounce_core::light::LightSet;
 use bounce_engine::EngineChoice;
 use tokio::sync::{oneshot, watch};
@@ -13,9 +17,12 @@ use tracing::{info, warn};
 
 use crate::error::ServerError;
 use crate::frame::Frame;
+use crate::metrics::{EngineLabel, Metrics, Outcome, ReloadLabel, Transport};
 use crate::scenes::{self, SceneInfo};
 use crate::session::Session;
-use crate::worker::{OnceJob, Worker};
+use crate::store::{Store, StoredSession};
+use crate::viewer::Viewer;
+use crate::worker::{OnceJob, ReloadJob, Worker};
 
 /// How to start a hub.
 #[derive(Debug, Clone)]
@@ -23,6 +30,30 @@ pub struct HubConfig {
     /// The directory of `*.bounce` files to serve.
     pub scenes_dir: PathBuf,
     pub engine: EngineChoice,
+    /// Where sessions are stored so they survive restarts; `None` keeps them in memory only.
+    pub data_dir: Option<PathBuf>,
+    /// A session nobody watches or writes for this long is removed.
+    pub session_ttl: Duration,
+    /// When set, every write (creating a session, changing lights, a one-shot relight) must
+    /// present it.
+    pub token: Option<String>,
+    /// How often the scene directory is checked for new or changed baked files; `None` never.
+    pub reload_interval: Option<Duration>,
+}
+
+impl HubConfig {
+    /// Defaults: sessions in memory only, expiring after a day idle; no token; the scene
+    /// directory checked every two seconds.
+    pub fn new(scenes_dir: impl Into<PathBuf>, engine: EngineChoice) -> HubConfig {
+        HubConfig {
+            scenes_dir: scenes_dir.into(),
+            engine,
+            data_dir: None,
+            session_ttl: Duration::from_secs(24 * 3600),
+            token: None,
+            reload_interval: Some(Duration::from_secs(2)),
+        }
+    }
 }
 
 /// A cheap handle: clones share one hub.
@@ -32,12 +63,20 @@ pub struct Hub {
 }
 
 struct Inner {
-    scenes: Vec<SceneInfo>,
+    scenes_dir: PathBuf,
+    /// Indexed by the sessions' scene index; a reload replaces an entry, a new file appends.
+    scenes: RwLock<Vec<Arc<SceneInfo>>>,
     engine: String,
     sessions: RwLock<HashMap<String, Arc<Session>>>,
     worker: Worker,
+    store: Option<Store>,
+    metrics: Arc<Metrics>,
+    token: Option<String>,
+    session_ttl: Duration,
+    ready: AtomicBool,
     /// `true` once shutting down: every frame stream ends.
     shutdown: watch::Sender<bool>,
+    janitor: Mutex<Option<(std::sync::mpsc::Sender<()>, JoinHandle<()>)>>,
 }
 
 /// What [`Hub::set_lights`] answers.
@@ -49,33 +88,106 @@ pub struct LightsVersion {
 }
 
 impl Hub {
-    /// Reads the scene directory, opens the engine and loads every scene on it. Blocking (it
-    /// reads files and may upload to a GPU): call it before the runtime serves, or from
-    /// `spawn_blocking`. Files that fail to read are logged and skipped.
+    /// Reads the scene directory, opens the engine, loads every scene on it and restores the
+    /// stored sessions. Blocking (it reads files and may upload to a GPU): call it before the
+    /// runtime serves, or from `spawn_blocking`. Files that fail to read are logged and skipped.
     pub fn start(config: &HubConfig) -> Result<Hub, ServerError> {
         let (read, skipped) = scenes::read_dir(&config.scenes_dir)?;
         for s in &skipped {
             warn!(file = %s.path.display(), error = %s.source, "baked file skipped");
         }
+        let stamps: Vec<_> = read
+            .iter()
+            .map(|r| (r.info.path.clone(), r.stamp))
+            .collect();
         let (infos, baked): (Vec<_>, Vec<_>) = read
             .into_iter()
-            .map(|r| (r.info.clone(), (r.info.name, r.baked)))
+            .map(|r| (Arc::new(r.info.clone()), (r.info.name, r.baked)))
             .unzip();
-        let (worker, engine) = Worker::start(config.engine, baked)?;
-        info!(engine = %engine, scenes = infos.len(), "hub ready");
-        Ok(Hub {
+        let metrics = Arc::new(Metrics::new());
+        let (worker, engine) = Worker::start(config.engine, baked, Arc::clone(&metrics))?;
+        metrics
+            .engine
+            .get_or_create(&EngineLabel {
+                engine: engine.clone(),
+            })
+            .set(1);
+        for s in &skipped {
+            metrics
+                .scene_reloads
+                .get_or_create(&ReloadLabel {
+                    scene: scenes::scene_name(&s.path),
+                    outcome: Outcome::Failed,
+                })
+                .inc();
+        }
+
+        let (store, stored) = match &config.data_dir {
+            Some(dir) => {
+                let (store, stored) = Store::open(dir, Arc::clone(&metrics))?;
+                (Some(store), stored)
+            }
+            None => (None, Vec::new()),
+        };
+        let hub = Hub {
             inner: Arc::new(Inner {
-                scenes: infos,
+                scenes_dir: config.scenes_dir.clone(),
+                scenes: RwLock::new(infos),
                 engine,
                 sessions: RwLock::new(HashMap::new()),
                 worker,
+                store,
+                metrics,
+                token: config.token.clone().filter(|t| !t.is_empty()),
+                session_ttl: config.session_ttl,
+                ready: AtomicBool::new(false),
                 shutdown: watch::Sender::new(false),
+                janitor: Mutex::new(None),
             }),
-        })
+        };
+        hub.restore(stored);
+        hub.start_janitor(config.reload_interval, stamps, skipped);
+        hub.inner.ready.store(true, Ordering::Release);
+        info!(
+            engine = %hub.inner.engine,
+            scenes = hub.scenes().len(),
+            sessions = hub.session_count(),
+            "hub ready"
+        );
+        Ok(hub)
     }
 
-    pub fn scenes(&self) -> &[SceneInfo] {
-        &self.inner.scenes
+    /// Brings back the stored sessions whose scene is served; the others stay in the store (their
+    /// scene may come back) and are reported.
+    fn restore(&self, stored: Vec<(String, StoredSession)>) {
+        let mut restored = 0usize;
+        for (id, s) in stored {
+            let Ok(scene) = self.scene_index(&s.scene) else {
+                warn!(session = %id, scene = %s.scene, "stored session's scene is not served; kept in the store");
+                continue;
+            };
+            if let Err(e) = s.lights.validate() {
+                warn!(session = %id, error = %e, "stored session has invalid lights; skipped");
+                continue;
+            }
+            let session = Arc::new(Session::new(id.clone(), scene, s.lights, s.version));
+            self.write_sessions().insert(id, Arc::clone(&session));
+            self.inner.worker.enqueue(session);
+            restored += 1;
+        }
+        self.inner.metrics.sessions.set(self.session_count() as i64);
+        if restored > 0 {
+            info!(sessions = restored, "sessions restored from the store");
+        }
+    }
+
+    /// Snapshot of the scenes served, in index order.
+    pub fn scenes(&self) -> Vec<Arc<SceneInfo>> {
+        self.inner
+            .scenes
+            .read()
+            .unwrap_or_else(|e| e.into_inner())
+            .clone()
     }
 
     /// The engine relighting, as it describes itself (`cpu (2 threads)`).
@@ -83,16 +195,52 @@ impl Hub {
         &self.inner.engine
     }
 
+    pub fn metrics(&self) -> &Arc<Metrics> {
+        &self.inner.metrics
+    }
+
+    /// Ready to serve: scenes loaded, sessions restored, not shutting down.
+    pub fn is_ready(&self) -> bool {
+        self.inner.ready.load(Ordering::Acquire) && !*self.inner.shutdown.borrow()
+    }
+
     fn scene_index(&self, name: &str) -> Result<usize, ServerError> {
         self.inner
             .scenes
+            .read()
+            .unwrap_or_else(|e| e.into_inner())
             .iter()
             .position(|s| s.name == name)
             .ok_or_else(|| ServerError::UnknownScene(name.to_string()))
     }
 
-    pub fn scene(&self, name: &str) -> Result<&SceneInfo, ServerError> {
-        Ok(&self.inner.scenes[self.scene_index(name)?])
+    fn scene_at(&self, index: usize) -> Option<Arc<SceneInfo>> {
+        self.inner
+            .scenes
+            .read()
+            .unwrap_or_else(|e| e.into_inner())
+            .get(index)
+            .cloned()
+    }
+
+    pub fn scene(&self, name: &str) -> Result<Arc<SceneInfo>, ServerError> {
+        let index = self.scene_index(name)?;
+        self.scene_at(index)
+            .ok_or_else(|| ServerError::UnknownScene(name.to_string()))
+    }
+
+    /// The name of the scene a session is on.
+    pub fn scene_of(&self, session: &Session) -> String {
+        self.scene_at(session.scene)
+            .map(|s| s.name.clone())
+            .unwrap_or_default()
+    }
+
+    fn write_sessions(&self) -> std::sync::RwLockWriteGuard<'_, HashMap<String, Arc<Session>>> {
+        self.inner
+            .sessions
+            .write()
+            .unwrap_or_else(|e| e.into_inner())
     }
 
     pub fn session(&self, id: &str) -> Result<Arc<Session>, ServerError> {
@@ -105,38 +253,97 @@ impl Hub {
             .ok_or_else(|| ServerError::UnknownSession(id.to_string()))
     }
 
-    /// A new session on `scene` with validated `lights` at version 1; its first frame is
-    /// queued at once.
-    pub fn create_session(
+    pub fn session_count(&self) -> usize {
+        self.inner
+            .sessions
+            .read()
+            .unwrap_or_else(|e| e.into_inner())
+            .len()
+    }
+
+    /// Checks a write's token: `Ok` when the hub has none, or `presented` equals it.
+    pub fn authorize(&self, presented: Option<&str>) -> Result<(), ServerError> {
+        match &self.inner.token {
+            None => Ok(()),
+            Some(token) if presented.is_some_and(|p| constant_time_eq(p, token)) => Ok(()),
+            Some(_) => Err(ServerError::Unauthenticated),
+        }
+    }
+
+    /// Whether writes need a token.
+    pub fn has_token(&self) -> bool {
+        self.inner.token.is_some()
+    }
+
+    /// A new session on `scene` with validated `lights` at version 1, stored before this
+    /// returns; its first frame is queued at once.
+    pub async fn create_session(
         &self,
         scene: &str,
         lights: LightSet,
     ) -> Result<Arc<Session>, ServerError> {
-        let scene = self.scene_index(scene)?;
+        let index = self.scene_index(scene)?;
         let id = uuid::Uuid::new_v4().simple().to_string();
-        let session = Arc::new(Session::new(id.clone(), scene, lights));
-        self.inner
-            .sessions
-            .write()
-            .unwrap_or_else(|e| e.into_inner())
-            .insert(id, Arc::clone(&session));
+        if let Some(store) = &self.inner.store {
+            let record = StoredSession {
+                scene: scene.to_string(),
+                lights: lights.clone(),
+                version: 1,
+            };
+            store.put(&id, &record).await?;
+        }
+        let session = Arc::new(Session::new(id.clone(), index, lights, 1));
+        self.write_sessions().insert(id, Arc::clone(&session));
+        self.inner.metrics.sessions.set(self.session_count() as i64);
         self.inner.worker.enqueue(Arc::clone(&session));
-        info!(session = %session.id, scene = %self.inner.scenes[scene].name, "session created");
+        info!(session = %session.id, scene, "session created");
         Ok(session)
     }
 
-    /// Replaces a session's validated lights and marks it dirty; returns at once, the frame
-    /// follows on the session's channel.
-    pub fn set_lights(&self, id: &str, lights: LightSet) -> Result<LightsVersion, ServerError> {
+    /// Replaces a session's validated lights, stores them, marks the session dirty and returns;
+    /// the frame follows on the session's channel. Writes to one session are serialised, so the
+    /// store always holds the newest version.
+    pub async fn set_lights(
+        &self,
+        id: &str,
+        lights: LightSet,
+    ) -> Result<LightsVersion, ServerError> {
         let session = self.session(id)?;
-        let change = session.set_lights(lights);
-        if change.enqueue {
-            self.inner.worker.enqueue(session);
+        let _writing = session.write_lock().await;
+        let Some(version) = session.next_version(&lights) else {
+            session.touch();
+            return Ok(LightsVersion {
+                version: session.lights_version(),
+                changed: false,
+            });
+        };
+        if let Some(store) = &self.inner.store {
+            let record = StoredSession {
+                scene: self.scene_of(&session),
+                lights: lights.clone(),
+                version,
+            };
+            store.put(id, &record).await?;
         }
+        if session.apply(lights, version) {
+            self.inner.worker.enqueue(Arc::clone(&session));
+        }
+        self.inner.metrics.light_updates.inc();
         Ok(LightsVersion {
-            version: change.version,
-            changed: change.changed,
+            version,
+            changed: true,
         })
+    }
+
+    /// A viewer of session `id`: the newest frame at once, then each newer one.
+    pub fn viewer(&self, id: &str, transport: Transport) -> Result<Viewer, ServerError> {
+        let session = self.session(id)?;
+        Ok(Viewer::new(
+            session,
+            self.inner.shutdown.subscribe(),
+            transport,
+            Arc::clone(&self.inner.metrics),
+        ))
     }
 
     /// Relights `scene` once, outside any session, batched with whatever the worker solves
@@ -157,10 +364,188 @@ impl Hub {
         self.inner.shutdown.subscribe()
     }
 
-    /// Ends every frame stream and stops the engine worker (after its current batch). Blocks
-    /// for that batch; idempotent.
+    /// Ends every frame stream, stops the janitor and the engine worker (after its current
+    /// batch). Blocks for that batch; idempotent.
     pub fn shutdown(&self) {
         self.inner.shutdown.send_replace(true);
+        let janitor = self
+            .inner
+            .janitor
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .take();
+        if let Some((stop, thread)) = janitor {
+            drop(stop);
+            let _ = thread.join();
+        }
         self.inner.worker.stop();
     }
+
+    /// Removes sessions nobody watched or wrote for the expiry time. Returns how many.
+    pub fn expire_idle(&self) -> usize {
+        let ttl = self.inner.session_ttl;
+        let idle: Vec<Arc<Session>> = self
+            .inner
+            .sessions
+            .read()
+            .unwrap_or_else(|e| e.into_inner())
+            .values()
+            .filter(|s| s.viewers() == 0 && s.idle_for() >= ttl)
+            .cloned()
+            .collect();
+        let mut removed = 0;
+        for s in idle {
+            // Checked again under the map's lock: a viewer may have come in meanwhile.
+            let mut map = self.write_sessions();
+            if s.viewers() > 0 || s.idle_for() < ttl {
+                continue;
+            }
+            map.remove(&s.id);
+            drop(map);
+            if let Some(store) = &self.inner.store
+                && let Err(e) = store.delete_blocking(&s.id)
+            {
+                warn!(session = %s.id, error = %e, "removing an expired session from the store");
+            }
+            info!(session = %s.id, "session expired");
+            removed += 1;
+        }
+        if removed > 0 {
+            self.inner.metrics.sessions_expired.inc_by(removed as u64);
+            self.inner.metrics.sessions.set(self.session_count() as i64);
+        }
+        removed
+    }
+
+    /// Loads a new or changed baked file: validated first, then swapped in on the engine;
+    /// sessions stay, and those on the scene are solved again with the new matrix. A file that
+    /// fails leaves the old scene serving. Blocking.
+    pub fn reload(&self, path: &std::path::Path) -> Result<(), ServerError> {
+        let name = scenes::scene_name(path);
+        let result = self.reload_inner(path, &name);
+        let outcome = match &result {
+            Ok(()) => Outcome::Ok,
+            Err(e) => {
+                warn!(file = %path.display(), error = %e, "reload refused; the previous scene keeps serving");
+                Outcome::Failed
+            }
+        };
+        self.inner
+            .metrics
+            .scene_reloads
+            .get_or_create(&ReloadLabel {
+                scene: name,
+                outcome,
+            })
+            .inc();
+        result
+    }
+
+    fn reload_inner(&self, path: &std::path::Path, name: &str) -> Result<(), ServerError> {
+        let baked = Baked::read(path).map_err(|source| ServerError::SceneFile {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        let info = SceneInfo::new(name.to_string(), path.to_path_buf(), &baked);
+        let existing = self.scene_index(name).ok();
+        let index = existing.unwrap_or_else(|| self.scenes().len());
+        if let Some(old) = existing.and_then(|i| self.scene_at(i))
+            && old.layout != info.layout
+        {
+            warn!(
+                scene = name,
+                "the reloaded scene's patch layout changed: clients must fetch it again"
+            );
+        }
+        let sessions: Vec<Arc<Session>> = self
+            .inner
+            .sessions
+            .read()
+            .unwrap_or_else(|e| e.into_inner())
+            .values()
+            .filter(|s| s.scene == index)
+            .cloned()
+            .collect();
+        let (reply, answer) = std::sync::mpsc::channel();
+        self.inner.worker.enqueue_reload(ReloadJob {
+            scene: index,
+            name: name.to_string(),
+            baked,
+            sessions,
+            reply,
+        });
+        answer.recv().map_err(|_| ServerError::WorkerGone)??;
+        let mut scenes = self.inner.scenes.write().unwrap_or_else(|e| e.into_inner());
+        if index < scenes.len() {
+            scenes[index] = Arc::new(info);
+        } else {
+            scenes.push(Arc::new(info));
+        }
+        info!(scene = name, file = %path.display(), new = existing.is_none(), "scene reloaded");
+        Ok(())
+    }
+
+    /// One thread for housekeeping: expiring idle sessions and watching the scene directory.
+    fn start_janitor(
+        &self,
+        reload_interval: Option<Duration>,
+        stamps: Vec<(PathBuf, scenes::Stamp)>,
+        skipped: Vec<crate::error::SkippedScene>,
+    ) {
+        let (stop, stopped) = std::sync::mpsc::channel::<()>();
+        let weak: Weak<Inner> = Arc::downgrade(&self.inner);
+        let ttl = self.inner.session_ttl;
+        // Expiry need not be prompt: a tenth of the TTL, between 10 ms (tests) and a minute.
+        let expiry_every = (ttl / 10).clamp(Duration::from_millis(10), Duration::from_secs(60));
+        let tick = reload_interval.map_or(expiry_every, |r| r.min(expiry_every));
+        let mut known: HashMap<PathBuf, scenes::Stamp> = stamps.into_iter().collect();
+        // A file skipped at start is remembered as seen, so it is retried only once it changes.
+        for s in skipped {
+            if let Ok(stamp) = scenes::stamp(&s.path) {
+                known.insert(s.path, stamp);
+            }
+        }
+        let dir = self.inner.scenes_dir.clone();
+        let spawned = std::thread::Builder::new()
+            .name("bounce-janitor".into())
+            .spawn(move || {
+                let mut last_expiry = Instant::now();
+                let mut last_scan = Instant::now();
+                loop {
+                    match stopped.recv_timeout(tick) {
+                        Err(std::sync::mpsc::RecvTimeoutError::Timeout) => {}
+                        _ => return,
+                    }
+                    let Some(inner) = weak.upgrade() else { return };
+                    let hub = Hub { inner };
+                    if last_expiry.elapsed() >= expiry_every {
+                        last_expiry = Instant::now();
+                        hub.expire_idle();
+                    }
+                    if let Some(every) = reload_interval
+                        && last_scan.elapsed() >= every
+                    {
+                        last_scan = Instant::now();
+                        for path in scenes::changed_files(&dir, &mut known) {
+                            let _ = hub.reload(&path);
+                        }
+                    }
+                }
+            });
+        match spawned {
+            Ok(thread) => {
+                *self.inner.janitor.lock().unwrap_or_else(|e| e.into_inner()) =
+                    Some((stop, thread));
+            }
+            Err(e) => {
+                warn!(error = %e, "no janitor thread: sessions will not expire, scenes not reload")
+            }
+        }
+    }
+}
+
+/// Compares without an early exit, so the time taken does not tell how much of a guess matched.
+fn constant_time_eq(a: &str, b: &str) -> bool {
+    let (a, b) = (a.as_bytes(), b.as_bytes());
+    a.len() == b.len() && a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
 }

@@ -1,11 +1,12 @@
 //! `bounce-server`: the lighting service of DESIGN.md §2 "Serve" and §5.
 //!
 //! It owns what happens between a baked scene on disk and a viewer's frames: the scenes loaded
-//! from a directory ([`scenes`]), sessions (a scene, a light configuration and its version,
-//! [`session`]), the engine worker that solves every changed session of a scene in one batch
-//! ([`worker`]), frames and their byte layout ([`frame`]), the hub tying these together
-//! ([`hub`]), and the gRPC front end ([`grpc`], [`serve`]) with health and reflection. A
-//! WebSocket/HTTP front end will call the same hub and send the same frame bytes.
+//! from a directory and reloaded when they change ([`scenes`]), sessions (a scene, a light
+//! configuration and its version, [`session`]) kept in an embedded store so they survive
+//! restarts ([`store`]), the engine worker that solves every changed session of a scene in one
+//! batch ([`worker`]), frames and their byte layout ([`frame`]) and what each viewer reads of
+//! them ([`viewer`]), the hub tying these together ([`hub`]), Prometheus [`metrics`], and the
+//! front ends: gRPC ([`grpc`], [`serve`]) with health and reflection, and HTTP/WebSocket.
 //!
 //! Not here: the math (`bounce-core`), the engines themselves (`bounce-engine`), the command
 //! line and its runtime, logging setup and signals (`bounce serve` in `bounce-cli`).
@@ -15,9 +16,12 @@ pub mod frame;
 pub mod grpc;
 pub mod hub;
 pub mod lights;
+pub mod metrics;
 pub mod scenes;
 pub mod serve;
 pub mod session;
+pub mod store;
+pub mod viewer;
 mod worker;
 
 pub use error::ServerError;

@@ -3,7 +3,9 @@
 //! Reading is separate from loading onto the engine so that a bad file is reported and skipped
 //! (the other scenes still serve) before any device work starts.
 
+use std::collections::HashMap;
 use std::path::{Path, PathBuf};
+use std::time::SystemTime;
 
 use bounce_core::format::Baked;
 use bounce_core::patch::PatchLayout;
@@ -19,10 +21,74 @@ pub struct SceneInfo {
     pub layout: PatchLayout,
 }
 
+impl SceneInfo {
+    pub fn new(name: String, path: PathBuf, baked: &Baked) -> SceneInfo {
+        SceneInfo {
+            name,
+            path,
+            codec: baked.transport.codec.clone(),
+            layout: baked.layout.clone(),
+        }
+    }
+}
+
 /// A scene read from disk, not yet on the engine.
 pub(crate) struct ReadScene {
     pub info: SceneInfo,
     pub baked: Baked,
+    pub stamp: Stamp,
+}
+
+/// What tells that a file changed: its modification time and length.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Stamp {
+    modified: Option<SystemTime>,
+    len: u64,
+}
+
+pub fn stamp(path: &Path) -> std::io::Result<Stamp> {
+    let m = std::fs::metadata(path)?;
+    Ok(Stamp {
+        modified: m.modified().ok(),
+        len: m.len(),
+    })
+}
+
+/// The scene name of a baked file: its stem.
+pub fn scene_name(path: &Path) -> String {
+    path.file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default()
+}
+
+fn baked_files(dir: &Path) -> std::io::Result<Vec<PathBuf>> {
+    let mut paths = Vec::new();
+    for entry in std::fs::read_dir(dir)? {
+        let path = entry?.path();
+        if path.extension().is_some_and(|e| e == "bounce") && path.is_file() {
+            paths.push(path);
+        }
+    }
+    paths.sort();
+    Ok(paths)
+}
+
+/// The baked files of `dir` that are new or changed since `known`, which is updated. A file
+/// caught half-written fails validation and is reported; once complete its stamp differs and it
+/// is tried again. (Writers should still write a temporary file and rename it.)
+pub(crate) fn changed_files(dir: &Path, known: &mut HashMap<PathBuf, Stamp>) -> Vec<PathBuf> {
+    let Ok(paths) = baked_files(dir) else {
+        return Vec::new();
+    };
+    let mut changed = Vec::new();
+    for path in paths {
+        let Ok(now) = stamp(&path) else { continue };
+        if known.get(&path) != Some(&now) {
+            known.insert(path.clone(), now);
+            changed.push(path);
+        }
+    }
+    changed
 }
 
 /// Reads every `*.bounce` file of `dir`, in name order. Files that fail to read are returned
@@ -32,29 +98,20 @@ pub(crate) fn read_dir(dir: &Path) -> Result<(Vec<ReadScene>, Vec<SkippedScene>)
         path: dir.to_path_buf(),
         source,
     };
-    let mut paths = Vec::new();
-    for entry in std::fs::read_dir(dir).map_err(io)? {
-        let path = entry.map_err(io)?.path();
-        if path.extension().is_some_and(|e| e == "bounce") && path.is_file() {
-            paths.push(path);
-        }
-    }
-    paths.sort();
+    let paths = baked_files(dir).map_err(io)?;
     let mut scenes = Vec::new();
     let mut skipped = Vec::new();
     for path in paths {
         let Some(name) = path.file_stem().and_then(|s| s.to_str()).map(str::to_owned) else {
             continue;
         };
+        // Stamped before reading, so a write that lands meanwhile is seen as a change.
+        let Ok(stamp) = stamp(&path) else { continue };
         match Baked::read(&path) {
             Ok(baked) => scenes.push(ReadScene {
-                info: SceneInfo {
-                    name,
-                    path,
-                    codec: baked.transport.codec.clone(),
-                    layout: baked.layout.clone(),
-                },
+                info: SceneInfo::new(name, path, &baked),
                 baked,
+                stamp,
             }),
             Err(source) => skipped.push(SkippedScene { path, source }),
         }

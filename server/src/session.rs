@@ -7,6 +7,7 @@
 //! session's frames in version order, never reads an older frame after a newer one.
 
 use std::sync::{Mutex, MutexGuard};
+use std::time::{Duration, Instant};
 
 use bounce_core::light::LightSet;
 use tokio::sync::watch;
@@ -19,6 +20,8 @@ pub struct Session {
     pub scene: usize,
     state: Mutex<State>,
     frames: watch::Sender<Option<Frame>>,
+    /// Held across a write's store commit, so writes to one session are stored in order.
+    writing: tokio::sync::Mutex<()>,
 }
 
 struct State {
@@ -27,29 +30,28 @@ struct State {
     version: u64,
     /// Whether the session waits in the worker's queue, so a burst of changes queues it once.
     queued: bool,
-}
-
-/// What [`Session::set_lights`] did.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct LightsChange {
-    pub version: u64,
-    pub changed: bool,
-    /// The caller must queue the session for the worker (it was not queued already).
-    pub enqueue: bool,
+    /// When the current version was accepted: the start of its update-to-frame latency.
+    changed_at: Instant,
+    /// Last write, or last viewer arriving or leaving: what expiry measures from.
+    touched: Instant,
 }
 
 impl Session {
-    /// A new session at version 1, waiting for its first frame (the caller queues it).
-    pub(crate) fn new(id: String, scene: usize, lights: LightSet) -> Session {
+    /// A session at `version`, waiting for its first frame (the caller queues it).
+    pub(crate) fn new(id: String, scene: usize, lights: LightSet, version: u64) -> Session {
+        let now = Instant::now();
         Session {
             id,
             scene,
             state: Mutex::new(State {
                 lights,
-                version: 1,
+                version,
                 queued: true,
+                changed_at: now,
+                touched: now,
             }),
             frames: watch::Sender::new(None),
+            writing: tokio::sync::Mutex::new(()),
         }
     }
 
@@ -58,38 +60,60 @@ impl Session {
         self.state.lock().unwrap_or_else(|e| e.into_inner())
     }
 
-    /// Replaces the lights. Lights equal to the current ones change nothing: no new version and
-    /// no solve, so a client that repeats itself costs nothing.
-    pub(crate) fn set_lights(&self, lights: LightSet) -> LightsChange {
+    /// Held by a writer from [`Session::next_version`] to [`Session::apply`].
+    pub(crate) async fn write_lock(&self) -> tokio::sync::MutexGuard<'_, ()> {
+        self.writing.lock().await
+    }
+
+    /// The version `lights` would get, or `None` when they equal the current lights: a client
+    /// that repeats itself gets no new version and costs no solve.
+    pub(crate) fn next_version(&self, lights: &LightSet) -> Option<u64> {
+        let s = self.state();
+        (s.lights != *lights).then_some(s.version + 1)
+    }
+
+    /// Makes `lights` current at `version`. Returns whether the caller must queue the session
+    /// for the worker (it was not queued already).
+    pub(crate) fn apply(&self, lights: LightSet, version: u64) -> bool {
         let mut s = self.state();
-        if s.lights == lights {
-            return LightsChange {
-                version: s.version,
-                changed: false,
-                enqueue: false,
-            };
-        }
         s.lights = lights;
-        s.version += 1;
-        let enqueue = !s.queued;
-        s.queued = true;
-        LightsChange {
-            version: s.version,
-            changed: true,
-            enqueue,
-        }
+        s.version = version;
+        let now = Instant::now();
+        s.changed_at = now;
+        s.touched = now;
+        !std::mem::replace(&mut s.queued, true)
+    }
+
+    /// Marks the session as in use now (for expiry).
+    pub fn touch(&self) {
+        self.state().touched = Instant::now();
+    }
+
+    /// How long since the last write or viewer arriving or leaving.
+    pub fn idle_for(&self) -> Duration {
+        self.state().touched.elapsed()
     }
 
     pub fn lights_version(&self) -> u64 {
         self.state().version
     }
 
-    /// The worker's snapshot: the newest lights and their version. A change after this queues
-    /// the session again.
-    pub(crate) fn take(&self) -> (LightSet, u64) {
+    /// The worker's snapshot: the newest lights, their version and when it was accepted. A
+    /// change after this queues the session again.
+    pub(crate) fn take(&self) -> (LightSet, u64, Instant) {
         let mut s = self.state();
         s.queued = false;
-        (s.lights.clone(), s.version)
+        (s.lights.clone(), s.version, s.changed_at)
+    }
+
+    /// The same snapshot without leaving the queue, for solving again after a scene reload.
+    pub(crate) fn snapshot(&self) -> (LightSet, u64, Instant) {
+        let s = self.state();
+        (s.lights.clone(), s.version, s.changed_at)
+    }
+
+    pub fn lights(&self) -> LightSet {
+        self.state().lights.clone()
     }
 
     /// The lights version of the newest published frame, 0 before the first.
@@ -108,14 +132,16 @@ impl Session {
             .map_or(1, |f| f.header.sequence + 1)
     }
 
-    /// Publishes a frame unless one answering the same or a newer version is out already.
-    /// Only the engine worker publishes, so this check is what keeps every viewer's frames in
-    /// order even if a future change lets two solves of one session race.
-    pub(crate) fn publish(&self, frame: Frame) -> bool {
+    /// Publishes a frame unless one answering a newer version (or the same version, unless
+    /// `resolve` says this one replaces it after a scene reload) is out already. Only the engine
+    /// worker publishes, so this check is what keeps every viewer's frames in order even if a
+    /// future change lets two solves of one session race.
+    pub(crate) fn publish(&self, frame: Frame, resolve: bool) -> bool {
         self.frames.send_if_modified(|cur| {
-            let newer = cur
-                .as_ref()
-                .is_none_or(|f| f.header.lights_version < frame.header.lights_version);
+            let newer = cur.as_ref().is_none_or(|f| {
+                let (old, new) = (f.header.lights_version, frame.header.lights_version);
+                old < new || (resolve && old == new)
+            });
             if newer {
                 *cur = Some(frame);
             }

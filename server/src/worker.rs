@@ -7,6 +7,7 @@
 //! device would get a second worker.
 
 use std::collections::BTreeMap;
+use std::sync::mpsc;
 use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 use std::thread::JoinHandle;
 use std::time::Instant;
@@ -19,6 +20,7 @@ use tracing::{debug, error, info};
 
 use crate::error::ServerError;
 use crate::frame::Frame;
+use crate::metrics::{Metrics, SceneLabel};
 use crate::session::Session;
 
 /// Light sets per `relight` call at most: bounds the batch's memory (`batch × patches` vectors)
@@ -32,10 +34,21 @@ pub(crate) struct OnceJob {
     pub reply: oneshot::Sender<Result<Frame, ServerError>>,
 }
 
+/// A new or changed baked file, validated, to load in place of scene `scene` (or as a new
+/// scene when `scene` is one past the last); then `sessions` are solved again on it.
+pub(crate) struct ReloadJob {
+    pub scene: usize,
+    pub name: String,
+    pub baked: Baked,
+    pub sessions: Vec<Arc<Session>>,
+    pub reply: mpsc::Sender<Result<(), ServerError>>,
+}
+
 #[derive(Default)]
 struct Work {
     sessions: Vec<Arc<Session>>,
     once: Vec<OnceJob>,
+    reloads: Vec<ReloadJob>,
     stop: bool,
 }
 
@@ -62,6 +75,7 @@ impl Worker {
     pub fn start(
         choice: EngineChoice,
         scenes: Vec<(String, Baked)>,
+        metrics: Arc<Metrics>,
     ) -> Result<(Worker, String), ServerError> {
         let queue = Arc::new(Queue::default());
         let (ready_tx, ready_rx) = std::sync::mpsc::channel();
@@ -70,7 +84,7 @@ impl Worker {
             .name("bounce-engine".into())
             .spawn(move || {
                 let opened = open(choice, scenes);
-                let (engine, loaded) = match opened {
+                let (engine, mut loaded) = match opened {
                     Ok((engine, loaded)) => {
                         let _ = ready_tx.send(Ok(engine.describe().to_string()));
                         (engine, loaded)
@@ -80,7 +94,7 @@ impl Worker {
                         return;
                     }
                 };
-                run(&q, &engine, &loaded);
+                run(&q, &engine, &mut loaded, &metrics);
             })
             .map_err(|_| ServerError::WorkerGone)?;
         let description = ready_rx.recv().map_err(|_| ServerError::WorkerGone)??;
@@ -101,6 +115,11 @@ impl Worker {
 
     pub fn enqueue_once(&self, job: OnceJob) {
         self.queue.lock().once.push(job);
+        self.queue.wake.notify_one();
+    }
+
+    pub fn enqueue_reload(&self, job: ReloadJob) {
+        self.queue.lock().reloads.push(job);
         self.queue.wake.notify_one();
     }
 
@@ -155,11 +174,11 @@ fn open(
     Ok((engine, loaded))
 }
 
-fn run(queue: &Queue, engine: &Engine, scenes: &Loaded) {
+fn run(queue: &Queue, engine: &Engine, scenes: &mut Loaded, metrics: &Metrics) {
     loop {
         let work = {
             let mut w = queue.lock();
-            while w.sessions.is_empty() && w.once.is_empty() && !w.stop {
+            while w.sessions.is_empty() && w.once.is_empty() && w.reloads.is_empty() && !w.stop {
                 w = queue.wake.wait(w).unwrap_or_else(|e| e.into_inner());
             }
             if w.stop {
@@ -167,6 +186,9 @@ fn run(queue: &Queue, engine: &Engine, scenes: &Loaded) {
             }
             std::mem::take(&mut *w)
         };
+        for job in work.reloads {
+            reload(engine, scenes, job, metrics);
+        }
         // Per scene, its sessions and one-shot jobs: each scene is one batch.
         let mut by_scene: BTreeMap<usize, (Vec<Arc<Session>>, Vec<OnceJob>)> = BTreeMap::new();
         for s in work.sessions {
@@ -177,15 +199,82 @@ fn run(queue: &Queue, engine: &Engine, scenes: &Loaded) {
         }
         for (scene, (sessions, once)) in by_scene {
             if let Some((name, loaded)) = scenes.get(scene) {
-                solve_scene(engine, name, loaded, sessions, once);
+                let targets = sessions.into_iter().filter_map(|session| {
+                    let (lights, version, since) = session.take();
+                    // Already answered (queued twice around a publish): nothing to solve.
+                    (version > session.published_version()).then_some((
+                        Target::Session {
+                            session,
+                            version,
+                            since,
+                            resolve: false,
+                        },
+                        lights,
+                    ))
+                });
+                let once = once.into_iter().map(|j| (Target::Once(j.reply), j.lights));
+                solve_scene(engine, name, loaded, targets.chain(once).collect(), metrics);
             }
         }
     }
 }
 
+/// A changed scene onto the engine, in place of the old one only once it loaded; then its
+/// sessions solved again so viewers see the new matrix.
+fn reload(engine: &Engine, scenes: &mut Loaded, job: ReloadJob, metrics: &Metrics) {
+    let start = Instant::now();
+    let loaded = match engine.load(&job.baked) {
+        Ok(scene) => scene,
+        Err(source) => {
+            let _ = job.reply.send(Err(ServerError::Load {
+                name: job.name,
+                source: Box::new(source),
+            }));
+            return;
+        }
+    };
+    info!(
+        scene = %job.name,
+        patches = job.baked.layout.len(),
+        ms = start.elapsed().as_secs_f64() * 1e3,
+        "scene loaded"
+    );
+    let at = if job.scene < scenes.len() {
+        scenes[job.scene] = (job.name, loaded);
+        job.scene
+    } else {
+        scenes.push((job.name, loaded));
+        scenes.len() - 1
+    };
+    let _ = job.reply.send(Ok(()));
+    let (name, scene) = &scenes[at];
+    let items = job
+        .sessions
+        .into_iter()
+        .map(|session| {
+            let (lights, version, since) = session.snapshot();
+            let target = Target::Session {
+                session,
+                version,
+                since,
+                resolve: true,
+            };
+            (target, lights)
+        })
+        .collect();
+    solve_scene(engine, name, scene, items, metrics);
+}
+
 /// One item of a batch: where its frame goes.
 enum Target {
-    Session { session: Arc<Session>, version: u64 },
+    Session {
+        session: Arc<Session>,
+        version: u64,
+        /// When the version was accepted, for the update-to-frame latency.
+        since: Instant,
+        /// Solved again after a reload: replaces the frame of the same version.
+        resolve: bool,
+    },
     Once(oneshot::Sender<Result<Frame, ServerError>>),
 }
 
@@ -193,35 +282,37 @@ fn solve_scene(
     engine: &Engine,
     name: &str,
     scene: &Scene,
-    sessions: Vec<Arc<Session>>,
-    once: Vec<OnceJob>,
+    items: Vec<(Target, LightSet)>,
+    metrics: &Metrics,
 ) {
-    let mut targets = Vec::with_capacity(sessions.len() + once.len());
-    let mut sets = Vec::with_capacity(targets.capacity());
-    for session in sessions {
-        let (lights, version) = session.take();
-        // Already answered (queued twice around a publish): nothing to solve.
-        if version <= session.published_version() {
-            continue;
-        }
-        targets.push(Target::Session { session, version });
-        sets.push(lights);
-    }
-    for job in once {
-        targets.push(Target::Once(job.reply));
-        sets.push(job.lights);
-    }
+    let (targets, sets): (Vec<Target>, Vec<LightSet>) = items.into_iter().unzip();
+    let label = SceneLabel {
+        scene: name.to_string(),
+    };
     let mut targets = targets.into_iter();
     for batch in sets.chunks(MAX_BATCH) {
         let start = Instant::now();
         let result = engine.relight(scene, batch);
-        let solve_ms = start.elapsed().as_secs_f64() * 1e3;
+        let solve_s = start.elapsed().as_secs_f64();
+        metrics
+            .relight_seconds
+            .get_or_create(&label)
+            .observe(solve_s);
+        metrics
+            .batch_size
+            .get_or_create(&label)
+            .observe(batch.len() as f64);
         let batch_targets: Vec<Target> = targets.by_ref().take(batch.len()).collect();
         match result {
             Ok(lit) => {
-                debug!(scene = name, batch = batch.len(), ms = solve_ms, "solved");
+                debug!(
+                    scene = name,
+                    batch = batch.len(),
+                    ms = solve_s * 1e3,
+                    "solved"
+                );
                 for (target, irr) in batch_targets.into_iter().zip(lit) {
-                    deliver(target, &irr.indirect);
+                    deliver(target, &irr.indirect, metrics);
                 }
             }
             Err(source) => {
@@ -242,16 +333,23 @@ fn solve_scene(
     }
 }
 
-fn deliver(target: Target, indirect: &[[f32; 3]]) {
+fn deliver(target: Target, indirect: &[[f32; 3]], metrics: &Metrics) {
     match target {
-        Target::Session { session, version } => {
-            match Frame::encode(session.next_sequence(), version, indirect) {
-                Ok(frame) => {
-                    session.publish(frame);
+        Target::Session {
+            session,
+            version,
+            since,
+            resolve,
+        } => match Frame::encode(session.next_sequence(), version, indirect) {
+            Ok(frame) => {
+                if session.publish(frame, resolve) && !resolve {
+                    metrics
+                        .update_to_frame_seconds
+                        .observe(since.elapsed().as_secs_f64());
                 }
-                Err(e) => error!(session = %session.id, error = %e, "encoding a frame"),
             }
-        }
+            Err(e) => error!(session = %session.id, error = %e, "encoding a frame"),
+        },
         Target::Once(reply) => {
             let _ = reply.send(Frame::encode(0, 0, indirect).map_err(ServerError::from));
         }

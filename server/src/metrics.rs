@@ -1,0 +1,250 @@
+//! The service's Prometheus metrics, one registry per hub, encoded in the text format for
+//! `/metrics`. Front ends count what they send; the worker times what it solves.
+
+use prometheus_client::encoding::{EncodeLabelSet, EncodeLabelValue, LabelValueEncoder};
+use prometheus_client::metrics::counter::Counter;
+use prometheus_client::metrics::family::Family;
+use prometheus_client::metrics::gauge::Gauge;
+use prometheus_client::metrics::histogram::{Histogram, exponential_buckets};
+use prometheus_client::registry::Registry;
+
+/// Which front end a viewer or frame went through.
+#[derive(Debug, Clone, Copy, Hash, PartialEq, Eq)]
+pub enum Transport {
+    Grpc,
+    Websocket,
+}
+
+impl Transport {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Transport::Grpc => "grpc",
+            Transport::Websocket => "websocket",
+        }
+    }
+}
+
+// By hand: the derive writes variant names as they are spelt, and label values are lower case.
+impl EncodeLabelValue for Transport {
+    fn encode(&self, encoder: &mut LabelValueEncoder) -> Result<(), std::fmt::Error> {
+        EncodeLabelValue::encode(&self.as_str(), encoder)
+    }
+}
+
+#[derive(Debug, Clone, Hash, PartialEq, Eq, EncodeLabelSet)]
+pub struct TransportLabel {
+    pub transport: Transport,
+}
+
+#[derive(Debug, Clone, Hash, PartialEq, Eq, EncodeLabelSet)]
+pub struct EngineLabel {
+    pub engine: String,
+}
+
+#[derive(Debug, Clone, Hash, PartialEq, Eq, EncodeLabelSet)]
+pub struct SceneLabel {
+    pub scene: String,
+}
+
+#[derive(Debug, Clone, Copy, Hash, PartialEq, Eq)]
+pub enum Outcome {
+    Ok,
+    Failed,
+}
+
+impl EncodeLabelValue for Outcome {
+    fn encode(&self, encoder: &mut LabelValueEncoder) -> Result<(), std::fmt::Error> {
+        let s = match self {
+            Outcome::Ok => "ok",
+            Outcome::Failed => "failed",
+        };
+        EncodeLabelValue::encode(&s, encoder)
+    }
+}
+
+#[derive(Debug, Clone, Hash, PartialEq, Eq, EncodeLabelSet)]
+pub struct ReloadLabel {
+    pub scene: String,
+    pub outcome: Outcome,
+}
+
+/// Every metric the service exports. Cheap to share: each metric is an `Arc` inside.
+pub struct Metrics {
+    registry: Registry,
+    /// 1 for the engine in use, as it describes itself (`cpu (2 threads)`).
+    pub engine: Family<EngineLabel, Gauge>,
+    /// Wall time of one engine `relight` call (one batch), per scene.
+    pub relight_seconds: Family<SceneLabel, Histogram>,
+    /// Light sets per engine call, per scene: how much batching there is.
+    pub batch_size: Family<SceneLabel, Histogram>,
+    pub frames_sent: Family<TransportLabel, Counter>,
+    /// Frames a viewer never got because a newer one was out by the time it read.
+    pub stale_frames_skipped: Family<TransportLabel, Counter>,
+    pub viewers: Family<TransportLabel, Gauge>,
+    pub sessions: Gauge,
+    pub sessions_expired: Counter,
+    /// Light changes accepted (a repeat of the current lights does not count).
+    pub light_updates: Counter,
+    /// Requests refused: bad input, unknown names, missing token, limits.
+    pub requests_refused: Family<TransportLabel, Counter>,
+    pub scene_reloads: Family<ReloadLabel, Counter>,
+    /// Connections turned away at the connection limit.
+    pub connections_refused: Family<TransportLabel, Counter>,
+    /// Time from accepting a light change to publishing the frame that answers it.
+    pub update_to_frame_seconds: Histogram,
+    /// Store commits (each may carry several sessions' writes).
+    pub store_commit_seconds: Histogram,
+}
+
+impl Metrics {
+    pub fn new() -> Metrics {
+        let mut registry = Registry::with_prefix("bounce");
+        // A gauge rather than an info metric: the engine is known only once the worker opened
+        // it, after the registry is shared.
+        let engine = Family::<EngineLabel, Gauge>::default();
+        registry.register("engine", "The relight engine in use (1)", engine.clone());
+        let relight_seconds =
+            Family::<SceneLabel, Histogram>::new_with_constructor(|| Histogram::new(seconds()));
+        registry.register(
+            "relight_seconds",
+            "Engine time of one relight batch",
+            relight_seconds.clone(),
+        );
+        let batch_size = Family::<SceneLabel, Histogram>::new_with_constructor(|| {
+            Histogram::new(exponential_buckets(1.0, 2.0, 8))
+        });
+        registry.register(
+            "relight_batch_size",
+            "Light sets solved in one engine call",
+            batch_size.clone(),
+        );
+        let frames_sent = Family::<TransportLabel, Counter>::default();
+        registry.register("frames_sent", "Frames sent to viewers", frames_sent.clone());
+        let stale_frames_skipped = Family::<TransportLabel, Counter>::default();
+        registry.register(
+            "stale_frames_skipped",
+            "Frames a slow viewer skipped because a newer one was ready",
+            stale_frames_skipped.clone(),
+        );
+        let viewers = Family::<TransportLabel, Gauge>::default();
+        registry.register("viewers", "Frame streams open now", viewers.clone());
+        let sessions = Gauge::default();
+        registry.register("sessions", "Sessions held", sessions.clone());
+        let sessions_expired = Counter::default();
+        registry.register(
+            "sessions_expired",
+            "Sessions removed after nobody watched or wrote for the expiry time",
+            sessions_expired.clone(),
+        );
+        let light_updates = Counter::default();
+        registry.register(
+            "light_updates",
+            "Light changes accepted",
+            light_updates.clone(),
+        );
+        let requests_refused = Family::<TransportLabel, Counter>::default();
+        registry.register(
+            "requests_refused",
+            "Requests refused (bad input, unknown names, missing token, limits)",
+            requests_refused.clone(),
+        );
+        let scene_reloads = Family::<ReloadLabel, Counter>::default();
+        registry.register(
+            "scene_reloads",
+            "Baked files reloaded while serving, by outcome",
+            scene_reloads.clone(),
+        );
+        let connections_refused = Family::<TransportLabel, Counter>::default();
+        registry.register(
+            "connections_refused",
+            "Connections closed at once because the connection limit was reached",
+            connections_refused.clone(),
+        );
+        let update_to_frame_seconds = Histogram::new(seconds());
+        registry.register(
+            "update_to_frame_seconds",
+            "From accepting a light change to publishing its frame",
+            update_to_frame_seconds.clone(),
+        );
+        let store_commit_seconds = Histogram::new(seconds());
+        registry.register(
+            "store_commit_seconds",
+            "Durable session-store commits",
+            store_commit_seconds.clone(),
+        );
+        Metrics {
+            registry,
+            engine,
+            relight_seconds,
+            batch_size,
+            frames_sent,
+            stale_frames_skipped,
+            viewers,
+            sessions,
+            sessions_expired,
+            light_updates,
+            requests_refused,
+            scene_reloads,
+            connections_refused,
+            update_to_frame_seconds,
+            store_commit_seconds,
+        }
+    }
+
+    /// The Prometheus text exposition (content type [`CONTENT_TYPE`]).
+    pub fn encode(&self) -> String {
+        let mut out = String::new();
+        // Writing into a String cannot fail.
+        let _ = prometheus_client::encoding::text::encode(&mut out, &self.registry);
+        out
+    }
+
+    pub fn transport(t: Transport) -> TransportLabel {
+        TransportLabel { transport: t }
+    }
+}
+
+/// 0.25 ms .. ~4 s: a CPU batch of pandora takes a few ms, a cold GPU upload seconds.
+fn seconds() -> impl Iterator<Item = f64> {
+    exponential_buckets(0.00025, 2.0, 15)
+}
+
+impl Default for Metrics {
+    fn default() -> Metrics {
+        Metrics::new()
+    }
+}
+
+/// The content type of [`Metrics::encode`]'s output.
+pub const CONTENT_TYPE: &str = "application/openmetrics-text; version=1.0.0; charset=utf-8";
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn encodes_what_was_counted() {
+        let m = Metrics::new();
+        m.engine
+            .get_or_create(&EngineLabel {
+                engine: "cpu (2 threads)".into(),
+            })
+            .set(1);
+        m.frames_sent
+            .get_or_create(&Metrics::transport(Transport::Websocket))
+            .inc_by(3);
+        m.relight_seconds
+            .get_or_create(&SceneLabel {
+                scene: "cornell-box".into(),
+            })
+            .observe(0.004);
+        let text = m.encode();
+        assert!(
+            text.contains(r#"bounce_frames_sent_total{transport="websocket"} 3"#),
+            "{text}"
+        );
+        assert!(text.contains(r#"bounce_engine{engine="cpu (2 threads)"} 1"#));
+        assert!(text.contains(r#"bounce_relight_seconds_count{scene="cornell-box"} 1"#));
+        assert!(text.trim_end().ends_with("# EOF"));
+    }
+}

@@ -1,0 +1,255 @@
+//! A session's life beyond one process and one file: stored across restarts, expired when idle,
+//! kept through hot reloads of its scene (good and corrupted files), guarded by a write token.
+
+use crate::common::*;
+
+fn light_set(intensity: f32) -> LightSet {
+    LightSet {
+        lights: vec![Light::Point {
+            position: [0.0, 1.0, 0.0],
+            color: [1.0, 0.9, 0.8],
+            intensity,
+            range: None,
+            name: None,
+        }],
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn sessions_survive_a_restart_with_their_lights_and_version() {
+    let data = tempfile::tempdir().expect("tempdir");
+    let config = || {
+        let mut c = HubConfig::new(scenes_dir(), EngineChoice::Cpu);
+        c.data_dir = Some(data.path().to_path_buf());
+        c
+    };
+    let first = TestServer::start_with(config()).await;
+    let mut c = first.client().await;
+    let (id, v1) = create_session(&mut c, vec![point(5.0)]).await;
+    assert_eq!(v1, 1);
+    let v = c
+        .set_lights(proto::SetLightsRequest {
+            session_id: id.clone(),
+            lights: vec![point(12.0)],
+            token: String::new(),
+        })
+        .await
+        .expect("set lights")
+        .into_inner();
+    assert_eq!(v.lights_version, 2);
+    let mut before = subscribe(&mut c, &id).await;
+    let before = read_until(&mut before, 2).await;
+    let before_frame = first.hub.session(&id).expect("session").subscribe();
+    let before_data = before_frame
+        .borrow()
+        .clone()
+        .expect("a frame")
+        .bytes()
+        .clone();
+    assert!(!before.is_empty());
+    first.stop().await;
+
+    let second = TestServer::start_with(config()).await;
+    let session = second.hub.session(&id).expect("the session came back");
+    assert_eq!(session.lights_version(), 2);
+    assert_eq!(session.lights(), light_set(12.0));
+    let mut c = second.client().await;
+    let mut frames = subscribe(&mut c, &id).await;
+    let frame = tokio::time::timeout(PATIENCE, frames.message())
+        .await
+        .expect("a frame in time")
+        .expect("stream")
+        .expect("a frame");
+    assert_eq!(frame.lights_version, 2);
+    // Same lights, same matrix: the same frame body (the header's sequence restarts per run).
+    let parsed = Frame::parse(frame.data.clone()).expect("frame");
+    let old = Frame::parse(before_data).expect("frame");
+    assert_eq!(parsed.irradiance(), old.irradiance());
+    second.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn idle_sessions_expire_and_watched_ones_stay() {
+    let mut config = HubConfig::new(scenes_dir(), EngineChoice::Cpu);
+    config.session_ttl = Duration::from_millis(300);
+    config.reload_interval = None;
+    let server = TestServer::start_with(config).await;
+    let mut c = server.client().await;
+    let (idle, _) = create_session(&mut c, vec![point(5.0)]).await;
+    let (watched, _) = create_session(&mut c, vec![point(5.0)]).await;
+    let mut stream = subscribe(&mut c, &watched).await;
+    read_until(&mut stream, 1).await;
+
+    let deadline = Instant::now() + PATIENCE;
+    while server.hub.session(&idle).is_ok() {
+        assert!(Instant::now() < deadline, "the idle session never expired");
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    // Well past the TTL, the watched session is still there and still answers.
+    tokio::time::sleep(Duration::from_millis(600)).await;
+    let v = c
+        .set_lights(proto::SetLightsRequest {
+            session_id: watched.clone(),
+            lights: vec![point(7.0)],
+            token: String::new(),
+        })
+        .await
+        .expect("the watched session stays")
+        .into_inner();
+    assert_eq!(v.lights_version, 2);
+    assert_status(
+        c.subscribe(proto::SubscribeRequest {
+            session_id: idle.clone(),
+        })
+        .await,
+        Code::NotFound,
+        &idle,
+    );
+    let metrics = server.hub.metrics().encode();
+    assert!(
+        metrics.contains("bounce_sessions_expired_total 1"),
+        "{metrics}"
+    );
+    drop(stream);
+    server.stop().await;
+}
+
+/// The served file replaced by a different valid bake (fewer patches), then by garbage.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn hot_reload_swaps_a_good_file_and_keeps_serving_through_a_bad_one() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let file = dir.path().join(format!("{SCENE}.bounce"));
+    std::fs::copy(scenes_dir().join(format!("{SCENE}.bounce")), &file).expect("copy");
+    let mut config = HubConfig::new(dir.path(), EngineChoice::Cpu);
+    config.reload_interval = Some(Duration::from_millis(50));
+    let server = TestServer::start_with(config).await;
+    let mut c = server.client().await;
+    let (id, _) = create_session(&mut c, vec![point(5.0)]).await;
+    let mut stream = subscribe(&mut c, &id).await;
+    let first = stream.message().await.expect("stream").expect("frame");
+    let old_patches = Frame::parse(first.data).expect("frame").header.patch_count;
+
+    // A different bake, written beside and renamed in, as a deploy would.
+    let gltf = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../assets/cornell-box/scene.gltf");
+    let options = BakeOptions {
+        resolution: Resolution::TargetPatches(150),
+        rays: 256,
+        ..BakeOptions::default()
+    };
+    let smaller = tokio::task::spawn_blocking(move || bake_file(&gltf, &options, &NoProgress))
+        .await
+        .expect("join")
+        .expect("bake");
+    let new_patches = u32::try_from(smaller.layout.len()).expect("patches");
+    assert_ne!(new_patches, old_patches);
+    smaller.write_atomic(&file).expect("write");
+
+    // The same session, same lights version, now answered on the new matrix.
+    let frame = tokio::time::timeout(PATIENCE, stream.message())
+        .await
+        .expect("a frame after the reload")
+        .expect("stream")
+        .expect("frame");
+    let parsed = Frame::parse(frame.data).expect("frame");
+    assert_eq!(parsed.header.patch_count, new_patches);
+    assert_eq!(frame.lights_version, 1);
+    let layout = c
+        .get_layout(proto::GetLayoutRequest {
+            scene: SCENE.into(),
+        })
+        .await
+        .expect("layout")
+        .into_inner();
+    assert_eq!(layout.patch_count, new_patches);
+
+    // Garbage in place of the file: refused, counted, and the scene keeps serving.
+    std::fs::write(&file, b"BNCE but not really a baked file").expect("write");
+    let deadline = Instant::now() + PATIENCE;
+    loop {
+        let m = server.hub.metrics().encode();
+        if m.contains(r#"bounce_scene_reloads_total{scene="cornell-box",outcome="failed"} 1"#) {
+            assert!(
+                m.contains(r#"bounce_scene_reloads_total{scene="cornell-box",outcome="ok"} 1"#),
+                "{m}"
+            );
+            break;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "the bad file was never reported:\n{m}"
+        );
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    c.set_lights(proto::SetLightsRequest {
+        session_id: id.clone(),
+        lights: vec![point(9.0)],
+        token: String::new(),
+    })
+    .await
+    .expect("set lights after a bad reload");
+    let frame = tokio::time::timeout(PATIENCE, stream.message())
+        .await
+        .expect("a frame")
+        .expect("stream")
+        .expect("frame");
+    assert_eq!(frame.lights_version, 2);
+    assert_eq!(
+        Frame::parse(frame.data).expect("frame").header.patch_count,
+        new_patches
+    );
+    drop(stream);
+    server.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn writes_need_the_token_and_viewing_does_not() {
+    let mut config = HubConfig::new(scenes_dir(), EngineChoice::Cpu);
+    config.token = Some("s3cret".into());
+    let server = TestServer::start_with(config).await;
+    let mut c = server.client().await;
+    let create = |token: Option<&str>| {
+        let mut r = tonic::Request::new(proto::CreateSessionRequest {
+            scene: SCENE.into(),
+            lights: vec![point(5.0)],
+        });
+        if let Some(t) = token {
+            r.metadata_mut().insert(
+                "authorization",
+                format!("Bearer {t}").parse().expect("metadata"),
+            );
+        }
+        r
+    };
+    assert_status(
+        c.create_session(create(None)).await,
+        Code::Unauthenticated,
+        "token",
+    );
+    assert_status(
+        c.create_session(create(Some("guess"))).await,
+        Code::Unauthenticated,
+        "token",
+    );
+    let id = c
+        .create_session(create(Some("s3cret")))
+        .await
+        .expect("with the token")
+        .into_inner()
+        .session_id;
+    let set = |token: &str| proto::SetLightsRequest {
+        session_id: id.clone(),
+        lights: vec![point(8.0)],
+        token: token.into(),
+    };
+    assert_status(c.set_lights(set("")).await, Code::Unauthenticated, "token");
+    let v = c
+        .set_lights(set("s3cret"))
+        .await
+        .expect("token in the message");
+    assert_eq!(v.into_inner().lights_version, 2);
+    // Read-only viewers need nothing.
+    let mut stream = subscribe(&mut c, &id).await;
+    read_until(&mut stream, 2).await;
+    drop(stream);
+    server.stop().await;
+}

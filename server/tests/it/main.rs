@@ -1,0 +1,5 @@
+//! bounce-server's integration tests, in one binary: real servers on loopback, real clients.
+
+mod common;
+mod grpc;
+mod lifecycle;
