@@ -62,6 +62,14 @@ pub struct ServeArgs {
     /// gRPC metadata `authorization: Bearer T`. Viewing needs none.
     #[arg(long, value_name = "T", env = "BOUNCE_TOKEN", hide_env_values = true)]
     pub token: Option<String>,
+    /// Open connections each front end accepts; past it a new connection is closed at once.
+    #[arg(
+        long,
+        value_name = "N",
+        default_value_t = 4096,
+        env = "BOUNCE_MAX_CONNECTIONS"
+    )]
+    pub max_connections: usize,
 }
 
 /// `250ms`, `90s`, `30m`, `24h`, or plain seconds.
@@ -104,6 +112,7 @@ pub fn run(args: &ServeArgs) -> Result<()> {
     config.data_dir = data_dir.clone();
     config.session_ttl = args.session_ttl;
     config.token = args.token.clone();
+    config.max_connections = args.max_connections;
     config.reload_interval = (!args.reload_every.is_zero()).then_some(args.reload_every);
     // Blocking (reads files, may upload to a GPU): before the runtime serves.
     let hub = Hub::start(&config)

@@ -16,6 +16,7 @@ pub mod frame;
 pub mod grpc;
 pub mod hub;
 pub mod lights;
+pub mod limits;
 pub mod metrics;
 pub mod scenes;
 pub mod serve;
