@@ -74,6 +74,14 @@ pub struct ServeArgs {
     /// Viewing needs none.
     #[arg(long, value_name = "T", env = "BOUNCE_TOKEN", hide_env_values = true)]
     pub token: Option<String>,
+    /// Open connections each front end accepts; past it a new connection is closed at once.
+    #[arg(
+        long,
+        value_name = "N",
+        default_value_t = 4096,
+        env = "BOUNCE_MAX_CONNECTIONS"
+    )]
+    pub max_connections: usize,
 }
 
 /// `250ms`, `90s`, `30m`, `24h`, or plain seconds.
@@ -116,6 +124,7 @@ pub fn run(args: &ServeArgs) -> Result<()> {
     config.data_dir = data_dir.clone();
     config.session_ttl = args.session_ttl;
     config.token = args.token.clone();
+    config.max_connections = args.max_connections;
     config.reload_interval = (!args.reload_every.is_zero()).then_some(args.reload_every);
     // Blocking (reads files, may upload to a GPU): before the runtime serves.
     let hub = Hub::start(&config)
@@ -140,14 +149,28 @@ pub fn run(args: &ServeArgs) -> Result<()> {
             .local_addr()
             .context("reading the bound address")?;
         let names: Vec<String> = hub.scenes().iter().map(|s| s.name.clone()).collect();
-        println!("bounce: serving {} on {}", names.join(", "), hub.engine());
-        match &data_dir {
-            Some(d) => println!("  sessions stored in {}", d.display()),
-            None => println!("  sessions in memory only"),
+        let sessions = match &data_dir {
+            Some(d) => format!("sessions stored in {}", d.display()),
+            None => "sessions in memory only".to_string(),
+        };
+        let banner = [
+            format!("bounce: serving {} on {}", names.join(", "), hub.engine()),
+            format!("  {sessions}"),
+            format!("  gRPC  http://{grpc}   (try: grpcurl -plaintext {grpc} list)"),
+            format!(
+                "  HTTP  http://{http}   (health /healthz, metrics /metrics, scenes /v1/scenes)"
+            ),
+            format!("  WebSocket  ws://{http}/v1/sessions/SESSION_ID/ws"),
+            String::new(),
+        ]
+        .join("\n");
+        // One write, and its failure ignored: a reader that stops after the line it wanted (or
+        // a closed stdout) must not kill the server, as `println!` would.
+        {
+            use std::io::Write as _;
+            let mut out = std::io::stdout().lock();
+            let _ = out.write_all(banner.as_bytes()).and_then(|()| out.flush());
         }
-        println!("  gRPC  http://{grpc}   (try: grpcurl -plaintext {grpc} list)");
-        println!("  HTTP  http://{http}   (health /healthz, metrics /metrics, scenes /v1/scenes)");
-        println!("  WebSocket  ws://{http}/v1/sessions/SESSION_ID/ws");
         info!(%grpc, %http, "listening");
 
         // One stop for both front ends: the signal, or either of them ending on an error.

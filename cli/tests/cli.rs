@@ -449,3 +449,139 @@ fn base64_encode(bytes: &[u8]) -> String {
     }
     s
 }
+
+/// A `bounce serve` child process on loopback ports, with the gRPC address it printed.
+struct ServeProcess {
+    child: std::process::Child,
+    grpc: String,
+}
+
+impl ServeProcess {
+    fn start(scenes: &Path, data: &Path) -> ServeProcess {
+        use std::io::{BufRead, BufReader};
+        let mut child = bounce()
+            .args([
+                "serve",
+                "--engine",
+                "cpu",
+                "--grpc",
+                "127.0.0.1:0",
+                "--http",
+                "127.0.0.1:0",
+                "--reload-every",
+                "0",
+            ])
+            .arg("--scenes")
+            .arg(scenes)
+            .arg("--data-dir")
+            .arg(data)
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::null())
+            .spawn()
+            .expect("bounce serve starts");
+        let stdout = child.stdout.take().expect("stdout");
+        let mut grpc = None;
+        for line in BufReader::new(stdout).lines() {
+            let line = line.expect("stdout line");
+            if let Some(rest) = line.trim_start().strip_prefix("gRPC  ") {
+                grpc = rest.split_whitespace().next().map(str::to_owned);
+                break;
+            }
+        }
+        let grpc = grpc.expect("bounce serve printed its gRPC address");
+        ServeProcess { child, grpc }
+    }
+}
+
+impl Drop for ServeProcess {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// The process is killed with SIGKILL between a change and the restart: no shutdown code runs,
+/// so only what the store committed before acknowledging can bring the session back.
+#[test]
+fn serve_keeps_sessions_across_kill_9() {
+    use bounce_server::frame::Frame;
+    use bounce_server::proto::{self, bounce_client::BounceClient};
+
+    let dir = tempfile::tempdir().unwrap();
+    let scenes = dir.path().join("scenes");
+    let data = dir.path().join("data");
+    std::fs::create_dir_all(&scenes).unwrap();
+    let out = run(bounce()
+        .args(["bake", "--patches", "200", "--rays", "256", "--quiet", "-o"])
+        .arg(scenes.join("box.bounce"))
+        .arg(cornell()));
+    assert!(out.status.success(), "{}", stderr(&out));
+
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let light = |intensity: f32| proto::Light {
+        r#type: "point".into(),
+        position: vec![0.0, 1.0, 0.0],
+        intensity: Some(intensity),
+        ..Default::default()
+    };
+    let mut first = ServeProcess::start(&scenes, &data);
+    let (id, before) = rt.block_on(async {
+        let mut c = BounceClient::connect(first.grpc.clone()).await.unwrap();
+        let id = c
+            .create_session(proto::CreateSessionRequest {
+                scene: "box".into(),
+                lights: vec![light(4.0)],
+            })
+            .await
+            .unwrap()
+            .into_inner()
+            .session_id;
+        let v = c
+            .set_lights(proto::SetLightsRequest {
+                session_id: id.clone(),
+                lights: vec![light(11.0)],
+                token: String::new(),
+            })
+            .await
+            .unwrap()
+            .into_inner();
+        assert_eq!(v.lights_version, 2);
+        let mut frames = c
+            .subscribe(proto::SubscribeRequest {
+                session_id: id.clone(),
+            })
+            .await
+            .unwrap()
+            .into_inner();
+        loop {
+            let f = frames.message().await.unwrap().expect("a frame");
+            if f.lights_version == 2 {
+                break (id, f.data);
+            }
+        }
+    });
+    first.child.kill().expect("SIGKILL");
+    first.child.wait().unwrap();
+
+    let second = ServeProcess::start(&scenes, &data);
+    rt.block_on(async {
+        let mut c = BounceClient::connect(second.grpc.clone()).await.unwrap();
+        let mut frames = c
+            .subscribe(proto::SubscribeRequest {
+                session_id: id.clone(),
+            })
+            .await
+            .expect("the session id is known after the restart")
+            .into_inner();
+        let f = frames.message().await.unwrap().expect("a frame");
+        assert_eq!(f.lights_version, 2);
+        let (a, b) = (
+            Frame::parse(f.data).unwrap().irradiance(),
+            Frame::parse(before).unwrap().irradiance(),
+        );
+        assert_eq!(
+            a, b,
+            "the same lights give the same light after the restart"
+        );
+    });
+}

@@ -18,6 +18,8 @@
 //! Every refusal is `{"code", "message"}` with the status [`ErrorCode`] gives.
 
 use std::future::Future;
+use std::net::SocketAddr;
+use std::sync::Arc;
 
 use axum::extract::rejection::BytesRejection;
 use axum::extract::{FromRequestParts, Path, Query, State};
@@ -25,17 +27,18 @@ use axum::http::request::Parts;
 use axum::http::{HeaderMap, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, put};
-use axum::serve::ListenerExt as _;
+use axum::serve::Listener;
 use axum::{Json, Router};
 use bounce_core::light::LightSet;
 use bytes::Bytes;
 use serde::{Deserialize, Serialize};
-use tokio::net::TcpListener;
+use tokio::net::{TcpListener, TcpStream};
 use tokio_util::task::TaskTracker;
 use tracing::{info, warn};
 
 use crate::error::ServerError;
 use crate::hub::Hub;
+use crate::limits::{ConnectionLimit, Limited};
 use crate::metrics::{self, Metrics, Transport};
 use crate::serve::MAX_REQUEST_BYTES;
 use crate::ws;
@@ -46,6 +49,7 @@ const SOCKETS_GRACE: std::time::Duration = std::time::Duration::from_secs(5);
 
 /// Serves `hub` over HTTP on `listener` until `shutdown` resolves; then readiness turns 503, the
 /// hub shuts down (every WebSocket closes with 1001), in-flight requests finish and this returns.
+/// At most [`Hub::max_connections`] connections are open at once, WebSockets included.
 pub async fn serve_http(
     hub: Hub,
     listener: TcpListener,
@@ -53,10 +57,14 @@ pub async fn serve_http(
 ) -> Result<(), ServerError> {
     let sockets = TaskTracker::new();
     let app = router(hub.clone(), sockets.clone());
-    // Frames are small and latency matters: no Nagle delay on accepted connections.
-    let listener = listener.tap_io(|tcp| {
-        let _ = tcp.set_nodelay(true);
-    });
+    let listener = LimitedListener {
+        listener,
+        limit: ConnectionLimit::new(
+            hub.max_connections(),
+            Transport::Http,
+            Arc::clone(hub.metrics()),
+        ),
+    };
     let stopping = async move {
         shutdown.await;
         info!("HTTP shutting down");
@@ -79,6 +87,34 @@ pub async fn serve_http(
         );
     }
     Ok(())
+}
+
+/// Accepts for axum: no Nagle delay (frames are small and latency matters), and past the
+/// connection limit a connection is dropped, so closed, at once (the limit counts it). An
+/// upgraded WebSocket keeps its connection's permit until it closes.
+struct LimitedListener {
+    listener: TcpListener,
+    limit: ConnectionLimit,
+}
+
+impl Listener for LimitedListener {
+    type Io = Limited<TcpStream>;
+    type Addr = SocketAddr;
+
+    async fn accept(&mut self) -> (Limited<TcpStream>, SocketAddr) {
+        loop {
+            // axum's own accept, which retries (and backs off on) accept errors.
+            let (stream, addr) = Listener::accept(&mut self.listener).await;
+            let _ = stream.set_nodelay(true);
+            if let Some(admitted) = self.limit.admit(stream) {
+                return (admitted, addr);
+            }
+        }
+    }
+
+    fn local_addr(&self) -> std::io::Result<SocketAddr> {
+        self.listener.local_addr()
+    }
 }
 
 /// What every handler shares.

@@ -39,11 +39,13 @@ pub struct HubConfig {
     pub token: Option<String>,
     /// How often the scene directory is checked for new or changed baked files; `None` never.
     pub reload_interval: Option<Duration>,
+    /// Open connections each front end accepts; past it a new connection is closed at once.
+    pub max_connections: usize,
 }
 
 impl HubConfig {
     /// Defaults: sessions in memory only, expiring after a day idle; no token; the scene
-    /// directory checked every two seconds.
+    /// directory checked every two seconds; 4,096 connections per front end.
     pub fn new(scenes_dir: impl Into<PathBuf>, engine: EngineChoice) -> HubConfig {
         HubConfig {
             scenes_dir: scenes_dir.into(),
@@ -52,6 +54,7 @@ impl HubConfig {
             session_ttl: Duration::from_secs(24 * 3600),
             token: None,
             reload_interval: Some(Duration::from_secs(2)),
+            max_connections: 4096,
         }
     }
 }
@@ -73,6 +76,7 @@ struct Inner {
     metrics: Arc<Metrics>,
     token: Option<String>,
     session_ttl: Duration,
+    max_connections: usize,
     ready: AtomicBool,
     /// `true` once shutting down: every frame stream ends.
     shutdown: watch::Sender<bool>,
@@ -140,6 +144,7 @@ impl Hub {
                 metrics,
                 token: config.token.clone().filter(|t| !t.is_empty()),
                 session_ttl: config.session_ttl,
+                max_connections: config.max_connections.max(1),
                 ready: AtomicBool::new(false),
                 shutdown: watch::Sender::new(false),
                 janitor: Mutex::new(None),
@@ -268,6 +273,11 @@ impl Hub {
             Some(token) if presented.is_some_and(|p| constant_time_eq(p, token)) => Ok(()),
             Some(_) => Err(ServerError::Unauthenticated),
         }
+    }
+
+    /// Open connections each front end accepts.
+    pub fn max_connections(&self) -> usize {
+        self.inner.max_connections
     }
 
     /// Whether writes need a token.

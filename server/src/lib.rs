@@ -18,6 +18,7 @@ pub mod grpc;
 pub mod http;
 pub mod hub;
 pub mod lights;
+pub mod limits;
 pub mod metrics;
 pub mod scenes;
 pub mod serve;

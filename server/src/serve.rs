@@ -2,6 +2,7 @@
 //! shutdown that ends every frame stream.
 
 use std::future::Future;
+use std::sync::Arc;
 
 use tokio::net::TcpListener;
 use tokio_stream::StreamExt as _;
@@ -12,12 +13,17 @@ use tracing::info;
 use crate::error::ServerError;
 use crate::grpc::BounceService;
 use crate::hub::Hub;
+use crate::limits::ConnectionLimit;
+use crate::metrics::Transport;
 use crate::proto;
 use crate::proto::bounce_server::BounceServer;
 
 /// Largest request accepted: 256 lights take a few tens of kilobytes, so 1 MiB is generous and
 /// still refuses a client that tries to make the server buffer megabytes.
 pub const MAX_REQUEST_BYTES: usize = 1 << 20;
+
+/// Calls in flight on one connection (streams included).
+pub const MAX_CALLS_PER_CONNECTION: usize = 256;
 
 /// Serves `hub` on `listener` until `shutdown` resolves; then health turns NOT_SERVING, the hub
 /// shuts down (every frame stream ends), and in-flight calls finish.
@@ -43,12 +49,19 @@ pub async fn serve_grpc(
     let bounce = BounceServer::new(BounceService::new(hub.clone()))
         .max_decoding_message_size(MAX_REQUEST_BYTES);
 
-    // Frames are small and latency matters: no Nagle delay on accepted connections.
-    let incoming = TcpListenerStream::new(listener).map(|s| {
-        if let Ok(s) = &s {
+    // Frames are small and latency matters: no Nagle delay on accepted connections. Past the
+    // connection limit a connection is dropped (closed) at once.
+    let limit = ConnectionLimit::new(
+        hub.max_connections(),
+        Transport::Grpc,
+        Arc::clone(hub.metrics()),
+    );
+    let incoming = TcpListenerStream::new(listener).filter_map(move |s| match s {
+        Ok(s) => {
             let _ = s.set_nodelay(true);
+            limit.admit(s).map(Ok)
         }
-        s
+        Err(e) => Some(Err(e)),
     });
     let stopping = async move {
         shutdown.await;
@@ -60,6 +73,9 @@ pub async fn serve_grpc(
         let _ = tokio::task::spawn_blocking(move || hub.shutdown()).await;
     };
     Server::builder()
+        // One client's streams cannot take every worker: each connection gets this many calls
+        // in flight (a viewer's stream is one).
+        .concurrency_limit_per_connection(MAX_CALLS_PER_CONNECTION)
         .add_service(health_service)
         .add_service(reflection_v1)
         .add_service(reflection_v1alpha)

@@ -437,3 +437,48 @@ async fn request_bodies_over_the_limit_are_413() {
     assert_eq!(r.status(), StatusCode::OK);
     server.stop().await;
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn connections_past_the_limit_are_closed_and_counted() {
+    let mut config = HubConfig::new(scenes_dir(), EngineChoice::Cpu);
+    config.max_connections = 2;
+    let server = TestServer::start_with(config).await;
+    // Made on the hub, so no HTTP connection of ours is still closing when the count starts.
+    let id = server
+        .hub
+        .create_session(SCENE, LightSet::default())
+        .await
+        .expect("session")
+        .id
+        .clone();
+    let deadline = Instant::now() + PATIENCE;
+    let fresh = || {
+        reqwest::Client::builder()
+            .timeout(PATIENCE)
+            .pool_max_idle_per_host(0)
+            .build()
+            .expect("HTTP client")
+    };
+    // WebSockets hold their connections.
+    let mut first = WsClient::connect(&server.ws_url(&id, None)).await;
+    let _second = WsClient::connect(&server.ws_url(&id, None)).await;
+    let r = fresh().get(server.url("/healthz")).send().await;
+    assert!(r.is_err(), "a third connection was served: {r:?}");
+    let m = server.hub.metrics().encode();
+    assert!(
+        m.contains(r#"bounce_connections_refused_total{transport="http"}"#),
+        "{m}"
+    );
+    // A closed connection frees its place.
+    first.stream.close(None).await.expect("close");
+    while !matches!(first.next().await, WsEvent::Closed(_) | WsEvent::Failed(_)) {}
+    loop {
+        let r = fresh().get(server.url("/healthz")).send().await;
+        if r.is_ok_and(|r| r.status() == StatusCode::OK) {
+            break;
+        }
+        assert!(Instant::now() < deadline, "no place freed");
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    server.stop().await;
+}

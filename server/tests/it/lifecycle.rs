@@ -253,3 +253,52 @@ async fn writes_need_the_token_and_viewing_does_not() {
     drop(stream);
     server.stop().await;
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn connections_past_the_limit_are_closed_and_counted() {
+    let mut config = HubConfig::new(scenes_dir(), EngineChoice::Cpu);
+    config.max_connections = 2;
+    let server = TestServer::start_with(config).await;
+    let list = |mut c: BounceClient<Channel>| async move {
+        c.list_scenes(proto::ListScenesRequest {}).await.map(|_| ())
+    };
+    let a = server.client().await;
+    let b = server.client().await;
+    list(a.clone()).await.expect("first connection");
+    list(b.clone()).await.expect("second connection");
+    // The third is accepted by the kernel, then closed by the server before HTTP/2 starts.
+    let third = Channel::from_shared(format!("http://{}", server.addr))
+        .expect("uri")
+        .connect()
+        .await;
+    match third {
+        Err(_) => {}
+        Ok(ch) => assert!(list(BounceClient::new(ch)).await.is_err()),
+    }
+    let m = server.hub.metrics().encode();
+    assert!(
+        m.contains(r#"bounce_connections_refused_total{transport="grpc"}"#),
+        "{m}"
+    );
+    // A closed connection frees its place.
+    drop(a);
+    let deadline = Instant::now() + PATIENCE;
+    loop {
+        let fresh = Channel::from_shared(format!("http://{}", server.addr))
+            .expect("uri")
+            .connect()
+            .await;
+        if let Ok(ch) = fresh
+            && list(BounceClient::new(ch)).await.is_ok()
+        {
+            break;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "the freed permit never came back"
+        );
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    list(b).await.expect("the second connection still serves");
+    server.stop().await;
+}
