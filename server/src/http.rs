@@ -20,6 +20,7 @@
 use std::future::Future;
 use std::net::SocketAddr;
 use std::sync::Arc;
+use std::time::Duration;
 
 use axum::extract::rejection::BytesRejection;
 use axum::extract::{FromRequestParts, Path, Query, State};
@@ -45,7 +46,7 @@ use crate::ws;
 
 /// How long open WebSockets get to send their close frames once the server stops; a client
 /// that reads nothing must not hold the shutdown.
-const SOCKETS_GRACE: std::time::Duration = std::time::Duration::from_secs(5);
+const SOCKETS_GRACE: Duration = Duration::from_secs(5);
 
 /// Serves `hub` over HTTP on `listener` until `shutdown` resolves; then readiness turns 503, the
 /// hub shuts down (every WebSocket closes with 1001), in-flight requests finish and this returns.
@@ -140,6 +141,12 @@ fn router(hub: Hub, sockets: TaskTracker) -> Router {
         .route("/v1/sessions/{id}", get(get_session))
         .route("/v1/sessions/{id}/lights", put(set_lights))
         .route("/v1/sessions/{id}/ws", get(ws::upgrade))
+        .method_not_allowed_fallback(|| async {
+            ApiError::from_rejection(
+                StatusCode::METHOD_NOT_ALLOWED,
+                "this route does not take that method".into(),
+            )
+        })
         .fallback(|| async { ApiError::new(ErrorCode::NotFound, "no such route") })
         .layer(axum::extract::DefaultBodyLimit::max(MAX_REQUEST_BYTES))
         .layer(axum::middleware::map_response_with_state(

@@ -157,6 +157,17 @@ async fn scenes_and_layout_match_grpc() {
         .await
         .expect("GET");
     assert_refused(refusal(r).await, StatusCode::NOT_FOUND, "not_found", "");
+    let r = http
+        .delete(server.url("/v1/scenes"))
+        .send()
+        .await
+        .expect("DELETE");
+    assert_refused(
+        refusal(r).await,
+        StatusCode::METHOD_NOT_ALLOWED,
+        "invalid_argument",
+        "method",
+    );
     server.stop().await;
 }
 
