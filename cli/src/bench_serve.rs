@@ -97,7 +97,11 @@ pub fn run(args: &BenchServeArgs) -> Result<()> {
         args.rate,
         args.seconds,
         args.ws_share * 100.0,
-        if args.memory { "in memory" } else { "stored (redb)" },
+        if args.memory {
+            "in memory"
+        } else {
+            "stored (redb)"
+        },
     );
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
@@ -116,7 +120,7 @@ pub fn run(args: &BenchServeArgs) -> Result<()> {
                 let _ = d.wait_for(|&v| v).await;
             }
         }));
-        let http_task = tokio::spawn(bounce_server::serve_grpc(hub.clone(), http, {
+        let http_task = tokio::spawn(bounce_server::serve_http(hub.clone(), http, {
             let mut d = down_rx.clone();
             async move {
                 let _ = d.wait_for(|&v| v).await;
@@ -137,8 +141,14 @@ pub fn run(args: &BenchServeArgs) -> Result<()> {
                     bench_row(args, &name, grpc_addr, http_addr, sessions, viewers).await?;
                 let after = solve_totals(&hub);
                 let calls = after.count - before.count;
-                row.push(format!("{:.2}", (after.seconds - before.seconds) / calls.max(1.0) * 1e3));
-                row.push(format!("{:.2}", (after.sets - before.sets) / calls.max(1.0)));
+                row.push(format!(
+                    "{:.2}",
+                    (after.seconds - before.seconds) / calls.max(1.0) * 1e3
+                ));
+                row.push(format!(
+                    "{:.2}",
+                    (after.sets - before.sets) / calls.max(1.0)
+                ));
                 eprintln!("  {}", row.join("  "));
                 rows.push(row);
             }

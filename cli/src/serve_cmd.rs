@@ -1,4 +1,5 @@
-//! `bounce serve`: the lighting service on gRPC, with the embedded demo when no scenes are given.
+//! `bounce serve`: the lighting service on gRPC and HTTP/WebSocket, with the embedded demo when no
+//! scenes are given.
 //!
 //! This is the binary's edge: flags and environment, logging, the tokio runtime, signals. The
 //! service itself is `bounce-server`.
@@ -13,6 +14,7 @@ use bounce_core::meta::Bounces;
 use bounce_engine::EngineChoice;
 use bounce_server::{Hub, HubConfig};
 use clap::Args;
+use tokio::sync::watch;
 use tracing::info;
 
 #[derive(Args, Debug)]
@@ -29,6 +31,15 @@ pub struct ServeArgs {
         env = "BOUNCE_GRPC"
     )]
     pub grpc: SocketAddr,
+    /// Address of the HTTP front end: health, readiness, metrics, scenes, sessions and each
+    /// session's WebSocket.
+    #[arg(
+        long,
+        value_name = "ADDR",
+        default_value = "127.0.0.1:8080",
+        env = "BOUNCE_HTTP"
+    )]
+    pub http: SocketAddr,
     /// `auto` takes the GPU when a hardware adapter exists, else the CPU, and says which.
     #[arg(
         long,
@@ -59,7 +70,8 @@ pub struct ServeArgs {
     #[arg(long, value_name = "DURATION", default_value = "2s", value_parser = parse_duration, env = "BOUNCE_RELOAD_EVERY")]
     pub reload_every: Duration,
     /// Writes (creating sessions, changing lights, one-shot relights) must present this token:
-    /// gRPC metadata `authorization: Bearer T`. Viewing needs none.
+    /// `authorization: Bearer T` (gRPC metadata or HTTP header) or, over HTTP, `?token=T`.
+    /// Viewing needs none.
     #[arg(long, value_name = "T", env = "BOUNCE_TOKEN", hide_env_values = true)]
     pub token: Option<String>,
     /// Open connections each front end accepts; past it a new connection is closed at once.
@@ -123,21 +135,73 @@ pub fn run(args: &ServeArgs) -> Result<()> {
         .build()
         .context("starting the async runtime")?;
     runtime.block_on(async {
-        let listener = tokio::net::TcpListener::bind(args.grpc)
+        let grpc_listener = tokio::net::TcpListener::bind(args.grpc)
             .await
             .with_context(|| format!("binding the gRPC address {}", args.grpc))?;
-        let addr = listener.local_addr().context("reading the bound address")?;
-        let names: Vec<String> = hub.scenes().iter().map(|s| s.name.clone()).collect();
-        println!("bounce: serving {} on {}", names.join(", "), hub.engine());
-        match &data_dir {
-            Some(d) => println!("  sessions stored in {}", d.display()),
-            None => println!("  sessions in memory only"),
-        }
-        println!("  gRPC  http://{addr}   (try: grpcurl -plaintext {addr} list)");
-        info!(%addr, "listening");
-        bounce_server::serve_grpc(hub, listener, shutdown_signal())
+        let http_listener = tokio::net::TcpListener::bind(args.http)
             .await
-            .context("serving gRPC")
+            .with_context(|| format!("binding the HTTP address {}", args.http))?;
+        // The bound addresses, not the flags: port 0 prints the port it got.
+        let grpc = grpc_listener
+            .local_addr()
+            .context("reading the bound address")?;
+        let http = http_listener
+            .local_addr()
+            .context("reading the bound address")?;
+        let names: Vec<String> = hub.scenes().iter().map(|s| s.name.clone()).collect();
+        let sessions = match &data_dir {
+            Some(d) => format!("sessions stored in {}", d.display()),
+            None => "sessions in memory only".to_string(),
+        };
+        let banner = [
+            format!("bounce: serving {} on {}", names.join(", "), hub.engine()),
+            format!("  {sessions}"),
+            format!("  gRPC  http://{grpc}   (try: grpcurl -plaintext {grpc} list)"),
+            format!(
+                "  HTTP  http://{http}   (health /healthz, metrics /metrics, scenes /v1/scenes)"
+            ),
+            format!("  WebSocket  ws://{http}/v1/sessions/SESSION_ID/ws"),
+            String::new(),
+        ]
+        .join("\n");
+        // One write, and its failure ignored: a reader that stops after the line it wanted (or
+        // a closed stdout) must not kill the server, as `println!` would.
+        {
+            use std::io::Write as _;
+            let mut out = std::io::stdout().lock();
+            let _ = out.write_all(banner.as_bytes()).and_then(|()| out.flush());
+        }
+        info!(%grpc, %http, "listening");
+
+        // One stop for both front ends: the signal, or either of them ending on an error.
+        let stop = watch::Sender::new(false);
+        let stopped = |mut rx: watch::Receiver<bool>| async move {
+            let _ = rx.wait_for(|&s| s).await;
+        };
+        let signal = async {
+            tokio::select! {
+                _ = shutdown_signal() => {
+                    stop.send_replace(true);
+                }
+                _ = stopped(stop.subscribe()) => {}
+            }
+        };
+        let serving_grpc = async {
+            let served =
+                bounce_server::serve_grpc(hub.clone(), grpc_listener, stopped(stop.subscribe()))
+                    .await;
+            stop.send_replace(true);
+            served.context("serving gRPC")
+        };
+        let serving_http = async {
+            let served =
+                bounce_server::serve_http(hub.clone(), http_listener, stopped(stop.subscribe()))
+                    .await;
+            stop.send_replace(true);
+            served.context("serving HTTP")
+        };
+        let ((), grpc, http) = tokio::join!(signal, serving_grpc, serving_http);
+        grpc.and(http)
     })?;
     info!("stopped");
     Ok(())

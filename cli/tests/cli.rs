@@ -468,6 +468,8 @@ impl ServeProcess {
                 "cpu",
                 "--grpc",
                 "127.0.0.1:0",
+                "--http",
+                "127.0.0.1:0",
                 "--reload-every",
                 "0",
             ])

@@ -54,6 +54,8 @@ pub enum ServerError {
     Reflection(String),
     #[error("gRPC transport: {0}")]
     Transport(#[from] tonic::transport::Error),
+    #[error("HTTP server: {0}")]
+    Http(std::io::Error),
 }
 
 /// A baked file the server could not read: skipped with this reason, the others still serve.

@@ -6,7 +6,8 @@
 //! restarts ([`store`]), the engine worker that solves every changed session of a scene in one
 //! batch ([`worker`]), frames and their byte layout ([`frame`]) and what each viewer reads of
 //! them ([`viewer`]), the hub tying these together ([`hub`]), Prometheus [`metrics`], and the
-//! front ends: gRPC ([`grpc`], [`serve`]) with health and reflection, and HTTP/WebSocket.
+//! front ends: gRPC ([`grpc`], [`serve`]) with health and reflection, and HTTP with WebSockets
+//! ([`http`]).
 //!
 //! Not here: the math (`bounce-core`), the engines themselves (`bounce-engine`), the command
 //! line and its runtime, logging setup and signals (`bounce serve` in `bounce-cli`).
@@ -14,6 +15,7 @@
 pub mod error;
 pub mod frame;
 pub mod grpc;
+pub mod http;
 pub mod hub;
 pub mod lights;
 pub mod limits;
@@ -24,9 +26,11 @@ pub mod session;
 pub mod store;
 pub mod viewer;
 mod worker;
+mod ws;
 
 pub use error::ServerError;
 pub use frame::Frame;
+pub use http::serve_http;
 pub use hub::{Hub, HubConfig, LightsVersion};
 pub use serve::serve_grpc;
 pub use worker::MAX_BATCH;

@@ -13,6 +13,8 @@ use prometheus_client::registry::Registry;
 pub enum Transport {
     Grpc,
     Websocket,
+    /// The HTTP routes other than the WebSocket (scenes, sessions).
+    Http,
 }
 
 impl Transport {
@@ -20,6 +22,7 @@ impl Transport {
         match self {
             Transport::Grpc => "grpc",
             Transport::Websocket => "websocket",
+            Transport::Http => "http",
         }
     }
 }

@@ -1,5 +1,6 @@
 //! What the server tests share: a small Cornell box baked once per test binary, a real server
-//! on `127.0.0.1:0` with the CPU engine, and tonic client helpers.
+//! (gRPC and HTTP, each on its own `127.0.0.1:0`) with the CPU engine, tonic client helpers and a
+//! WebSocket client.
 
 pub use std::path::PathBuf;
 pub use std::sync::OnceLock;
@@ -13,9 +14,9 @@ pub use bounce_engine::{Engine, EngineChoice};
 pub use bounce_server::frame::Frame;
 pub use bounce_server::proto::bounce_client::BounceClient;
 pub use bounce_server::proto::{self, Light as PbLight};
-pub use bounce_server::{Hub, HubConfig, serve_grpc};
+pub use bounce_server::{Hub, HubConfig, serve_grpc, serve_http};
 pub use tokio::net::TcpListener;
-pub use tokio::sync::oneshot;
+pub use tokio::sync::watch;
 pub use tokio::task::JoinHandle;
 pub use tonic::transport::Channel;
 pub use tonic::{Code, Status, Streaming};
@@ -54,9 +55,12 @@ pub fn baked() -> Baked {
 
 pub struct TestServer {
     pub hub: Hub,
+    /// The gRPC address.
     pub addr: std::net::SocketAddr,
-    stop: Option<oneshot::Sender<()>>,
-    task: JoinHandle<Result<(), bounce_server::ServerError>>,
+    pub http_addr: std::net::SocketAddr,
+    stop: watch::Sender<bool>,
+    grpc: JoinHandle<Result<(), bounce_server::ServerError>>,
+    http: JoinHandle<Result<(), bounce_server::ServerError>>,
 }
 
 impl TestServer {
@@ -72,16 +76,32 @@ impl TestServer {
             .expect("hub");
         let listener = TcpListener::bind("127.0.0.1:0").await.expect("bind");
         let addr = listener.local_addr().expect("addr");
-        let (stop, stopped) = oneshot::channel::<()>();
-        let task = tokio::spawn(serve_grpc(hub.clone(), listener, async {
-            let _ = stopped.await;
-        }));
+        let http_listener = TcpListener::bind("127.0.0.1:0").await.expect("bind");
+        let http_addr = http_listener.local_addr().expect("addr");
+        // One signal for both front ends, as `bounce serve` has.
+        let stop = watch::Sender::new(false);
+        let stopped = |mut rx: watch::Receiver<bool>| async move {
+            let _ = rx.wait_for(|&s| s).await;
+        };
+        let grpc = tokio::spawn(serve_grpc(hub.clone(), listener, stopped(stop.subscribe())));
+        let http = tokio::spawn(serve_http(
+            hub.clone(),
+            http_listener,
+            stopped(stop.subscribe()),
+        ));
         TestServer {
             hub,
             addr,
-            stop: Some(stop),
-            task,
+            http_addr,
+            stop,
+            grpc,
+            http,
         }
+    }
+
+    /// `http://ADDR/PATH` on the HTTP front end.
+    pub fn url(&self, path: &str) -> String {
+        format!("http://{}{path}", self.http_addr)
     }
 
     /// A client on its own connection, as separate viewers are.
@@ -97,16 +117,16 @@ impl TestServer {
             .expect("connect")
     }
 
-    /// Graceful shutdown: must end open streams and return.
-    pub async fn stop(mut self) {
-        if let Some(stop) = self.stop.take() {
-            let _ = stop.send(());
+    /// Graceful shutdown: must end open streams and sockets, and both front ends return.
+    pub async fn stop(self) {
+        self.stop.send_replace(true);
+        for task in [self.grpc, self.http] {
+            tokio::time::timeout(PATIENCE, task)
+                .await
+                .expect("shutdown timed out")
+                .expect("join")
+                .expect("serve");
         }
-        tokio::time::timeout(PATIENCE, self.task)
-            .await
-            .expect("shutdown timed out")
-            .expect("join")
-            .expect("serve");
     }
 }
 
@@ -182,6 +202,168 @@ pub fn assert_status(result: Result<impl std::fmt::Debug, Status>, code: Code, c
                 "{:?} does not contain {contains:?}",
                 s.message()
             );
+        }
+    }
+}
+
+pub type WsStream = tokio_tungstenite::WebSocketStream<MaybeTlsStream<tokio::net::TcpStream>>;
+pub use futures_util::{SinkExt as _, StreamExt as _};
+pub use serde_json::{Value, json};
+pub use tokio_tungstenite::MaybeTlsStream;
+pub use tokio_tungstenite::tungstenite::Message as WsMessage;
+
+impl TestServer {
+    /// The WebSocket URL of session `id`, with `?token=` when given.
+    pub fn ws_url(&self, id: &str, token: Option<&str>) -> String {
+        let query = token.map(|t| format!("?token={t}")).unwrap_or_default();
+        format!("ws://{}/v1/sessions/{id}/ws{query}", self.http_addr)
+    }
+
+    /// A session made over HTTP with one point light; returns its id.
+    pub async fn http_session(&self, http: &reqwest::Client, intensity: f32) -> String {
+        let r = http
+            .post(self.url("/v1/sessions"))
+            .json(&json!({"scene": SCENE, "lights": [json_point(intensity)]}))
+            .send()
+            .await
+            .expect("POST /v1/sessions");
+        assert_eq!(r.status(), reqwest::StatusCode::CREATED);
+        let body: Value = r.json().await.expect("json");
+        body["session_id"].as_str().expect("session_id").to_string()
+    }
+}
+
+/// The JSON twin of [`point`].
+pub fn json_point(intensity: f32) -> Value {
+    json!({"type": "point", "position": [0, 1, 0], "color": [1, 0.9, 0.8], "intensity": intensity})
+}
+
+/// What a WebSocket client reads.
+#[derive(Debug)]
+pub enum WsEvent {
+    Text(Value),
+    Frame(Frame),
+    /// A close frame's code and reason (`None`: the stream ended without one).
+    Closed(Option<(u16, String)>),
+    /// The connection failed (reset, protocol error); read in panic messages.
+    Failed(#[allow(dead_code)] String),
+}
+
+/// A WebSocket client of one session that checks every frame it reads: a sequence always above
+/// the last, a lights version never below it.
+pub struct WsClient {
+    pub stream: WsStream,
+    /// The server's first message.
+    pub hello: Value,
+    /// (sequence, lights version) of every frame read.
+    pub frames: Vec<(u64, u64)>,
+    pub last: Option<Frame>,
+}
+
+impl WsClient {
+    pub async fn connect(url: &str) -> WsClient {
+        let (stream, _) = tokio_tungstenite::connect_async(url)
+            .await
+            .expect("WebSocket connect");
+        WsClient::over(stream).await
+    }
+
+    /// A client over a connected stream; reads the hello.
+    pub async fn over(stream: WsStream) -> WsClient {
+        let mut c = WsClient {
+            stream,
+            hello: Value::Null,
+            frames: Vec::new(),
+            last: None,
+        };
+        match c.next().await {
+            WsEvent::Text(v) if v["type"] == "hello" => c.hello = v,
+            other => panic!("expected hello, got {other:?}"),
+        }
+        c
+    }
+
+    pub async fn next(&mut self) -> WsEvent {
+        loop {
+            let message = tokio::time::timeout(PATIENCE, self.stream.next())
+                .await
+                .expect("no WebSocket message in time");
+            return match message {
+                None => WsEvent::Closed(None),
+                Some(Err(e)) => WsEvent::Failed(e.to_string()),
+                Some(Ok(WsMessage::Text(t))) => {
+                    WsEvent::Text(serde_json::from_str(t.as_str()).expect("JSON text message"))
+                }
+                Some(Ok(WsMessage::Binary(b))) => {
+                    let f = Frame::parse(b).expect("frame bytes");
+                    self.record(&f);
+                    WsEvent::Frame(f)
+                }
+                Some(Ok(WsMessage::Close(c))) => {
+                    WsEvent::Closed(c.map(|c| (u16::from(c.code), c.reason.to_string())))
+                }
+                Some(Ok(_)) => continue,
+            };
+        }
+    }
+
+    fn record(&mut self, f: &Frame) {
+        let (seq, ver) = (f.header.sequence, f.header.lights_version);
+        if let Some(&(last_seq, last_ver)) = self.frames.last() {
+            assert!(seq > last_seq, "sequence {seq} after {last_seq}");
+            assert!(ver >= last_ver, "lights version {ver} after {last_ver}");
+        }
+        self.frames.push((seq, ver));
+        self.last = Some(f.clone());
+    }
+
+    /// Reads frames until one answers `version`.
+    pub async fn frames_until(&mut self, version: u64) {
+        if self.frames.last().is_some_and(|&(_, v)| v >= version) {
+            return;
+        }
+        loop {
+            match self.next().await {
+                WsEvent::Frame(f) if f.header.lights_version >= version => return,
+                WsEvent::Frame(_) => {}
+                other => panic!("waiting for version {version}: {other:?}"),
+            }
+        }
+    }
+
+    pub async fn send(&mut self, v: Value) {
+        self.stream
+            .send(WsMessage::text(v.to_string()))
+            .await
+            .expect("WebSocket send");
+    }
+
+    /// Sends `v` and returns the next text message; frames read meanwhile are checked.
+    pub async fn request(&mut self, v: Value) -> Value {
+        self.send(v).await;
+        loop {
+            match self.next().await {
+                WsEvent::Text(t) => return t,
+                WsEvent::Frame(_) => {}
+                other => panic!("expected an answer: {other:?}"),
+            }
+        }
+    }
+
+    /// Reads past frames to the error message, if any, and the close frame: (error, close code,
+    /// reason).
+    pub async fn refused(&mut self) -> (Value, u16, String) {
+        let mut error = Value::Null;
+        loop {
+            match self.next().await {
+                WsEvent::Frame(_) => {}
+                WsEvent::Text(t) => {
+                    assert_eq!(t["type"], "error", "{t}");
+                    error = t;
+                }
+                WsEvent::Closed(Some((code, reason))) => return (error, code, reason),
+                other => panic!("expected a close frame: {other:?} (error {error})"),
+            }
         }
     }
 }

@@ -2,4 +2,6 @@
 
 mod common;
 mod grpc;
+mod http;
 mod lifecycle;
+mod ws;

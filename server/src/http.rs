@@ -1,0 +1,507 @@
+//! The HTTP front end over the [`Hub`]: health, readiness, Prometheus metrics, scenes and
+//! sessions as JSON, and each session's WebSocket ([`crate::ws`]). The same hub calls, checks and
+//! frame bytes as gRPC ([`crate::grpc`]); only the encoding differs.
+//!
+//! | route | answer |
+//! |---|---|
+//! | `GET /healthz` | 200 `ok` while the process serves |
+//! | `GET /readyz` | 200 when the hub is ready, 503 once it shuts down |
+//! | `GET /metrics` | the Prometheus text exposition |
+//! | `GET /v1/scenes` | `{"engine", "scenes": [{"name", "patch_count", "codec"}]}` |
+//! | `GET /v1/scenes/{name}/layout` | the proto `Layout`'s fields as JSON |
+//! | `POST /v1/sessions` | `{"scene", "lights"}` → 201 `{"session_id", "lights_version"}` |
+//! | `GET /v1/sessions/{id}` | `{"session_id", "scene", "lights_version", "lights"}` |
+//! | `PUT /v1/sessions/{id}/lights` | `{"lights"}` → `{"lights_version", "changed"}` |
+//! | `GET /v1/sessions/{id}/ws` | the session's WebSocket |
+//!
+//! Writes present the hub's token, if it has one, as `Authorization: Bearer T` or `?token=T`.
+//! Every refusal is `{"code", "message"}` with the status [`ErrorCode`] gives.
+
+use std::future::Future;
+use std::net::SocketAddr;
+use std::sync::Arc;
+use std::time::Duration;
+
+use axum::extract::rejection::BytesRejection;
+use axum::extract::{FromRequestParts, Path, Query, State};
+use axum::http::request::Parts;
+use axum::http::{HeaderMap, StatusCode, header};
+use axum::response::{IntoResponse, Response};
+use axum::routing::{get, put};
+use axum::serve::Listener;
+use axum::{Json, Router};
+use bounce_core::light::LightSet;
+use bytes::Bytes;
+use serde::{Deserialize, Serialize};
+use tokio::net::{TcpListener, TcpStream};
+use tokio_util::task::TaskTracker;
+use tracing::{info, warn};
+
+use crate::error::ServerError;
+use crate::hub::Hub;
+use crate::limits::{ConnectionLimit, Limited};
+use crate::metrics::{self, Metrics, Transport};
+use crate::serve::MAX_REQUEST_BYTES;
+use crate::ws;
+
+/// How long open WebSockets get to send their close frames once the server stops; a client
+/// that reads nothing must not hold the shutdown.
+const SOCKETS_GRACE: Duration = Duration::from_secs(5);
+
+/// Serves `hub` over HTTP on `listener` until `shutdown` resolves; then readiness turns 503, the
+/// hub shuts down (every WebSocket closes with 1001), in-flight requests finish and this returns.
+/// At most [`Hub::max_connections`] connections are open at once, WebSockets included.
+pub async fn serve_http(
+    hub: Hub,
+    listener: TcpListener,
+    shutdown: impl Future<Output = ()> + Send + 'static,
+) -> Result<(), ServerError> {
+    let sockets = TaskTracker::new();
+    let app = router(hub.clone(), sockets.clone());
+    let listener = LimitedListener {
+        listener,
+        limit: ConnectionLimit::new(
+            hub.max_connections(),
+            Transport::Http,
+            Arc::clone(hub.metrics()),
+        ),
+    };
+    let stopping = async move {
+        shutdown.await;
+        info!("HTTP shutting down");
+        // The worker may be mid-batch: wait for it off the runtime's threads.
+        let _ = tokio::task::spawn_blocking(move || hub.shutdown()).await;
+    };
+    axum::serve(listener, app)
+        .with_graceful_shutdown(stopping)
+        .await
+        .map_err(ServerError::Http)?;
+    // Upgraded connections are no longer the HTTP server's: wait for their close frames here.
+    sockets.close();
+    if tokio::time::timeout(SOCKETS_GRACE, sockets.wait())
+        .await
+        .is_err()
+    {
+        warn!(
+            open = sockets.len(),
+            "WebSockets still closing after the grace period; left to end on their own"
+        );
+    }
+    Ok(())
+}
+
+/// Accepts for axum: no Nagle delay (frames are small and latency matters), and past the
+/// connection limit a connection is dropped, so closed, at once (the limit counts it). An
+/// upgraded WebSocket keeps its connection's permit until it closes.
+struct LimitedListener {
+    listener: TcpListener,
+    limit: ConnectionLimit,
+}
+
+impl Listener for LimitedListener {
+    type Io = Limited<TcpStream>;
+    type Addr = SocketAddr;
+
+    async fn accept(&mut self) -> (Limited<TcpStream>, SocketAddr) {
+        loop {
+            // axum's own accept, which retries (and backs off on) accept errors.
+            let (stream, addr) = Listener::accept(&mut self.listener).await;
+            let _ = stream.set_nodelay(true);
+            if let Some(admitted) = self.limit.admit(stream) {
+                return (admitted, addr);
+            }
+        }
+    }
+
+    fn local_addr(&self) -> std::io::Result<SocketAddr> {
+        self.listener.local_addr()
+    }
+}
+
+/// What every handler shares.
+#[derive(Clone)]
+pub(crate) struct AppState {
+    pub hub: Hub,
+    /// Every open WebSocket, so shutdown can wait for their close frames.
+    pub sockets: TaskTracker,
+}
+
+fn router(hub: Hub, sockets: TaskTracker) -> Router {
+    let state = AppState {
+        hub: hub.clone(),
+        sockets,
+    };
+    Router::new()
+        .route("/healthz", get(|| async { "ok" }))
+        .route("/readyz", get(readyz))
+        .route("/metrics", get(metrics))
+        .route("/v1/scenes", get(list_scenes))
+        .route("/v1/scenes/{name}/layout", get(layout))
+        .route("/v1/sessions", axum::routing::post(create_session))
+        .route("/v1/sessions/{id}", get(get_session))
+        .route("/v1/sessions/{id}/lights", put(set_lights))
+        .route("/v1/sessions/{id}/ws", get(ws::upgrade))
+        .method_not_allowed_fallback(|| async {
+            ApiError::from_rejection(
+                StatusCode::METHOD_NOT_ALLOWED,
+                "this route does not take that method".into(),
+            )
+        })
+        .fallback(|| async { ApiError::new(ErrorCode::NotFound, "no such route") })
+        .layer(axum::extract::DefaultBodyLimit::max(MAX_REQUEST_BYTES))
+        .layer(axum::middleware::map_response_with_state(
+            hub,
+            count_refusals,
+        ))
+        .with_state(state)
+}
+
+/// What went wrong, as every HTTP and WebSocket answer names it: the JSON `code`, the HTTP
+/// status and the WebSocket close code all come from here.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ErrorCode {
+    InvalidArgument,
+    NotFound,
+    Unauthenticated,
+    /// A request body or WebSocket message over [`MAX_REQUEST_BYTES`].
+    TooLarge,
+    Unavailable,
+    Internal,
+}
+
+impl ErrorCode {
+    /// The one mapping from the service's errors, as `From<ServerError> for tonic::Status`.
+    pub fn of(e: &ServerError) -> ErrorCode {
+        match e {
+            ServerError::UnknownScene(_) | ServerError::UnknownSession(_) => ErrorCode::NotFound,
+            ServerError::Lights(_) | ServerError::Invalid(_) => ErrorCode::InvalidArgument,
+            ServerError::Unauthenticated => ErrorCode::Unauthenticated,
+            ServerError::WorkerGone | ServerError::Store(_) => ErrorCode::Unavailable,
+            _ => ErrorCode::Internal,
+        }
+    }
+
+    /// The JSON `code`: gRPC's status names in snake case.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            ErrorCode::InvalidArgument => "invalid_argument",
+            ErrorCode::NotFound => "not_found",
+            ErrorCode::Unauthenticated => "unauthenticated",
+            ErrorCode::TooLarge => "resource_exhausted",
+            ErrorCode::Unavailable => "unavailable",
+            ErrorCode::Internal => "internal",
+        }
+    }
+
+    pub fn status(self) -> StatusCode {
+        match self {
+            ErrorCode::InvalidArgument => StatusCode::BAD_REQUEST,
+            ErrorCode::NotFound => StatusCode::NOT_FOUND,
+            ErrorCode::Unauthenticated => StatusCode::UNAUTHORIZED,
+            ErrorCode::TooLarge => StatusCode::PAYLOAD_TOO_LARGE,
+            ErrorCode::Unavailable => StatusCode::SERVICE_UNAVAILABLE,
+            ErrorCode::Internal => StatusCode::INTERNAL_SERVER_ERROR,
+        }
+    }
+
+    /// The WebSocket close code: 4000 plus the HTTP status where RFC 6455 has no code of its own
+    /// (4000–4999 are the application's).
+    pub fn close_code(self) -> u16 {
+        match self {
+            ErrorCode::TooLarge => 1009,
+            ErrorCode::Internal => 1011,
+            other => 4000 + other.status().as_u16(),
+        }
+    }
+}
+
+/// A refused request: its code, the status it is sent with and a message for people.
+#[derive(Debug)]
+pub(crate) struct ApiError {
+    code: ErrorCode,
+    status: StatusCode,
+    message: String,
+}
+
+/// Marks a response as a refusal, for [`count_refusals`].
+#[derive(Clone, Copy)]
+struct Refused;
+
+#[derive(Serialize)]
+struct ErrorBody<'a> {
+    code: &'a str,
+    message: &'a str,
+}
+
+impl ApiError {
+    pub fn new(code: ErrorCode, message: impl Into<String>) -> ApiError {
+        ApiError {
+            code,
+            status: code.status(),
+            message: message.into(),
+        }
+    }
+
+    /// An axum extractor's refusal: its own status (405, 426, ...), our body.
+    pub fn from_rejection(status: StatusCode, message: String) -> ApiError {
+        let code = match status {
+            StatusCode::PAYLOAD_TOO_LARGE => ErrorCode::TooLarge,
+            StatusCode::UNAUTHORIZED => ErrorCode::Unauthenticated,
+            s if s.is_server_error() => ErrorCode::Internal,
+            _ => ErrorCode::InvalidArgument,
+        };
+        ApiError {
+            code,
+            status,
+            message,
+        }
+    }
+}
+
+impl From<ServerError> for ApiError {
+    fn from(e: ServerError) -> ApiError {
+        ApiError::new(ErrorCode::of(&e), e.to_string())
+    }
+}
+
+impl From<BytesRejection> for ApiError {
+    fn from(r: BytesRejection) -> ApiError {
+        if r.status() == StatusCode::PAYLOAD_TOO_LARGE {
+            ApiError::new(
+                ErrorCode::TooLarge,
+                format!("the request body is over the {MAX_REQUEST_BYTES}-byte limit"),
+            )
+        } else {
+            ApiError::from_rejection(r.status(), r.body_text())
+        }
+    }
+}
+
+impl IntoResponse for ApiError {
+    fn into_response(self) -> Response {
+        let body = ErrorBody {
+            code: self.code.as_str(),
+            message: &self.message,
+        };
+        let mut response = (self.status, Json(body)).into_response();
+        response.extensions_mut().insert(Refused);
+        response
+    }
+}
+
+async fn count_refusals(State(hub): State<Hub>, response: Response) -> Response {
+    if response.extensions().get::<Refused>().is_some() {
+        hub.metrics()
+            .requests_refused
+            .get_or_create(&Metrics::transport(Transport::Http))
+            .inc();
+    }
+    response
+}
+
+/// The write token a request presents: `Authorization: Bearer T`, else `?token=T` (browsers
+/// cannot set headers on a WebSocket).
+pub(crate) struct Token(pub Option<String>);
+
+#[derive(Deserialize)]
+struct TokenQuery {
+    token: Option<String>,
+}
+
+impl<S: Send + Sync> FromRequestParts<S> for Token {
+    type Rejection = ApiError;
+
+    async fn from_request_parts(parts: &mut Parts, _: &S) -> Result<Token, ApiError> {
+        if let Some(t) = bearer(&parts.headers) {
+            return Ok(Token(Some(t.to_string())));
+        }
+        let Query(q) = Query::<TokenQuery>::try_from_uri(&parts.uri)
+            .map_err(|r| ApiError::from_rejection(r.status(), r.body_text()))?;
+        Ok(Token(q.token.filter(|t| !t.is_empty())))
+    }
+}
+
+fn bearer(headers: &HeaderMap) -> Option<&str> {
+    headers
+        .get(header::AUTHORIZATION)?
+        .to_str()
+        .ok()?
+        .strip_prefix("Bearer ")
+        .map(str::trim)
+        .filter(|t| !t.is_empty())
+}
+
+/// `lights` (the array of a `{"lights": [...]}` document) read and validated as
+/// [`LightSet::from_json`] does, so errors name the light and field (`lights[2].intensity`).
+pub(crate) fn light_set(lights: serde_json::Value) -> Result<LightSet, ServerError> {
+    let document = serde_json::json!({ "lights": lights });
+    Ok(LightSet::from_json(&document.to_string())?)
+}
+
+fn body_str(body: &Bytes) -> Result<&str, ServerError> {
+    std::str::from_utf8(body)
+        .map_err(|e| ServerError::Invalid(format!("request body: not UTF-8 ({e})")))
+}
+
+async fn readyz(State(state): State<AppState>) -> (StatusCode, &'static str) {
+    if state.hub.is_ready() {
+        (StatusCode::OK, "ready")
+    } else {
+        (StatusCode::SERVICE_UNAVAILABLE, "not ready")
+    }
+}
+
+async fn metrics(State(state): State<AppState>) -> impl IntoResponse {
+    (
+        [(header::CONTENT_TYPE, metrics::CONTENT_TYPE)],
+        state.hub.metrics().encode(),
+    )
+}
+
+#[derive(Serialize)]
+struct SceneList {
+    engine: String,
+    scenes: Vec<SceneEntry>,
+}
+
+#[derive(Serialize)]
+struct SceneEntry {
+    name: String,
+    patch_count: usize,
+    codec: String,
+}
+
+async fn list_scenes(State(state): State<AppState>) -> Json<SceneList> {
+    let scenes = state
+        .hub
+        .scenes()
+        .iter()
+        .map(|s| SceneEntry {
+            name: s.name.clone(),
+            patch_count: s.layout.len(),
+            codec: s.codec.clone(),
+        })
+        .collect();
+    Json(SceneList {
+        engine: state.hub.engine().to_string(),
+        scenes,
+    })
+}
+
+/// The proto `Layout`, field for field.
+#[derive(Serialize)]
+struct Layout {
+    scene: String,
+    origin: [f32; 3],
+    voxel_size: f32,
+    dims: [u32; 3],
+    patch_count: usize,
+    /// x, y, z of each patch's voxel, flat.
+    voxels: Vec<u32>,
+    /// Each patch's face code (0..5: +X, −X, +Y, −Y, +Z, −Z).
+    faces: Vec<u8>,
+}
+
+async fn layout(
+    State(state): State<AppState>,
+    Path(name): Path<String>,
+) -> Result<Json<Layout>, ApiError> {
+    let scene = state.hub.scene(&name)?;
+    let l = &scene.layout;
+    Ok(Json(Layout {
+        scene: scene.name.clone(),
+        origin: l.origin,
+        voxel_size: l.voxel_size,
+        dims: l.dims,
+        patch_count: l.len(),
+        voxels: l.patches.iter().flat_map(|p| p.voxel).collect(),
+        faces: l.patches.iter().map(|p| p.face.code()).collect(),
+    }))
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct CreateSession {
+    scene: String,
+    /// Absent: no lights yet, as gRPC's empty list.
+    #[serde(default)]
+    lights: Option<serde_json::Value>,
+}
+
+#[derive(Serialize)]
+struct Created {
+    session_id: String,
+    lights_version: u64,
+}
+
+async fn create_session(
+    State(state): State<AppState>,
+    Token(token): Token,
+    body: Result<Bytes, BytesRejection>,
+) -> Result<Response, ApiError> {
+    state.hub.authorize(token.as_deref())?;
+    let body = body?;
+    let request: CreateSession = serde_json::from_str(body_str(&body)?)
+        .map_err(|e| ServerError::Invalid(format!("request body: {e}")))?;
+    let lights = match request.lights {
+        Some(l) => light_set(l)?,
+        None => LightSet::default(),
+    };
+    let session = state.hub.create_session(&request.scene, lights).await?;
+    let location = format!("/v1/sessions/{}", session.id);
+    let created = Created {
+        session_id: session.id.clone(),
+        lights_version: session.lights_version(),
+    };
+    Ok((
+        StatusCode::CREATED,
+        [(header::LOCATION, location)],
+        Json(created),
+    )
+        .into_response())
+}
+
+#[derive(Serialize)]
+struct SessionState {
+    session_id: String,
+    scene: String,
+    lights_version: u64,
+    lights: Vec<bounce_core::light::Light>,
+}
+
+async fn get_session(
+    State(state): State<AppState>,
+    Path(id): Path<String>,
+) -> Result<Json<SessionState>, ApiError> {
+    let session = state.hub.session(&id)?;
+    Ok(Json(SessionState {
+        session_id: session.id.clone(),
+        scene: state.hub.scene_of(&session),
+        lights_version: session.lights_version(),
+        lights: session.lights().lights,
+    }))
+}
+
+#[derive(Serialize)]
+struct LightsChanged {
+    lights_version: u64,
+    changed: bool,
+}
+
+async fn set_lights(
+    State(state): State<AppState>,
+    Path(id): Path<String>,
+    Token(token): Token,
+    body: Result<Bytes, BytesRejection>,
+) -> Result<Json<LightsChanged>, ApiError> {
+    state.hub.authorize(token.as_deref())?;
+    // The session first: an unknown session is 404 whatever the lights hold.
+    state.hub.session(&id)?;
+    let body = body?;
+    let lights = LightSet::from_json(body_str(&body)?).map_err(ServerError::from)?;
+    let v = state.hub.set_lights(&id, lights).await?;
+    Ok(Json(LightsChanged {
+        lights_version: v.version,
+        changed: v.changed,
+    }))
+}

@@ -1,0 +1,495 @@
+//! The HTTP front end with a real client: health, readiness, metrics, scenes, sessions, tokens
+//! and limits.
+
+use crate::common::*;
+use reqwest::StatusCode;
+
+fn client() -> reqwest::Client {
+    reqwest::Client::builder()
+        .timeout(PATIENCE)
+        .build()
+        .expect("HTTP client")
+}
+
+/// A refusal's status, and its JSON body's `code` and `message`.
+async fn refusal(r: reqwest::Response) -> (StatusCode, String, String) {
+    let status = r.status();
+    let body: Value = r.json().await.expect("JSON error body");
+    let field = |k: &str| body[k].as_str().unwrap_or_default().to_string();
+    (status, field("code"), field("message"))
+}
+
+#[track_caller]
+fn assert_refused(got: (StatusCode, String, String), status: StatusCode, code: &str, has: &str) {
+    assert_eq!((got.0, got.1.as_str()), (status, code), "{got:?}");
+    assert!(got.2.contains(has), "{:?} does not contain {has:?}", got.2);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn health_readiness_and_metrics() {
+    let server = TestServer::start().await;
+    let http = client();
+    let r = http.get(server.url("/healthz")).send().await.expect("GET");
+    assert_eq!(r.status(), StatusCode::OK);
+    assert_eq!(r.text().await.expect("body"), "ok");
+    let r = http.get(server.url("/readyz")).send().await.expect("GET");
+    assert_eq!(r.status(), StatusCode::OK);
+
+    // A WebSocket viewer that got a frame shows in the metrics.
+    let id = server.http_session(&http, 5.0).await;
+    let mut ws = WsClient::connect(&server.ws_url(&id, None)).await;
+    ws.frames_until(1).await;
+    let r = http.get(server.url("/metrics")).send().await.expect("GET");
+    assert_eq!(r.status(), StatusCode::OK);
+    assert_eq!(
+        r.headers()[reqwest::header::CONTENT_TYPE],
+        bounce_server::metrics::CONTENT_TYPE
+    );
+    let text = r.text().await.expect("body");
+    assert!(
+        text.contains(r#"bounce_frames_sent_total{transport="websocket"} "#),
+        "{text}"
+    );
+    assert!(text.contains(r#"bounce_viewers{transport="websocket"} 1"#));
+    assert!(text.contains("bounce_engine{"));
+    assert!(text.trim_end().ends_with("# EOF"));
+    server.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn readiness_turns_503_once_shutdown_begins() {
+    let server = TestServer::start().await;
+    let http = client();
+    let ready = |s: String| {
+        let get = http.get(s).send();
+        async move { get.await.expect("GET").status() }
+    };
+    assert_eq!(ready(server.url("/readyz")).await, StatusCode::OK);
+    // What the front ends' shutdown does first; the HTTP server itself still answers.
+    let hub = server.hub.clone();
+    tokio::task::spawn_blocking(move || hub.shutdown())
+        .await
+        .expect("join");
+    assert_eq!(
+        ready(server.url("/readyz")).await,
+        StatusCode::SERVICE_UNAVAILABLE
+    );
+    assert_eq!(ready(server.url("/healthz")).await, StatusCode::OK);
+    server.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn scenes_and_layout_match_grpc() {
+    let server = TestServer::start().await;
+    let http = client();
+    let mut grpc = server.client().await;
+
+    let scenes: Value = http
+        .get(server.url("/v1/scenes"))
+        .send()
+        .await
+        .expect("GET")
+        .json()
+        .await
+        .expect("json");
+    let listed = grpc
+        .list_scenes(proto::ListScenesRequest {})
+        .await
+        .expect("list")
+        .into_inner();
+    assert_eq!(scenes["engine"], listed.engine.as_str());
+    let want: Vec<Value> = listed
+        .scenes
+        .iter()
+        .map(|s| json!({"name": s.name, "patch_count": s.patch_count, "codec": s.codec}))
+        .collect();
+    assert_eq!(scenes["scenes"], Value::Array(want));
+
+    let layout: Value = http
+        .get(server.url(&format!("/v1/scenes/{SCENE}/layout")))
+        .send()
+        .await
+        .expect("GET")
+        .json()
+        .await
+        .expect("json");
+    let l = grpc
+        .get_layout(proto::GetLayoutRequest {
+            scene: SCENE.into(),
+        })
+        .await
+        .expect("layout")
+        .into_inner();
+    assert_eq!(layout["scene"], l.scene.as_str());
+    // JSON writes an f32 in its shortest form: compare as f32.
+    let f32s = |v: &Value| -> Vec<f32> {
+        v.as_array()
+            .expect("array")
+            .iter()
+            .map(|x| x.as_f64().expect("number") as f32)
+            .collect()
+    };
+    assert_eq!(f32s(&layout["origin"]), l.origin);
+    assert_eq!(
+        layout["voxel_size"].as_f64().map(|v| v as f32),
+        Some(l.voxel_size)
+    );
+    assert_eq!(layout["dims"], json!(l.dims));
+    assert_eq!(layout["patch_count"], json!(l.patch_count));
+    assert_eq!(layout["voxels"], json!(l.voxels));
+    assert_eq!(layout["faces"], json!(l.faces));
+    assert_eq!(l.faces.len(), l.patch_count as usize);
+
+    let r = http
+        .get(server.url("/v1/scenes/no-such-scene/layout"))
+        .send()
+        .await
+        .expect("GET");
+    assert_refused(
+        refusal(r).await,
+        StatusCode::NOT_FOUND,
+        "not_found",
+        "no-such-scene",
+    );
+    let r = http
+        .get(server.url("/v2/nothing"))
+        .send()
+        .await
+        .expect("GET");
+    assert_refused(refusal(r).await, StatusCode::NOT_FOUND, "not_found", "");
+    let r = http
+        .delete(server.url("/v1/scenes"))
+        .send()
+        .await
+        .expect("DELETE");
+    assert_refused(
+        refusal(r).await,
+        StatusCode::METHOD_NOT_ALLOWED,
+        "invalid_argument",
+        "method",
+    );
+    server.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn sessions_are_created_read_and_relit() {
+    let server = TestServer::start().await;
+    let http = client();
+    let r = http
+        .post(server.url("/v1/sessions"))
+        .json(&json!({"scene": SCENE, "lights": [json_point(5.0)]}))
+        .send()
+        .await
+        .expect("POST");
+    assert_eq!(r.status(), StatusCode::CREATED);
+    let created: Value = r.json().await.expect("json");
+    assert_eq!(created["lights_version"], 1);
+    let id = created["session_id"].as_str().expect("id").to_string();
+    let mut ws = WsClient::connect(&server.ws_url(&id, None)).await;
+    ws.frames_until(1).await;
+
+    let session = format!("/v1/sessions/{id}");
+    let got: Value = http
+        .get(server.url(&session))
+        .send()
+        .await
+        .expect("GET")
+        .json()
+        .await
+        .expect("json");
+    assert_eq!(got["session_id"], id.as_str());
+    assert_eq!(got["scene"], SCENE);
+    assert_eq!(got["lights_version"], 1);
+    assert_eq!(got["lights"][0]["intensity"], 5.0);
+
+    let lights = format!("/v1/sessions/{id}/lights");
+    let put = |body: Value| http.put(server.url(&lights)).json(&body).send();
+    let r = put(json!({"lights": [json_point(7.0), json_point(1.0)]}))
+        .await
+        .expect("PUT");
+    assert_eq!(r.status(), StatusCode::OK);
+    let changed: Value = r.json().await.expect("json");
+    assert_eq!(changed, json!({"lights_version": 2, "changed": true}));
+    // The same lights again: no new version.
+    let same: Value = put(json!({"lights": [json_point(7.0), json_point(1.0)]}))
+        .await
+        .expect("PUT")
+        .json()
+        .await
+        .expect("json");
+    assert_eq!(same, json!({"lights_version": 2, "changed": false}));
+    ws.frames_until(2).await;
+    let got: Value = http
+        .get(server.url(&session))
+        .send()
+        .await
+        .expect("GET")
+        .json()
+        .await
+        .expect("json");
+    assert_eq!(got["lights_version"], 2);
+    assert_eq!(got["lights"].as_array().map(Vec::len), Some(2));
+
+    // Refusals name what is wrong, and nothing changes.
+    let r = put(json!({"lights": [json_point(1.0), json_point(-2.0)]}))
+        .await
+        .expect("PUT");
+    assert_refused(
+        refusal(r).await,
+        StatusCode::BAD_REQUEST,
+        "invalid_argument",
+        "lights[1].intensity",
+    );
+    let r = put(json!({"lights": [{"type": "area", "intensity": 1}]}))
+        .await
+        .expect("PUT");
+    assert_refused(
+        refusal(r).await,
+        StatusCode::BAD_REQUEST,
+        "invalid_argument",
+        "lights[0]",
+    );
+    let r = http
+        .put(server.url(&lights))
+        .body("{not json")
+        .send()
+        .await
+        .expect("PUT");
+    assert_refused(
+        refusal(r).await,
+        StatusCode::BAD_REQUEST,
+        "invalid_argument",
+        "JSON",
+    );
+    let r = http
+        .put(server.url("/v1/sessions/nope/lights"))
+        .json(&json!({"lights": []}))
+        .send()
+        .await
+        .expect("PUT");
+    assert_refused(refusal(r).await, StatusCode::NOT_FOUND, "not_found", "nope");
+    let r = http
+        .get(server.url("/v1/sessions/nope"))
+        .send()
+        .await
+        .expect("GET");
+    assert_refused(refusal(r).await, StatusCode::NOT_FOUND, "not_found", "nope");
+    let r = http
+        .post(server.url("/v1/sessions"))
+        .json(&json!({"scene": "no-such-scene", "lights": []}))
+        .send()
+        .await
+        .expect("POST");
+    assert_refused(
+        refusal(r).await,
+        StatusCode::NOT_FOUND,
+        "not_found",
+        "no-such-scene",
+    );
+    let r = http
+        .post(server.url("/v1/sessions"))
+        .json(&json!({"scene": SCENE, "lights": [
+            {"type": "point", "position": [0, 1, 0], "intensity": -1}
+        ]}))
+        .send()
+        .await
+        .expect("POST");
+    assert_refused(
+        refusal(r).await,
+        StatusCode::BAD_REQUEST,
+        "invalid_argument",
+        "lights[0].intensity",
+    );
+    let r = http
+        .post(server.url("/v1/sessions"))
+        .json(&json!({"scene": SCENE, "colour": "red"}))
+        .send()
+        .await
+        .expect("POST");
+    assert_refused(
+        refusal(r).await,
+        StatusCode::BAD_REQUEST,
+        "invalid_argument",
+        "colour",
+    );
+    let got: Value = http
+        .get(server.url(&session))
+        .send()
+        .await
+        .expect("GET")
+        .json()
+        .await
+        .expect("json");
+    assert_eq!(got["lights_version"], 2);
+    let metrics = server.hub.metrics().encode();
+    assert!(
+        metrics.contains(r#"bounce_requests_refused_total{transport="http"} 8"#),
+        "{metrics}"
+    );
+    server.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn writes_need_the_token_when_one_is_set() {
+    let mut config = HubConfig::new(scenes_dir(), EngineChoice::Cpu);
+    config.token = Some("s3cret".into());
+    let server = TestServer::start_with(config).await;
+    let http = client();
+    let body = json!({"scene": SCENE, "lights": [json_point(3.0)]});
+    let post = || http.post(server.url("/v1/sessions")).json(&body);
+
+    let r = post().send().await.expect("POST");
+    assert_refused(
+        refusal(r).await,
+        StatusCode::UNAUTHORIZED,
+        "unauthenticated",
+        "token",
+    );
+    let r = post().bearer_auth("wrong").send().await.expect("POST");
+    assert_eq!(r.status(), StatusCode::UNAUTHORIZED);
+    let r = post().bearer_auth("s3cret").send().await.expect("POST");
+    assert_eq!(r.status(), StatusCode::CREATED);
+    let r = http
+        .post(server.url("/v1/sessions?token=s3cret"))
+        .json(&body)
+        .send()
+        .await
+        .expect("POST");
+    assert_eq!(r.status(), StatusCode::CREATED);
+    let id = r.json::<Value>().await.expect("json")["session_id"]
+        .as_str()
+        .expect("id")
+        .to_string();
+
+    // Reading needs no token; writing does.
+    let r = http
+        .get(server.url(&format!("/v1/sessions/{id}")))
+        .send()
+        .await
+        .expect("GET");
+    assert_eq!(r.status(), StatusCode::OK);
+    let lights = server.url(&format!("/v1/sessions/{id}/lights"));
+    let change = json!({"lights": [json_point(4.0)]});
+    let r = http.put(&lights).json(&change).send().await.expect("PUT");
+    assert_eq!(r.status(), StatusCode::UNAUTHORIZED);
+    let r = http
+        .put(&lights)
+        .bearer_auth("s3cret")
+        .json(&change)
+        .send()
+        .await
+        .expect("PUT");
+    assert_eq!(r.status(), StatusCode::OK);
+
+    // A WebSocket views without a token; its writes need one, from the upgrade or the message.
+    let mut viewer = WsClient::connect(&server.ws_url(&id, None)).await;
+    viewer.frames_until(2).await;
+    let answer = viewer
+        .request(json!({"type": "set_lights", "lights": [json_point(5.0)], "token": "s3cret"}))
+        .await;
+    assert_eq!(answer["lights_version"], 3, "{answer}");
+    let mut writer = WsClient::connect(&server.ws_url(&id, Some("s3cret"))).await;
+    let answer = writer
+        .request(json!({"type": "set_lights", "lights": [json_point(6.0)]}))
+        .await;
+    assert_eq!(answer["lights_version"], 4, "{answer}");
+    viewer
+        .send(json!({"type": "set_lights", "lights": [json_point(7.0)]}))
+        .await;
+    let (error, code, reason) = viewer.refused().await;
+    assert_eq!(
+        (error["code"].as_str(), code),
+        (Some("unauthenticated"), 4401)
+    );
+    assert!(reason.contains("token"), "{reason}");
+    let mut wrong = WsClient::connect(&server.ws_url(&id, Some("wrong"))).await;
+    wrong
+        .send(json!({"type": "set_lights", "lights": [json_point(7.0)]}))
+        .await;
+    assert_eq!(wrong.refused().await.1, 4401);
+    writer.frames_until(4).await;
+    server.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn request_bodies_over_the_limit_are_413() {
+    let server = TestServer::start().await;
+    let http = client();
+    let id = server.http_session(&http, 2.0).await;
+    let huge = format!(
+        r#"{{"lights": [], "pad": "{}"}}"#,
+        "x".repeat(bounce_server::serve::MAX_REQUEST_BYTES)
+    );
+    for (method, path) in [
+        (reqwest::Method::POST, "/v1/sessions".to_string()),
+        (reqwest::Method::PUT, format!("/v1/sessions/{id}/lights")),
+    ] {
+        let r = http
+            .request(method, server.url(&path))
+            .bearer_auth("unused")
+            .body(huge.clone())
+            .send()
+            .await
+            .expect("send");
+        assert_refused(
+            refusal(r).await,
+            StatusCode::PAYLOAD_TOO_LARGE,
+            "resource_exhausted",
+            "limit",
+        );
+    }
+    // Still serving.
+    let r = http
+        .put(server.url(&format!("/v1/sessions/{id}/lights")))
+        .json(&json!({"lights": [json_point(9.0)]}))
+        .send()
+        .await
+        .expect("PUT");
+    assert_eq!(r.status(), StatusCode::OK);
+    server.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn connections_past_the_limit_are_closed_and_counted() {
+    let mut config = HubConfig::new(scenes_dir(), EngineChoice::Cpu);
+    config.max_connections = 2;
+    let server = TestServer::start_with(config).await;
+    // Made on the hub, so no HTTP connection of ours is still closing when the count starts.
+    let id = server
+        .hub
+        .create_session(SCENE, LightSet::default())
+        .await
+        .expect("session")
+        .id
+        .clone();
+    let deadline = Instant::now() + PATIENCE;
+    let fresh = || {
+        reqwest::Client::builder()
+            .timeout(PATIENCE)
+            .pool_max_idle_per_host(0)
+            .build()
+            .expect("HTTP client")
+    };
+    // WebSockets hold their connections.
+    let mut first = WsClient::connect(&server.ws_url(&id, None)).await;
+    let _second = WsClient::connect(&server.ws_url(&id, None)).await;
+    let r = fresh().get(server.url("/healthz")).send().await;
+    assert!(r.is_err(), "a third connection was served: {r:?}");
+    let m = server.hub.metrics().encode();
+    assert!(
+        m.contains(r#"bounce_connections_refused_total{transport="http"}"#),
+        "{m}"
+    );
+    // A closed connection frees its place.
+    first.stream.close(None).await.expect("close");
+    while !matches!(first.next().await, WsEvent::Closed(_) | WsEvent::Failed(_)) {}
+    loop {
+        let r = fresh().get(server.url("/healthz")).send().await;
+        if r.is_ok_and(|r| r.status() == StatusCode::OK) {
+            break;
+        }
+        assert!(Instant::now() < deadline, "no place freed");
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    server.stop().await;
+}
