@@ -139,11 +139,7 @@ impl ClientError {
             // tonic reports a connection it could not make or lost as UNAVAILABLE (and a
             // server going away mid-stream as UNKNOWN or CANCELLED): transport, not refusals.
             Code::Unavailable | Code::Unknown | Code::Cancelled | Code::Aborted => {
-                return ClientError::Transport(if message.is_empty() {
-                    format!("{:?}", status.code())
-                } else {
-                    message
-                });
+                return ClientError::Transport(format!("{:?}: {message}", status.code()));
             }
             Code::DeadlineExceeded => {
                 return ClientError::Transport(format!("deadline exceeded: {message}"));
