@@ -36,6 +36,10 @@ pub enum BenchWhat {
     /// thesis' baselines (classic radiosity with F, dense T, compressed T): latency, light sets
     /// per second, effective bandwidth, E_ind error.
     Engines(crate::bench_engines::BenchEnginesArgs),
+    /// The lighting service under load on loopback: mixed gRPC and WebSocket viewers, light
+    /// changes at a fixed rate on one or more sessions; change-to-frame latency per viewer,
+    /// frames per second, order checked on every frame.
+    Serve(crate::bench_serve::BenchServeArgs),
 }
 
 #[derive(Args, Debug)]
@@ -77,6 +81,7 @@ pub fn run(args: &BenchArgs) -> Result<()> {
         BenchWhat::Rays(a) => bench_rays(a),
         BenchWhat::Codecs(a) => crate::bench_codecs::run(a),
         BenchWhat::Engines(a) => crate::bench_engines::run(a),
+        BenchWhat::Serve(a) => crate::bench_serve::run(a),
     }
 }
 

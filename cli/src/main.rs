@@ -7,6 +7,7 @@ mod bake_cmd;
 mod bench;
 mod bench_codecs;
 mod bench_engines;
+mod bench_serve;
 mod demo;
 mod inspect;
 mod memory;

@@ -292,6 +292,8 @@ fn every_command_has_help() {
         vec!["bench", "rays", "--help"],
         vec!["bench", "codecs", "--help"],
         vec!["bench", "engines", "--help"],
+        vec!["bench", "serve", "--help"],
+        vec!["serve", "--help"],
     ] {
         let out = run(bounce().args(&args));
         assert!(out.status.success(), "{args:?}");
