@@ -1,0 +1,94 @@
+//! Light configurations on the wire: `bounce-core`'s [`LightSet`] (DESIGN.md §5's JSON form) as
+//! proto messages for gRPC and as JSON for WebSocket and HTTP.
+//!
+//! Nothing is validated here: the server is the one judge of a light configuration, and its
+//! refusal names the field (`lights[0].intensity: ...`).
+
+use bounce_core::light::{Light, LightSet};
+use bounce_server::proto;
+
+/// The proto form: the same fields, absent ones left out.
+pub fn to_proto(set: &LightSet) -> Vec<proto::Light> {
+    set.lights.iter().map(light_to_proto).collect()
+}
+
+fn light_to_proto(l: &Light) -> proto::Light {
+    match l {
+        Light::Directional {
+            direction,
+            color,
+            intensity,
+            name,
+        } => proto::Light {
+            r#type: "directional".into(),
+            direction: direction.to_vec(),
+            color: color.to_vec(),
+            intensity: Some(*intensity),
+            name: name.clone(),
+            ..Default::default()
+        },
+        Light::Point {
+            position,
+            color,
+            intensity,
+            range,
+            name,
+        } => proto::Light {
+            r#type: "point".into(),
+            position: position.to_vec(),
+            color: color.to_vec(),
+            intensity: Some(*intensity),
+            range: *range,
+            name: name.clone(),
+            ..Default::default()
+        },
+        Light::Spot {
+            position,
+            direction,
+            color,
+            intensity,
+            range,
+            inner_cone_angle,
+            outer_cone_angle,
+            name,
+        } => proto::Light {
+            r#type: "spot".into(),
+            position: position.to_vec(),
+            direction: direction.to_vec(),
+            color: color.to_vec(),
+            intensity: Some(*intensity),
+            range: *range,
+            inner_cone_angle: Some(*inner_cone_angle),
+            outer_cone_angle: Some(*outer_cone_angle),
+            name: name.clone(),
+        },
+    }
+}
+
+/// The `lights` array of the JSON form.
+pub fn to_json(set: &LightSet) -> serde_json::Value {
+    // A LightSet is plain numbers and strings: serialising it cannot fail, and if it somehow
+    // did the server would refuse the null with a message naming `lights`.
+    serde_json::to_value(&set.lights).unwrap_or(serde_json::Value::Null)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const DESIGN_EXAMPLE: &str = r#"{"lights": [
+        {"type": "point", "position": [0, 1.5, 0], "color": [1, 1, 1], "intensity": 10},
+        {"type": "directional", "direction": [0.3, -1, 0.2], "color": [1, 0.95, 0.9], "intensity": 3},
+        {"type": "spot", "position": [0, 2, 0], "direction": [0, -1, 0], "color": [1, 1, 1],
+         "intensity": 50, "inner_cone_angle": 0.3, "outer_cone_angle": 0.6, "range": 4, "name": "s"}
+    ]}"#;
+
+    #[test]
+    fn proto_and_json_round_trip_through_the_servers_readers() {
+        let set = LightSet::from_json(DESIGN_EXAMPLE).unwrap();
+        let back = bounce_server::lights::light_set(&to_proto(&set)).unwrap();
+        assert_eq!(back, set);
+        let json = serde_json::json!({ "lights": to_json(&set) }).to_string();
+        assert_eq!(LightSet::from_json(&json).unwrap(), set);
+    }
+}

@@ -1,0 +1,453 @@
+//! The six-direction irradiance volume of DESIGN.md §2 "Clients": how a client turns a frame of
+//! per-patch irradiance into something it can sample at any point of its own meshes.
+//!
+//! # Convention (the viewer's shader does exactly this)
+//!
+//! - One grid per face direction, indexed by the face code of the proto's `Face` enum:
+//!   0 = +X, 1 = −X, 2 = +Y, 3 = −Y, 4 = +Z, 5 = −Z.
+//! - Each grid has the layout's `dims` (x × y × z texels, one per voxel), stored x fastest, then
+//!   y, then z: texel `(x, y, z)` is at `x + dims.x · (y + dims.y · z)`. That is the order an
+//!   `Rgba16Float` 3D texture upload expects (`bytes_per_row = 8 · dims.x`,
+//!   `rows_per_image = dims.y`).
+//! - The patch on face `f` of voxel `v` is texel `v` of grid `f`: rgb is its indirect irradiance
+//!   (W/m² per channel, as the frame carries it), a is coverage, 1 there. Texels with no patch
+//!   are `(0, 0, 0, 0)`. Coverage is fixed by the layout; frames only change rgb.
+//! - Texel centres sit at voxel centres: world position `p` is texel coordinate
+//!   `(p − origin) / voxel_size − 0.5`, i.e. normalised texture coordinate
+//!   `(p − origin) / (voxel_size · dims)` with the hardware's linear filter. Outside the grid the
+//!   edge texels repeat (clamp-to-edge addressing).
+//! - Sampling a point `p` with unit normal `n`: per axis `a`, take the grid facing the sign of
+//!   `n[a]` (+X for `n.x ≥ 0`, −X otherwise, and so on), filter it trilinearly at `p`, and where
+//!   the filtered coverage is at least [`MIN_COVERAGE`] take `rgb / coverage` as that axis's
+//!   irradiance. Dividing by coverage is what makes the empty neighbours of a patch texel (the
+//!   air in front of it, the solid behind it) drop out of the filter instead of darkening it.
+//!   Blend the axes with weights `n[a]²` (the ambient-cube blend; they sum to 1 for a unit
+//!   normal), renormalised over the axes that had coverage, so a normal leaning towards a
+//!   direction with no patch nearby does not darken the result. No axis covered: zero.
+//! - Sample at the surface point itself. The patch texel sits at the centre of the voxel the
+//!   surface lies in, so no offset is needed (DESIGN.md's "slightly off the surface" belongs to
+//!   conventions that store a patch in the empty voxel in front of it); an offset along the
+//!   normal of more than half a voxel leaves the patch's voxel.
+//!
+//! [`Volume::sample`] is the CPU twin of that shader code, for tests and tools. A GPU filters
+//! with fixed-point weights (8 fractional bits on most hardware), so the two agree to about
+//! 1/256 of the values involved, not bit for bit.
+
+use bounce_server::frame::{Frame, FrameHeader, decode_rgb9e5};
+use glam::{IVec3, UVec3, Vec3, Vec4};
+use half::f16;
+use thiserror::Error;
+
+use crate::layout::{Face, Layout};
+
+/// Largest texel count along one axis: wgpu's default `max_texture_dimension_3d`.
+pub const MAX_VOLUME_DIM: u32 = 2048;
+
+/// Largest texel count of one direction's grid (each texel is 8 bytes, and there are six grids:
+/// 768 MiB at this limit).
+pub const MAX_TEXELS: u64 = 1 << 24;
+
+/// Filtered coverage below this is treated as none: dividing by less would amplify the
+/// filter's own rounding (a GPU's filter weights have 8 fractional bits).
+pub const MIN_COVERAGE: f32 = 1.0 / 256.0;
+
+/// One texel: rgb irradiance and coverage, as an `Rgba16Float` texture stores it.
+pub type Texel = [f16; 4];
+
+/// The six grids for one layout, and the most recent frame written into them.
+#[derive(Debug, Clone)]
+pub struct Volume {
+    origin: Vec3,
+    voxel_size: f32,
+    dims: UVec3,
+    /// Indexed by face code.
+    grids: [Vec<Texel>; 6],
+    /// Per patch, where its value goes: computed once, so applying a frame is one pass.
+    targets: Vec<Target>,
+    frame: Option<FrameHeader>,
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Target {
+    grid: u8,
+    texel: u32,
+}
+
+#[derive(Debug, Clone, PartialEq, Eq, Error)]
+pub enum VolumeError {
+    #[error(
+        "a {dims:?} voxel grid is too large for a volume texture (at most {MAX_VOLUME_DIM} a side \
+         and {MAX_TEXELS} texels)"
+    )]
+    TooLarge { dims: [u32; 3] },
+    #[error("the frame has {frame} patches and the layout {layout}: not this scene's frame")]
+    PatchCount { frame: usize, layout: usize },
+}
+
+impl Volume {
+    /// Empty grids (no irradiance yet) with the layout's coverage.
+    pub fn new(layout: &Layout) -> Result<Volume, VolumeError> {
+        let dims = layout.dims();
+        let texels = u64::from(dims.x) * u64::from(dims.y) * u64::from(dims.z);
+        if dims.max_element() > MAX_VOLUME_DIM || texels > MAX_TEXELS {
+            return Err(VolumeError::TooLarge {
+                dims: dims.to_array(),
+            });
+        }
+        // Fits: at most MAX_TEXELS.
+        let texels = texels as usize;
+        let mut grids: [Vec<Texel>; 6] = std::array::from_fn(|_| vec![[f16::ZERO; 4]; texels]);
+        let targets = layout
+            .patches()
+            .iter()
+            .map(|p| {
+                let v = p.voxel;
+                let texel = v.x + dims.x * (v.y + dims.y * v.z);
+                let grid = p.face.code();
+                grids[usize::from(grid)][texel as usize][3] = f16::ONE;
+                Target { grid, texel }
+            })
+            .collect();
+        Ok(Volume {
+            origin: layout.origin(),
+            voxel_size: layout.voxel_size(),
+            dims,
+            grids,
+            targets,
+            frame: None,
+        })
+    }
+
+    /// Writes a frame's irradiance into the grids.
+    pub fn apply(&mut self, frame: &Frame) -> Result<(), VolumeError> {
+        self.check_count(frame.header.patch_count as usize)?;
+        self.write(frame.words().map(decode_rgb9e5));
+        self.frame = Some(frame.header);
+        Ok(())
+    }
+
+    /// Writes irradiance computed in-process (one RGB triple a patch, in layout order), for
+    /// clients that relight without a server.
+    pub fn apply_irradiance(&mut self, irradiance: &[[f32; 3]]) -> Result<(), VolumeError> {
+        self.check_count(irradiance.len())?;
+        self.write(irradiance.iter().copied());
+        self.frame = None;
+        Ok(())
+    }
+
+    fn check_count(&self, count: usize) -> Result<(), VolumeError> {
+        if count == self.targets.len() {
+            Ok(())
+        } else {
+            Err(VolumeError::PatchCount {
+                frame: count,
+                layout: self.targets.len(),
+            })
+        }
+    }
+
+    fn write(&mut self, values: impl Iterator<Item = [f32; 3]>) {
+        for (rgb, t) in values.zip(&self.targets) {
+            // RGB9E5's largest value (65408) is below f16's (65504): no overflow to infinity.
+            let [r, g, b] = rgb.map(f16::from_f32);
+            self.grids[usize::from(t.grid)][t.texel as usize] = [r, g, b, f16::ONE];
+        }
+    }
+
+    /// The header of the last frame applied (`None` before the first, or after in-process
+    /// irradiance).
+    pub fn frame(&self) -> Option<FrameHeader> {
+        self.frame
+    }
+
+    /// Texels along X, Y, Z: the 3D texture's extent.
+    pub fn dims(&self) -> UVec3 {
+        self.dims
+    }
+
+    pub fn origin(&self) -> Vec3 {
+        self.origin
+    }
+
+    pub fn voxel_size(&self) -> f32 {
+        self.voxel_size
+    }
+
+    /// One direction's grid, x fastest, then y, then z.
+    pub fn texels(&self, face: Face) -> &[Texel] {
+        &self.grids[usize::from(face.code())]
+    }
+
+    /// The same as bytes, for a texture upload.
+    pub fn texel_bytes(&self, face: Face) -> &[u8] {
+        bytemuck::cast_slice(self.texels(face))
+    }
+
+    /// The texel of a voxel in every grid, `None` outside the grid.
+    pub fn texel(&self, face: Face, voxel: UVec3) -> Option<Texel> {
+        if voxel.cmpge(self.dims).any() {
+            return None;
+        }
+        let i = voxel.x + self.dims.x * (voxel.y + self.dims.y * voxel.z);
+        Some(self.texels(face)[i as usize])
+    }
+
+    /// Indirect irradiance at `position` on a surface with `normal`, as the module doc says.
+    pub fn sample(&self, position: Vec3, normal: Vec3) -> [f32; 3] {
+        let weights = blend_weights(normal);
+        let mut sum = Vec3::ZERO;
+        let mut covered = 0.0;
+        for (axis, &w) in weights.iter().enumerate() {
+            if w == 0.0 {
+                continue;
+            }
+            let face = Face::from_axis_sign(axis, normal[axis] >= 0.0);
+            if let Some(rgb) = self.sample_face(face, position) {
+                sum += w * rgb;
+                covered += w;
+            }
+        }
+        if covered > 0.0 {
+            (sum / covered).to_array()
+        } else {
+            [0.0; 3]
+        }
+    }
+
+    /// One grid filtered at `position` and divided by its coverage; `None` where the coverage is
+    /// below [`MIN_COVERAGE`].
+    pub fn sample_face(&self, face: Face, position: Vec3) -> Option<Vec3> {
+        let v = self.filter(face, position);
+        (v.w >= MIN_COVERAGE).then(|| v.truncate() / v.w)
+    }
+
+    /// Trilinear filter with clamp-to-edge addressing, texel centres at voxel centres.
+    fn filter(&self, face: Face, position: Vec3) -> Vec4 {
+        if !position.is_finite() {
+            return Vec4::ZERO;
+        }
+        let u = (position - self.origin) / self.voxel_size - 0.5;
+        let max = self.dims.as_ivec3() - 1;
+        // Clamped in float first so far-away points cannot overflow the integer conversion.
+        let base = u.floor().clamp(Vec3::splat(-1.0), max.as_vec3() + 1.0);
+        let frac = (u - u.floor()).clamp(Vec3::ZERO, Vec3::ONE);
+        let lo = base.as_ivec3();
+        let grid = self.texels(face);
+        let mut acc = Vec4::ZERO;
+        for corner in 0..8 {
+            let step = IVec3::new(corner & 1, (corner >> 1) & 1, (corner >> 2) & 1);
+            let w = Vec3::select(step.cmpeq(IVec3::ONE), frac, Vec3::ONE - frac).element_product();
+            if w == 0.0 {
+                continue;
+            }
+            let t = (lo + step).clamp(IVec3::ZERO, max).as_uvec3();
+            let i = t.x + self.dims.x * (t.y + self.dims.y * t.z);
+            let texel = grid[i as usize].map(f16::to_f32);
+            acc += w * Vec4::from_array(texel);
+        }
+        acc
+    }
+}
+
+/// The ambient-cube weights of a normal: its squared components over its squared length, so
+/// they sum to 1. A zero or non-finite normal weighs the axes equally.
+pub fn blend_weights(normal: Vec3) -> [f32; 3] {
+    let sq = normal * normal;
+    let len = sq.element_sum();
+    if len > 0.0 && len.is_finite() {
+        (sq / len).to_array()
+    } else {
+        [1.0 / 3.0; 3]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::layout::PatchFace;
+
+    fn layout(patches: Vec<PatchFace>) -> Layout {
+        Layout::new(
+            "test",
+            Vec3::new(-1.0, 0.0, 2.0),
+            0.5,
+            UVec3::new(4, 3, 2),
+            patches,
+        )
+        .unwrap()
+    }
+
+    fn patch(x: u32, y: u32, z: u32, face: Face) -> PatchFace {
+        PatchFace {
+            voxel: UVec3::new(x, y, z),
+            face,
+        }
+    }
+
+    /// Exactly representable in RGB9E5 and f16, so equality is exact.
+    const VALUE: [f32; 3] = [1.5, 0.25, 3.0];
+
+    fn frame(values: &[[f32; 3]]) -> Frame {
+        Frame::encode(1, 1, values).unwrap()
+    }
+
+    #[test]
+    fn a_patch_lands_on_its_texel_and_nowhere_else() {
+        let l = layout(vec![patch(2, 1, 1, Face::NegY)]);
+        let mut v = Volume::new(&l).unwrap();
+        v.apply(&frame(&[VALUE])).unwrap();
+        assert_eq!(v.frame().map(|h| h.patch_count), Some(1));
+        let texel = (2 + 4 * (1 + 3)) as usize;
+        for face in Face::ALL {
+            let grid = v.texels(face);
+            assert_eq!(grid.len(), 4 * 3 * 2);
+            assert_eq!(v.texel_bytes(face).len(), 8 * grid.len());
+            for (i, t) in grid.iter().enumerate() {
+                let t = t.map(f16::to_f32);
+                if face == Face::NegY && i == texel {
+                    assert_eq!(t, [1.5, 0.25, 3.0, 1.0]);
+                } else {
+                    assert_eq!(t, [0.0; 4], "{face:?} texel {i}");
+                }
+            }
+        }
+        assert_eq!(
+            v.texel(Face::NegY, UVec3::new(2, 1, 1))
+                .map(|t| t.map(f16::to_f32)),
+            Some([1.5, 0.25, 3.0, 1.0])
+        );
+        assert_eq!(v.texel(Face::NegY, UVec3::new(4, 1, 1)), None);
+    }
+
+    #[test]
+    fn coverage_comes_from_the_layout_before_any_frame() {
+        let l = layout(vec![patch(0, 0, 0, Face::PosX), patch(3, 2, 1, Face::PosX)]);
+        let v = Volume::new(&l).unwrap();
+        let covered: Vec<usize> = v
+            .texels(Face::PosX)
+            .iter()
+            .enumerate()
+            .filter(|(_, t)| t[3] == f16::ONE)
+            .map(|(i, _)| i)
+            .collect();
+        assert_eq!(covered, vec![0, 4 * 3 * 2 - 1]);
+        assert!(
+            v.texels(Face::PosX)
+                .iter()
+                .all(|t| t[..3] == [f16::ZERO; 3])
+        );
+    }
+
+    #[test]
+    fn sampling_a_voxel_centre_along_the_face_normal_gives_the_patch() {
+        let p = patch(1, 2, 0, Face::PosZ);
+        let l = layout(vec![p, patch(1, 2, 0, Face::NegX)]);
+        let mut v = Volume::new(&l).unwrap();
+        v.apply(&frame(&[VALUE, [7.0, 7.0, 7.0]])).unwrap();
+        let centre = l.voxel_center(p.voxel);
+        assert_eq!(v.sample(centre, Vec3::Z), VALUE);
+        assert_eq!(v.sample(centre, -Vec3::X), [7.0; 3]);
+        // At the face itself half the filter reaches into the empty voxel in front; coverage
+        // division takes that back out.
+        assert_eq!(v.sample(l.patch_center(p), Vec3::Z), VALUE);
+        // Facing away from both patches: nothing there.
+        assert_eq!(v.sample(centre, -Vec3::Z), [0.0; 3]);
+        assert_eq!(v.sample(centre, Vec3::X), [0.0; 3]);
+        // A normal between the two blends them by n², here 1/4 and 3/4.
+        let n = Vec3::new(-(0.75f32.sqrt()), 0.0, 0.5);
+        let got = v.sample(centre, n);
+        for k in 0..3 {
+            let want = 0.25 * VALUE[k] + 0.75 * 7.0;
+            assert!((got[k] - want).abs() < 1e-5, "{got:?}");
+        }
+        // A normal leaning into an empty direction is renormalised over the covered one.
+        assert_eq!(v.sample(centre, Vec3::new(0.0, 0.6, 0.8)), VALUE);
+    }
+
+    #[test]
+    fn neighbouring_patches_interpolate_and_empty_neighbours_drop_out() {
+        let l = layout(vec![patch(0, 1, 0, Face::PosY), patch(1, 1, 0, Face::PosY)]);
+        let mut v = Volume::new(&l).unwrap();
+        v.apply(&frame(&[[1.0; 3], [3.0; 3]])).unwrap();
+        let a = l.voxel_center(UVec3::new(0, 1, 0));
+        let b = l.voxel_center(UVec3::new(1, 1, 0));
+        let mid = v.sample((a + b) / 2.0, Vec3::Y);
+        assert_eq!(mid, [2.0; 3]);
+        // Halfway towards the empty z = 1 row: same value, not half of it.
+        let off = a + Vec3::new(0.0, 0.0, 0.25);
+        assert_eq!(v.sample(off, Vec3::Y), [1.0; 3]);
+        // Far outside the grid the edge texels repeat, and nothing overflows.
+        assert_eq!(v.sample(a - Vec3::X * 100.0, Vec3::Y), [1.0; 3]);
+        assert_eq!(v.sample(Vec3::splat(1e30), Vec3::Y), [0.0; 3]);
+        assert_eq!(v.sample(Vec3::splat(f32::NAN), Vec3::Y), [0.0; 3]);
+    }
+
+    #[test]
+    fn blend_weights_sum_to_one() {
+        for n in [
+            Vec3::X,
+            Vec3::new(1.0, 2.0, 3.0),
+            Vec3::new(-0.3, 0.9, -0.1),
+            Vec3::new(1e-20, 0.0, 0.0),
+            Vec3::new(1e20, -1e20, 1e20),
+            Vec3::ZERO,
+            Vec3::NAN,
+        ] {
+            let w = blend_weights(n);
+            let sum: f32 = w.iter().sum();
+            assert!((sum - 1.0).abs() < 1e-6, "{n:?}: {w:?}");
+            assert!(w.iter().all(|&x| (0.0..=1.0).contains(&x)), "{n:?}: {w:?}");
+        }
+        assert_eq!(blend_weights(Vec3::new(0.0, -2.0, 0.0)), [0.0, 1.0, 0.0]);
+        let w = blend_weights(Vec3::new(3.0, 0.0, 4.0));
+        assert!((w[0] - 0.36).abs() < 1e-6 && (w[2] - 0.64).abs() < 1e-6);
+    }
+
+    #[test]
+    fn a_frame_with_the_wrong_patch_count_is_refused() {
+        let l = layout(vec![patch(0, 0, 0, Face::PosX)]);
+        let mut v = Volume::new(&l).unwrap();
+        let err = v.apply(&frame(&[VALUE, VALUE])).unwrap_err();
+        assert_eq!(
+            err,
+            VolumeError::PatchCount {
+                frame: 2,
+                layout: 1
+            }
+        );
+        assert!(err.to_string().contains("2 patches"));
+        assert_eq!(
+            v.apply_irradiance(&[]),
+            Err(VolumeError::PatchCount {
+                frame: 0,
+                layout: 1
+            })
+        );
+        // Nothing was written.
+        assert_eq!(v.frame(), None);
+        assert_eq!(v.texels(Face::PosX)[0][0], f16::ZERO);
+    }
+
+    #[test]
+    fn bright_values_stay_finite_in_f16() {
+        let l = layout(vec![patch(0, 0, 0, Face::PosX)]);
+        let mut v = Volume::new(&l).unwrap();
+        v.apply(&frame(&[[1e9, 0.0, 65408.0]])).unwrap();
+        let t = v.texels(Face::PosX)[0].map(f16::to_f32);
+        assert!(t.iter().all(|x| x.is_finite()), "{t:?}");
+        assert_eq!(t[2], 65408.0);
+    }
+
+    #[test]
+    fn grids_too_large_for_a_texture_are_refused() {
+        let big = |dims| Layout::new("big", Vec3::ZERO, 1.0, dims, vec![]).unwrap();
+        assert!(matches!(
+            Volume::new(&big(UVec3::new(4096, 1, 1))),
+            Err(VolumeError::TooLarge { .. })
+        ));
+        assert!(matches!(
+            Volume::new(&big(UVec3::new(2048, 2048, 8))),
+            Err(VolumeError::TooLarge { .. })
+        ));
+    }
+}
