@@ -4,6 +4,4 @@
 mod common;
 mod grpc;
 mod watcher;
-// Needs `bounce_server::serve_http`, the HTTP/WebSocket front end of branch `http`: enable once
-// that branch is on main (it passed against http at 4516ba2 merged with this branch).
-// mod websocket;
+mod websocket;
