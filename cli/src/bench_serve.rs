@@ -258,6 +258,9 @@ async fn bench_row(
     // Viewers: each on its own connection, each told to stop by `stop`.
     let (stop, stopped) = watch::channel(false);
     let (ready_tx, mut ready_rx) = tokio::sync::mpsc::channel::<()>(viewers);
+    // Viewers connect in waves, as a real audience ramps up; a thousand handshakes at once on
+    // loopback get connections reset.
+    let opening = Arc::new(tokio::sync::Semaphore::new(CONNECTING_AT_ONCE));
     let mut tasks = Vec::with_capacity(viewers);
     for i in 0..viewers {
         let session = i % sessions;
@@ -272,7 +275,13 @@ async fn bench_row(
         let id = ids[session].clone();
         let stopped = stopped.clone();
         let ready = ready_tx.clone();
+        let opening = Arc::clone(&opening);
         tasks.push(tokio::spawn(async move {
+            let permit = opening.acquire_owned().await?;
+            let ready = Ready {
+                ready,
+                permit: Some(permit),
+            };
             let frames = match via {
                 Via::Grpc => view_grpc(grpc, id, stopped, ready).await,
                 Via::Ws => view_ws(http, id, stopped, ready).await,
@@ -407,6 +416,23 @@ async fn bench_row(
 
 type Frames = Vec<(Instant, u64, u64)>;
 
+/// Viewers opening connections at the same time.
+const CONNECTING_AT_ONCE: usize = 64;
+
+/// Told once, at a viewer's first frame: it is counted ready and frees its place in the wave.
+struct Ready {
+    ready: tokio::sync::mpsc::Sender<()>,
+    permit: Option<tokio::sync::OwnedSemaphorePermit>,
+}
+
+impl Ready {
+    async fn first_frame(&mut self) {
+        if self.permit.take().is_some() {
+            let _ = self.ready.send(()).await;
+        }
+    }
+}
+
 /// Waits for `true`; the guard `wait_for` returns is not `Send`, so it is dropped in here.
 async fn until(flag: &mut watch::Receiver<bool>) {
     let _ = flag.wait_for(|&s| s).await;
@@ -416,7 +442,7 @@ async fn view_grpc(
     addr: std::net::SocketAddr,
     id: String,
     mut stopped: watch::Receiver<bool>,
-    ready: tokio::sync::mpsc::Sender<()>,
+    mut ready: Ready,
 ) -> Result<Frames> {
     let mut client = connect(addr).await?;
     let mut stream = client
@@ -425,16 +451,13 @@ async fn view_grpc(
         .context("subscribing")?
         .into_inner();
     let mut frames = Vec::new();
-    let mut ready = Some(ready);
     loop {
         tokio::select! {
             _ = until(&mut stopped) => return Ok(frames),
             m = stream.message() => {
                 let Some(f) = m.context("frame stream")? else { return Ok(frames) };
                 frames.push((Instant::now(), f.lights_version, f.sequence));
-                if let Some(r) = ready.take() {
-                    let _ = r.send(()).await;
-                }
+                ready.first_frame().await;
             }
         }
     }
@@ -444,7 +467,7 @@ async fn view_ws(
     addr: std::net::SocketAddr,
     id: String,
     mut stopped: watch::Receiver<bool>,
-    ready: tokio::sync::mpsc::Sender<()>,
+    mut ready: Ready,
 ) -> Result<Frames> {
     use tokio_tungstenite::tungstenite::Message;
     let url = format!("ws://{addr}/v1/sessions/{id}/ws");
@@ -452,7 +475,6 @@ async fn view_ws(
         .await
         .with_context(|| format!("opening {url}"))?;
     let mut frames = Vec::new();
-    let mut ready = Some(ready);
     loop {
         tokio::select! {
             _ = until(&mut stopped) => {
@@ -465,9 +487,7 @@ async fn view_ws(
                     Message::Binary(bytes) => {
                         let f = Frame::parse(bytes).context("a frame")?;
                         frames.push((Instant::now(), f.header.lights_version, f.header.sequence));
-                        if let Some(r) = ready.take() {
-                            let _ = r.send(()).await;
-                        }
+                        ready.first_frame().await;
                     }
                     Message::Close(_) => return Ok(frames),
                     _ => {}
