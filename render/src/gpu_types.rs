@@ -1,0 +1,51 @@
+//! The Rust mirrors of `shade.wgsl`'s shared structs (a naga test checks the layouts agree).
+
+use bytemuck::{Pod, Zeroable};
+
+/// `Globals` in `shade.wgsl`.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Pod, Zeroable)]
+pub struct Globals {
+    pub view_proj: [[f32; 4]; 4],
+    pub eye: [f32; 3],
+    pub exposure: f32,
+    pub volume_origin: [f32; 3],
+    pub voxel_size: f32,
+    pub volume_dims: [f32; 3],
+    pub light_count: u32,
+    pub indirect: u32,
+    pub normal_offset: f32,
+    pub pad0: u32,
+    pub pad1: u32,
+}
+
+/// `GpuLight` in `shade.wgsl`: a `bounce_core::direct::PreparedLight` and where its shadow
+/// views start.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Pod, Zeroable)]
+pub struct GpuLight {
+    pub position: [f32; 3],
+    pub kind: u32,
+    pub axis: [f32; 3],
+    pub inv_range: f32,
+    pub radiant: [f32; 3],
+    pub angle_scale: f32,
+    pub angle_offset: f32,
+    pub first_view: u32,
+    pub pad0: u32,
+    pub pad1: u32,
+}
+
+/// One vertex of the scene's vertex buffer (`VertexIn` in `shade.wgsl`).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Pod, Zeroable)]
+pub struct Vertex {
+    pub position: [f32; 3],
+    pub normal: [f32; 3],
+    pub albedo: [f32; 3],
+    pub emission: [f32; 3],
+}
+
+pub const KIND_DIRECTIONAL: u32 = 0;
+pub const KIND_POINT: u32 = 1;
+pub const KIND_SPOT: u32 = 2;

@@ -1,0 +1,221 @@
+// The renderer's one shading module: direct light with shadow maps, indirect light from the
+// six-direction irradiance volume (client/src/volume.rs's convention; `sample_volume` is the twin
+// of `Volume::sample`), and the tonemap. The Rust mirrors of `Globals` and `GpuLight` live in
+// render/src/gpu_types.rs; a naga test checks that the layouts agree.
+
+const MIN_COVERAGE: f32 = 0.00390625; // 1/256, client::volume::MIN_COVERAGE
+const PI: f32 = 3.14159265358979;
+const KIND_DIRECTIONAL: u32 = 0u;
+const KIND_POINT: u32 = 1u;
+const KIND_SPOT: u32 = 2u;
+
+struct Globals {
+    view_proj: mat4x4<f32>,
+    eye: vec3<f32>,
+    exposure: f32,
+    volume_origin: vec3<f32>,
+    voxel_size: f32,
+    volume_dims: vec3<f32>,
+    light_count: u32,
+    indirect: u32,
+    normal_offset: f32,
+    pad0: u32,
+    pad1: u32,
+}
+
+struct GpuLight {
+    position: vec3<f32>,
+    kind: u32,
+    axis: vec3<f32>,
+    inv_range: f32,
+    radiant: vec3<f32>,
+    angle_scale: f32,
+    angle_offset: f32,
+    first_view: u32,
+    pad0: u32,
+    pad1: u32,
+}
+
+@group(0) @binding(0) var<uniform> g: Globals;
+@group(0) @binding(1) var<storage, read> lights: array<GpuLight>;
+@group(0) @binding(2) var<storage, read> views: array<mat4x4<f32>>;
+@group(0) @binding(3) var shadow_maps: texture_depth_2d_array;
+@group(0) @binding(4) var shadow_sampler: sampler_comparison;
+@group(0) @binding(5) var volume_sampler: sampler;
+@group(0) @binding(6) var vol_px: texture_3d<f32>;
+@group(0) @binding(7) var vol_nx: texture_3d<f32>;
+@group(0) @binding(8) var vol_py: texture_3d<f32>;
+@group(0) @binding(9) var vol_ny: texture_3d<f32>;
+@group(0) @binding(10) var vol_pz: texture_3d<f32>;
+@group(0) @binding(11) var vol_nz: texture_3d<f32>;
+
+// One grid filtered at `p` (hardware trilinear, clamp to edge): rgb and coverage. Texel centres
+// sit at voxel centres, so the normalised coordinate is (p − origin) / (voxel_size · dims).
+fn volume_filter(face: u32, p: vec3<f32>) -> vec4<f32> {
+    let uvw = (p - g.volume_origin) / (g.voxel_size * g.volume_dims);
+    switch face {
+        case 0u: { return textureSampleLevel(vol_px, volume_sampler, uvw, 0.0); }
+        case 1u: { return textureSampleLevel(vol_nx, volume_sampler, uvw, 0.0); }
+        case 2u: { return textureSampleLevel(vol_py, volume_sampler, uvw, 0.0); }
+        case 3u: { return textureSampleLevel(vol_ny, volume_sampler, uvw, 0.0); }
+        case 4u: { return textureSampleLevel(vol_pz, volume_sampler, uvw, 0.0); }
+        default: { return textureSampleLevel(vol_nz, volume_sampler, uvw, 0.0); }
+    }
+}
+
+// Indirect irradiance at `p` with normal `n`: per axis the grid facing n's sign, divided by its
+// coverage, blended by n² over the covered axes (Volume::sample).
+fn sample_volume(p: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
+    let sq = n * n;
+    let len = sq.x + sq.y + sq.z;
+    var w = vec3<f32>(1.0 / 3.0);
+    if len > 0.0 {
+        w = sq / len;
+    }
+    var sum = vec3<f32>(0.0);
+    var covered = 0.0;
+    for (var axis = 0u; axis < 3u; axis++) {
+        if w[axis] == 0.0 {
+            continue;
+        }
+        let face = axis * 2u + select(1u, 0u, n[axis] >= 0.0);
+        let v = volume_filter(face, p);
+        if v.w >= MIN_COVERAGE {
+            sum += w[axis] * v.rgb / v.w;
+            covered += w[axis];
+        }
+    }
+    if covered > 0.0 {
+        return sum / covered;
+    }
+    return vec3<f32>(0.0);
+}
+
+// 1 where the light reaches `p` according to its shadow map, 0 where something is in front;
+// outside every map's frustum, lit.
+fn shadow(light: GpuLight, p: vec3<f32>, n: vec3<f32>) -> f32 {
+    var view = light.first_view;
+    if light.kind == KIND_POINT {
+        // The six faces are +X, −X, +Y, −Y, +Z, −Z; each covers where its axis dominates.
+        let d = p - light.position;
+        let a = abs(d);
+        if a.x >= a.y && a.x >= a.z {
+            view += select(1u, 0u, d.x >= 0.0);
+        } else if a.y >= a.z {
+            view += select(3u, 2u, d.y >= 0.0);
+        } else {
+            view += select(5u, 4u, d.z >= 0.0);
+        }
+    }
+    // Offsetting along the normal keeps a surface from shadowing itself (acne).
+    let clip = views[view] * vec4<f32>(p + n * g.normal_offset, 1.0);
+    if clip.w <= 0.0 {
+        return 1.0;
+    }
+    let ndc = clip.xyz / clip.w;
+    let uv = vec2<f32>(ndc.x * 0.5 + 0.5, 0.5 - ndc.y * 0.5);
+    if any(uv < vec2<f32>(0.0)) || any(uv > vec2<f32>(1.0)) || ndc.z > 1.0 || ndc.z < 0.0 {
+        return 1.0;
+    }
+    return textureSampleCompareLevel(shadow_maps, shadow_sampler, uv, view, ndc.z);
+}
+
+// What one light delivers to `p` with unit normal `n` if unshadowed: bounce_core::direct's
+// light_sample (glTF KHR_lights_punctual units and falloff).
+fn light_irradiance(light: GpuLight, p: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
+    var dir = -light.axis;
+    var scale = 1.0;
+    if light.kind != KIND_DIRECTIONAL {
+        let to = light.position - p;
+        let d2 = dot(to, to);
+        let d = sqrt(d2);
+        if d <= 0.0 {
+            return vec3<f32>(0.0);
+        }
+        dir = to / d;
+        let x = d * light.inv_range;
+        let win = clamp(1.0 - x * x * x * x, 0.0, 1.0);
+        scale = win * win / d2;
+        if light.kind == KIND_SPOT {
+            let a = clamp(dot(light.axis, -dir) * light.angle_scale + light.angle_offset, 0.0, 1.0);
+            scale *= a * a;
+        }
+    }
+    let c = dot(n, dir);
+    if c <= 0.0 || scale <= 0.0 {
+        return vec3<f32>(0.0);
+    }
+    return light.radiant * (c * scale);
+}
+
+struct VertexIn {
+    @location(0) position: vec3<f32>,
+    @location(1) normal: vec3<f32>,
+    @location(2) albedo: vec3<f32>,
+    @location(3) emission: vec3<f32>,
+}
+
+struct VertexOut {
+    @builtin(position) clip: vec4<f32>,
+    @location(0) world: vec3<f32>,
+    @location(1) normal: vec3<f32>,
+    @location(2) albedo: vec3<f32>,
+    @location(3) emission: vec3<f32>,
+}
+
+@vertex
+fn vs_main(v: VertexIn) -> VertexOut {
+    var out: VertexOut;
+    out.clip = g.view_proj * vec4<f32>(v.position, 1.0);
+    out.world = v.position;
+    out.normal = v.normal;
+    out.albedo = v.albedo;
+    out.emission = v.emission;
+    return out;
+}
+
+@fragment
+fn fs_main(frag: VertexOut, @builtin(front_facing) front: bool) -> @location(0) vec4<f32> {
+    // The side the camera sees is the side that is lit and sampled: walls whose winding faces
+    // away from the viewer still shade as seen.
+    var n = normalize(frag.normal);
+    if !front {
+        n = -n;
+    }
+    var e = vec3<f32>(0.0);
+    for (var i = 0u; i < g.light_count; i++) {
+        let light = lights[i];
+        let lit = light_irradiance(light, frag.world, n);
+        if any(lit > vec3<f32>(0.0)) {
+            e += lit * shadow(light, frag.world, n);
+        }
+    }
+    if g.indirect != 0u {
+        e += sample_volume(frag.world, n);
+    }
+    // Radiance of a diffuse surface: albedo / π · E, plus emitted exitance / π.
+    let radiance = (frag.albedo * e + frag.emission) / PI;
+    // Tonemap: exposure, then Reinhard per channel; the sRGB target encodes the result.
+    let x = radiance * g.exposure;
+    return vec4<f32>(x / (vec3<f32>(1.0) + x), 1.0);
+}
+
+@vertex
+fn vs_shadow(@location(0) position: vec3<f32>, @builtin(instance_index) view: u32) -> @builtin(position) vec4<f32> {
+    // The view (shadow-map layer) rides in the draw's first instance.
+    return views[view] * vec4<f32>(position, 1.0);
+}
+
+// The test probe: `Volume::sample`'s inputs in, the shader's answer out.
+@group(1) @binding(0) var<storage, read> probe_points: array<vec4<f32>>;
+@group(1) @binding(1) var<storage, read> probe_normals: array<vec4<f32>>;
+@group(1) @binding(2) var<storage, read_write> probe_out: array<vec4<f32>>;
+
+@compute @workgroup_size(64)
+fn cs_probe(@builtin(global_invocation_id) id: vec3<u32>) {
+    let i = id.x;
+    if i >= arrayLength(&probe_points) {
+        return;
+    }
+    probe_out[i] = vec4<f32>(sample_volume(probe_points[i].xyz, probe_normals[i].xyz), 0.0);
+}

@@ -1,0 +1,306 @@
+//! The renderer end to end on lavapipe (or any adapter): the Cornell box baked here, relit
+//! in-process, drawn with and without indirect light, measured in pixels; the shader's volume
+//! sampling against `Volume::sample`; the shared structs against the WGSL; a golden image.
+//!
+//! GPU tests never skip silently: without an adapter they fail, unless `BOUNCE_ALLOW_NO_GPU=1`.
+
+use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
+
+use bounce_client::{Face, Volume};
+use bounce_core::bake::{BakeOptions, NoProgress, bake_file};
+use bounce_core::format::Baked;
+use bounce_core::import::import_path;
+use bounce_core::light::{Light, LightSet};
+use bounce_core::scene::Scene;
+use bounce_core::voxel::Resolution;
+use bounce_engine::gpu::GpuContext;
+use bounce_engine::{Engine, EngineChoice};
+use bounce_render::{Camera, GpuLight, Globals, Image, RenderOptions, Renderer, volume_from_baked};
+use glam::{UVec3, Vec3};
+
+fn gltf() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/cornell-box/scene.gltf")
+}
+
+fn context() -> Option<&'static GpuContext> {
+    static CTX: OnceLock<Result<GpuContext, String>> = OnceLock::new();
+    match CTX.get_or_init(|| GpuContext::new().map_err(|e| e.to_string())) {
+        Ok(ctx) => {
+            eprintln!("GPU tests on {}", ctx.adapter());
+            Some(ctx)
+        }
+        Err(e) if std::env::var("BOUNCE_ALLOW_NO_GPU").as_deref() == Ok("1") => {
+            eprintln!("SKIPPED (BOUNCE_ALLOW_NO_GPU=1): {e}");
+            None
+        }
+        Err(e) => panic!("GPU tests need an adapter: {e}; set BOUNCE_ALLOW_NO_GPU=1 to skip them"),
+    }
+}
+
+struct Cornell {
+    scene: Scene,
+    baked: Baked,
+}
+
+fn cornell() -> &'static Cornell {
+    static BOX: OnceLock<Cornell> = OnceLock::new();
+    BOX.get_or_init(|| {
+        let options = BakeOptions {
+            resolution: Resolution::TargetPatches(500),
+            rays: 512,
+            ..BakeOptions::default()
+        };
+        Cornell {
+            scene: import_path(&gltf()).expect("importing the Cornell box"),
+            baked: bake_file(&gltf(), &options, &NoProgress).expect("baking the Cornell box"),
+        }
+    })
+}
+
+/// A spot under the ceiling pointing down: the ceiling gets no direct light at all.
+fn spot() -> LightSet {
+    LightSet {
+        lights: vec![Light::Spot {
+            position: [0.0, 1.9, 0.0],
+            direction: [0.0, -1.0, 0.0],
+            color: [1.0, 1.0, 1.0],
+            intensity: 15.0,
+            range: None,
+            inner_cone_angle: 0.8,
+            outer_cone_angle: 1.0,
+            name: None,
+        }],
+    }
+}
+
+fn volume(lights: &LightSet) -> Volume {
+    let b = cornell();
+    let engine = Engine::new(EngineChoice::Cpu).unwrap();
+    let scene = engine.load(&b.baked).unwrap();
+    let lit = engine.relight(&scene, std::slice::from_ref(lights)).unwrap();
+    volume_from_baked("cornell-box", &b.baked.layout, &lit[0].indirect).unwrap()
+}
+
+fn camera() -> Camera {
+    Camera::framing(cornell().scene.bounds().unwrap())
+}
+
+fn render(ctx: &GpuContext, width: u32, height: u32, indirect: bool) -> Image {
+    let lights = spot();
+    Renderer::new(ctx)
+        .unwrap()
+        .render(
+            &cornell().scene,
+            &camera(),
+            &lights,
+            &volume(&lights),
+            &RenderOptions {
+                width,
+                height,
+                exposure: 1.0,
+                indirect,
+            },
+        )
+        .unwrap()
+}
+
+/// Where a world point lands in the image (the renderer's camera convention: right-handed,
+/// Y up, rows top to bottom).
+fn project(image: &Image, p: Vec3) -> (u32, u32) {
+    let aspect = image.width as f32 / image.height as f32;
+    let m = camera()
+        .view_proj(aspect, cornell().scene.bounds().unwrap())
+        .unwrap();
+    let ndc = m.project_point3(p);
+    let x = (ndc.x * 0.5 + 0.5) * image.width as f32;
+    let y = (0.5 - ndc.y * 0.5) * image.height as f32;
+    (x as u32, y as u32)
+}
+
+/// Mean linear RGB of a (2r+1)² window around a world point.
+fn mean_rgb(image: &Image, p: Vec3, r: i64) -> Vec3 {
+    let (cx, cy) = project(image, p);
+    let mut sum = Vec3::ZERO;
+    let mut n = 0.0;
+    for y in cy as i64 - r..=cy as i64 + r {
+        for x in cx as i64 - r..=cx as i64 + r {
+            assert!(x >= 0 && y >= 0 && x < image.width as i64 && y < image.height as i64);
+            let i = ((y as u32 * image.width + x as u32) * 4) as usize;
+            let px = &image.pixels[i..i + 3];
+            sum += Vec3::new(srgb(px[0]), srgb(px[1]), srgb(px[2]));
+            n += 1.0;
+        }
+    }
+    sum / n
+}
+
+fn srgb(v: u8) -> f32 {
+    let c = f32::from(v) / 255.0;
+    if c <= 0.04045 {
+        c / 12.92
+    } else {
+        ((c + 0.055) / 1.055).powf(2.4)
+    }
+}
+
+fn luminance(c: Vec3) -> f32 {
+    0.2126 * c.x + 0.7152 * c.y + 0.0722 * c.z
+}
+
+const CEILING: Vec3 = Vec3::new(0.4, 1.98, -0.4);
+const FLOOR_BY_RED: Vec3 = Vec3::new(-0.85, 0.01, 0.8);
+const FLOOR_BY_GREEN: Vec3 = Vec3::new(0.85, 0.01, 0.5);
+
+#[test]
+fn indirect_light_brightens_the_unlit_ceiling() {
+    let Some(ctx) = context() else { return };
+    let on = render(ctx, 320, 240, true);
+    let off = render(ctx, 320, 240, false);
+    let lit = luminance(mean_rgb(&on, CEILING, 4));
+    let dark = luminance(mean_rgb(&off, CEILING, 4));
+    eprintln!("ceiling luminance: indirect on {lit:.4}, off {dark:.4}");
+    // The spot points down: without indirect light the ceiling is black.
+    assert!(dark < 0.002, "{dark}");
+    assert!(lit > dark + 0.02, "on {lit}, off {dark}");
+}
+
+#[test]
+fn the_floor_by_the_red_wall_is_redder() {
+    let Some(ctx) = context() else { return };
+    let on = render(ctx, 320, 240, true);
+    let off = render(ctx, 320, 240, false);
+    let ratio = |c: Vec3| c.x / c.y;
+    let red_on = ratio(mean_rgb(&on, FLOOR_BY_RED, 3));
+    let red_off = ratio(mean_rgb(&off, FLOOR_BY_RED, 3));
+    let green_on = ratio(mean_rgb(&on, FLOOR_BY_GREEN, 3));
+    eprintln!("r/g by the red wall: on {red_on:.3}, off {red_off:.3}; by the green wall {green_on:.3}");
+    assert!(red_on > red_off * 1.05, "on {red_on}, off {red_off}");
+    assert!(red_on > green_on * 1.1, "red side {red_on}, green side {green_on}");
+}
+
+/// The trilinear coverage the CPU filter sees, to keep test points away from the threshold
+/// where the two may legitimately disagree.
+fn coverage(v: &Volume, face: Face, p: Vec3) -> f32 {
+    let u = (p - v.origin()) / v.voxel_size() - 0.5;
+    let max = v.dims().as_ivec3() - 1;
+    let lo = u.floor();
+    let f = u - lo;
+    let mut acc = 0.0;
+    for corner in 0..8 {
+        let step = Vec3::new(
+            (corner & 1) as f32,
+            ((corner >> 1) & 1) as f32,
+            ((corner >> 2) & 1) as f32,
+        );
+        let w = Vec3::select(step.cmpeq(Vec3::ONE), f, Vec3::ONE - f).element_product();
+        let t = (lo + step).as_ivec3().clamp(glam::IVec3::ZERO, max).as_uvec3();
+        acc += w * v.texel(face, t).unwrap()[3].to_f32();
+    }
+    acc
+}
+
+#[test]
+fn shader_volume_sampling_matches_the_cpu_sampler() {
+    let Some(ctx) = context() else { return };
+    let v = volume(&spot());
+    let size = v.voxel_size() * v.dims().as_vec3();
+    let mut seed = 0x1234_5678u32;
+    let mut rand = move || {
+        seed ^= seed << 13;
+        seed ^= seed >> 17;
+        seed ^= seed << 5;
+        seed as f32 / u32::MAX as f32
+    };
+    let mut points = Vec::new();
+    while points.len() < 400 {
+        let n = Vec3::new(rand() - 0.5, rand() - 0.5, rand() - 0.5);
+        if n.length() < 0.1 {
+            continue;
+        }
+        // Half anywhere in (and a little around) the grid, half near patches.
+        let p = if points.len() % 2 == 0 {
+            v.origin() + size * Vec3::new(rand(), rand(), rand()) * 1.1 - size * 0.05
+        } else {
+            let b = &cornell().baked.layout;
+            let patch = &b.patches[(rand() * (b.patches.len() - 1) as f32) as usize];
+            let centre = v.origin() + (UVec3::from_array(patch.voxel).as_vec3() + 0.5) * v.voxel_size();
+            centre + (Vec3::new(rand(), rand(), rand()) - 0.5) * v.voxel_size()
+        };
+        let near_threshold = (0..3).any(|a| {
+            let face = Face::from_axis_sign(a, n[a] >= 0.0);
+            let c = coverage(&v, face, p);
+            c > 0.0 && c < 0.05
+        });
+        if !near_threshold {
+            points.push((p, n.normalize()));
+        }
+    }
+    let gpu = Renderer::new(ctx).unwrap().probe_volume(&v, &points).unwrap();
+    let scale = (0..points.len())
+        .map(|i| v.sample(points[i].0, points[i].1).into_iter().fold(0.0f32, f32::max))
+        .fold(0.0f32, f32::max);
+    assert!(scale > 0.0);
+    let mut nonzero = 0;
+    for (i, &(p, n)) in points.iter().enumerate() {
+        let cpu = v.sample(p, n);
+        if cpu.iter().any(|&c| c > 0.0) {
+            nonzero += 1;
+        }
+        for k in 0..3 {
+            // f16 texels and the filter's fixed-point weights (8 bits): about 1/256 of the
+            // values involved, amplified where coverage divides.
+            let tol = 1e-2 * cpu[k].abs() + 4e-3 * scale;
+            assert!(
+                (gpu[i][k] - cpu[k]).abs() <= tol,
+                "point {i} {p} normal {n}: gpu {:?}, cpu {cpu:?}",
+                gpu[i]
+            );
+        }
+    }
+    eprintln!("{} points, {nonzero} with light, scale {scale}", points.len());
+    assert!(nonzero >= 100, "{nonzero}");
+}
+
+fn wgsl_struct(module: &naga::Module, name: &str) -> (Vec<(String, u32)>, u32) {
+    module
+        .types
+        .iter()
+        .find_map(|(_, ty)| match (&ty.name, &ty.inner) {
+            (Some(n), naga::TypeInner::Struct { members, span }) if n == name => Some((
+                members
+                    .iter()
+                    .map(|m| (m.name.clone().unwrap_or_default(), m.offset))
+                    .collect(),
+                *span,
+            )),
+            _ => None,
+        })
+        .unwrap_or_else(|| panic!("no struct {name}"))
+}
+
+macro_rules! offsets {
+    ($t:ty; $($f:ident),*) => {
+        vec![$((stringify!($f).to_string(), std::mem::offset_of!($t, $f) as u32)),*]
+    };
+}
+
+#[test]
+fn shared_structs_match_the_wgsl() {
+    let module = naga::front::wgsl::parse_str(bounce_render::SHADER)
+        .unwrap_or_else(|e| panic!("{}", e.emit_to_string(bounce_render::SHADER)));
+    let (members, span) = wgsl_struct(&module, "Globals");
+    assert_eq!(span as usize, std::mem::size_of::<Globals>());
+    assert_eq!(
+        members,
+        offsets!(Globals; view_proj, eye, exposure, volume_origin, voxel_size, volume_dims,
+            light_count, indirect, normal_offset, pad0, pad1)
+    );
+    let (members, span) = wgsl_struct(&module, "GpuLight");
+    assert_eq!(span as usize, std::mem::size_of::<GpuLight>());
+    assert_eq!(
+        members,
+        offsets!(GpuLight; position, kind, axis, inv_range, radiant, angle_scale, angle_offset,
+            first_view, pad0, pad1)
+    );
+}
