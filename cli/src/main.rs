@@ -14,6 +14,7 @@ mod memory;
 mod plot;
 mod progress;
 mod relight_cmd;
+mod render_cmd;
 mod serve_cmd;
 
 use std::process::ExitCode;
@@ -47,6 +48,9 @@ enum Command {
     /// Relight a baked scene: direct light with shadows and indirect light per patch for one
     /// batch of light configurations, on the GPU or the CPU.
     Relight(relight_cmd::RelightArgs),
+    /// Draw one image of a glTF scene lit by a baked transport (direct light with shadow maps,
+    /// indirect light from the irradiance volume), offscreen, to a PNG.
+    Render(render_cmd::RenderArgs),
     /// Benchmarks: tables (and CSV) comparing variants measured in one run.
     Bench(bench::BenchArgs),
     /// Serve baked scenes over gRPC: sessions, light changes, frames streamed to every viewer.
@@ -72,6 +76,7 @@ fn main() -> ExitCode {
         Command::Inspect(args) => inspect::run(&args),
         Command::Demo(args) => demo::run(&args),
         Command::Relight(args) => relight_cmd::run(&args),
+        Command::Render(args) => render_cmd::run(&args),
         Command::Bench(args) => bench::run(&args),
         Command::Serve(args) => serve_cmd::run(&args),
     };

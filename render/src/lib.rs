@@ -14,7 +14,7 @@ mod gpu_types;
 mod math;
 mod renderer;
 
-pub use gpu_types::{GpuLight, Globals, Vertex};
-pub use renderer::{Camera, Image, RenderError, RenderOptions, Renderer, SHADER,
-    volume_from_baked,
+pub use gpu_types::{Globals, GpuLight, Vertex};
+pub use renderer::{
+    Camera, Image, RenderError, RenderOptions, Renderer, SHADER, volume_from_baked,
 };

@@ -1,4 +1,4 @@
-use std::sync::mpsc;
+use std::sync::{Mutex, MutexGuard, mpsc};
 
 use bounce_client::{Face, Layout, PatchFace, Volume};
 use bounce_core::direct::{LightKind, PreparedLight};
@@ -10,8 +10,8 @@ use glam::{Mat4, UVec3, Vec3};
 use thiserror::Error;
 use wgpu::util::DeviceExt;
 
+use crate::gpu_types::{Globals, GpuLight, KIND_DIRECTIONAL, KIND_POINT, KIND_SPOT, Vertex};
 use crate::math::{look_at_rh, orthographic_rh, perspective_rh};
-use crate::gpu_types::{GpuLight, Globals, KIND_DIRECTIONAL, KIND_POINT, KIND_SPOT, Vertex};
 
 /// The shading module (see the crate doc).
 pub const SHADER: &str = include_str!("shade.wgsl");
@@ -141,6 +141,7 @@ pub struct Renderer<'a> {
 impl<'a> Renderer<'a> {
     pub fn new(ctx: &'a GpuContext) -> Result<Renderer<'a>, RenderError> {
         let device = ctx.device();
+        let _one = compiling();
         let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("shade"),
@@ -380,6 +381,7 @@ impl<'a> Renderer<'a> {
         if points.is_empty() {
             return Ok(Vec::new());
         }
+        let one = compiling();
         let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
         let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
             label: Some("probe"),
@@ -392,6 +394,7 @@ impl<'a> Renderer<'a> {
         if let Some(e) = pollster::block_on(scope.pop()) {
             return Err(RenderError::Shader(e.to_string()));
         }
+        drop(one);
         let globals = Globals {
             volume_origin: volume.origin().to_array(),
             voxel_size: volume.voxel_size(),
@@ -415,8 +418,16 @@ impl<'a> Renderer<'a> {
                 usage,
             })
         };
-        let positions = storage("probe points", &vec4s(&|p| p.0), wgpu::BufferUsages::STORAGE);
-        let normals = storage("probe normals", &vec4s(&|p| p.1), wgpu::BufferUsages::STORAGE);
+        let positions = storage(
+            "probe points",
+            &vec4s(&|p| p.0),
+            wgpu::BufferUsages::STORAGE,
+        );
+        let normals = storage(
+            "probe normals",
+            &vec4s(&|p| p.1),
+            wgpu::BufferUsages::STORAGE,
+        );
         let zeros = vec![[0.0f32; 4]; points.len()];
         let out = storage(
             "probe out",
@@ -583,6 +594,15 @@ impl<'a> Renderer<'a> {
     }
 }
 
+/// Error scopes are a stack per device, shared by every thread: two renderers compiling at once
+/// would pop each other's scope, so compilation is one at a time.
+fn compiling() -> MutexGuard<'static, ()> {
+    static COMPILING: Mutex<()> = Mutex::new(());
+    COMPILING
+        .lock()
+        .unwrap_or_else(|poisoned| poisoned.into_inner())
+}
+
 struct Resources {
     globals: wgpu::Buffer,
     shadow_maps: wgpu::Texture,
@@ -684,7 +704,9 @@ fn prepare_lights(lights: &LightSet, bounds: (Vec3, Vec3)) -> (Vec<GpuLight>, Ve
             }
             LightKind::Spot => {
                 // The outer cone plus a margin, short of 180° where perspective breaks down.
-                let outer = (l.angle_offset / -l.angle_scale.max(1e-6)).clamp(-1.0, 1.0).acos();
+                let outer = (l.angle_offset / -l.angle_scale.max(1e-6))
+                    .clamp(-1.0, 1.0)
+                    .acos();
                 let fov = (2.0 * outer + 0.1).min(3.0);
                 let view = look_at_rh(l.position, l.position + l.axis, up_for(l.axis));
                 views.push(perspective_rh(fov, 1.0, near, reach) * view);

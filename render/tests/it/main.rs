@@ -16,7 +16,7 @@ use bounce_core::scene::Scene;
 use bounce_core::voxel::Resolution;
 use bounce_engine::gpu::GpuContext;
 use bounce_engine::{Engine, EngineChoice};
-use bounce_render::{Camera, GpuLight, Globals, Image, RenderOptions, Renderer, volume_from_baked};
+use bounce_render::{Camera, Globals, GpuLight, Image, RenderOptions, Renderer, volume_from_baked};
 use glam::{UVec3, Vec3};
 
 fn gltf() -> PathBuf {
@@ -78,7 +78,9 @@ fn volume(lights: &LightSet) -> Volume {
     let b = cornell();
     let engine = Engine::new(EngineChoice::Cpu).unwrap();
     let scene = engine.load(&b.baked).unwrap();
-    let lit = engine.relight(&scene, std::slice::from_ref(lights)).unwrap();
+    let lit = engine
+        .relight(&scene, std::slice::from_ref(lights))
+        .unwrap();
     volume_from_baked("cornell-box", &b.baked.layout, &lit[0].indirect).unwrap()
 }
 
@@ -174,9 +176,14 @@ fn the_floor_by_the_red_wall_is_redder() {
     let red_on = ratio(mean_rgb(&on, FLOOR_BY_RED, 3));
     let red_off = ratio(mean_rgb(&off, FLOOR_BY_RED, 3));
     let green_on = ratio(mean_rgb(&on, FLOOR_BY_GREEN, 3));
-    eprintln!("r/g by the red wall: on {red_on:.3}, off {red_off:.3}; by the green wall {green_on:.3}");
+    eprintln!(
+        "r/g by the red wall: on {red_on:.3}, off {red_off:.3}; by the green wall {green_on:.3}"
+    );
     assert!(red_on > red_off * 1.05, "on {red_on}, off {red_off}");
-    assert!(red_on > green_on * 1.1, "red side {red_on}, green side {green_on}");
+    assert!(
+        red_on > green_on * 1.1,
+        "red side {red_on}, green side {green_on}"
+    );
 }
 
 /// The trilinear coverage the CPU filter sees, to keep test points away from the threshold
@@ -194,7 +201,10 @@ fn coverage(v: &Volume, face: Face, p: Vec3) -> f32 {
             ((corner >> 2) & 1) as f32,
         );
         let w = Vec3::select(step.cmpeq(Vec3::ONE), f, Vec3::ONE - f).element_product();
-        let t = (lo + step).as_ivec3().clamp(glam::IVec3::ZERO, max).as_uvec3();
+        let t = (lo + step)
+            .as_ivec3()
+            .clamp(glam::IVec3::ZERO, max)
+            .as_uvec3();
         acc += w * v.texel(face, t).unwrap()[3].to_f32();
     }
     acc
@@ -224,7 +234,8 @@ fn shader_volume_sampling_matches_the_cpu_sampler() {
         } else {
             let b = &cornell().baked.layout;
             let patch = &b.patches[(rand() * (b.patches.len() - 1) as f32) as usize];
-            let centre = v.origin() + (UVec3::from_array(patch.voxel).as_vec3() + 0.5) * v.voxel_size();
+            let centre =
+                v.origin() + (UVec3::from_array(patch.voxel).as_vec3() + 0.5) * v.voxel_size();
             centre + (Vec3::new(rand(), rand(), rand()) - 0.5) * v.voxel_size()
         };
         let near_threshold = (0..3).any(|a| {
@@ -236,9 +247,16 @@ fn shader_volume_sampling_matches_the_cpu_sampler() {
             points.push((p, n.normalize()));
         }
     }
-    let gpu = Renderer::new(ctx).unwrap().probe_volume(&v, &points).unwrap();
+    let gpu = Renderer::new(ctx)
+        .unwrap()
+        .probe_volume(&v, &points)
+        .unwrap();
     let scale = (0..points.len())
-        .map(|i| v.sample(points[i].0, points[i].1).into_iter().fold(0.0f32, f32::max))
+        .map(|i| {
+            v.sample(points[i].0, points[i].1)
+                .into_iter()
+                .fold(0.0f32, f32::max)
+        })
         .fold(0.0f32, f32::max);
     assert!(scale > 0.0);
     let mut nonzero = 0;
@@ -258,7 +276,10 @@ fn shader_volume_sampling_matches_the_cpu_sampler() {
             );
         }
     }
-    eprintln!("{} points, {nonzero} with light, scale {scale}", points.len());
+    eprintln!(
+        "{} points, {nonzero} with light, scale {scale}",
+        points.len()
+    );
     assert!(nonzero >= 100, "{nonzero}");
 }
 
