@@ -325,3 +325,50 @@ fn shared_structs_match_the_wgsl() {
             first_view, pad0, pad1)
     );
 }
+
+/// The Cornell box under the spot at 160×120 against `tests/golden/cornell-spot.png`, rendered
+/// on lavapipe; `BOUNCE_BLESS=1` rewrites it. Other adapters round differently: a pixel may be
+/// off by a few levels, and a small share of pixels (edges, shadow borders) by more.
+#[test]
+fn golden_image() {
+    let Some(ctx) = context() else { return };
+    let image = render(ctx, 160, 120, true);
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/golden/cornell-spot.png");
+    if std::env::var("BOUNCE_BLESS").as_deref() == Ok("1") {
+        image::save_buffer(
+            &path,
+            &image.pixels,
+            image.width,
+            image.height,
+            image::ColorType::Rgba8,
+        )
+        .unwrap();
+        eprintln!("blessed {}", path.display());
+        return;
+    }
+    let golden = image::open(&path)
+        .unwrap_or_else(|e| panic!("{}: {e} (BOUNCE_BLESS=1 writes it)", path.display()))
+        .to_rgba8();
+    assert_eq!(golden.dimensions(), (image.width, image.height));
+    const LEVELS: i16 = 6;
+    let differing = golden
+        .as_raw()
+        .chunks(4)
+        .zip(image.pixels.chunks(4))
+        .filter(|(a, b)| {
+            a.iter()
+                .zip(b.iter())
+                .any(|(&x, &y)| (i16::from(x) - i16::from(y)).abs() > LEVELS)
+        })
+        .count();
+    let share = differing as f64 / f64::from(image.width * image.height);
+    eprintln!(
+        "{differing} pixels differ by more than {LEVELS} levels ({:.3}%)",
+        share * 100.0
+    );
+    assert!(
+        share <= 0.01,
+        "{differing} pixels differ ({:.2}%)",
+        share * 100.0
+    );
+}
