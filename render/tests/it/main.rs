@@ -89,14 +89,23 @@ fn camera() -> Camera {
 }
 
 fn render(ctx: &GpuContext, width: u32, height: u32, indirect: bool) -> Image {
-    let lights = spot();
+    render_with(ctx, &spot(), width, height, indirect)
+}
+
+fn render_with(
+    ctx: &GpuContext,
+    lights: &LightSet,
+    width: u32,
+    height: u32,
+    indirect: bool,
+) -> Image {
     Renderer::new(ctx)
         .unwrap()
         .render(
             &cornell().scene,
             &camera(),
-            &lights,
-            &volume(&lights),
+            lights,
+            &volume(lights),
             &RenderOptions {
                 width,
                 height,
@@ -371,4 +380,51 @@ fn golden_image() {
         "{differing} pixels differ ({:.2}%)",
         share * 100.0
     );
+}
+
+/// Every kind of light casts shadows: lit from the open front along −Z, the short box shadows
+/// the back wall behind it (a point just above the box's silhouette as the camera sees it, so
+/// visible), while higher up the wall is lit.
+#[test]
+fn every_light_kind_casts_shadows() {
+    let Some(ctx) = context() else { return };
+    const SHADOWED: Vec3 = Vec3::new(0.4, 0.55, -1.03);
+    const LIT: Vec3 = Vec3::new(0.4, 1.5, -1.03);
+    let from = [0.375, 0.3, 3.0];
+    let kinds = [
+        Light::Directional {
+            direction: [0.0, 0.0, -1.0],
+            color: [1.0; 3],
+            intensity: 2.0,
+            name: None,
+        },
+        Light::Point {
+            position: from,
+            color: [1.0; 3],
+            intensity: 30.0,
+            range: None,
+            name: None,
+        },
+        Light::Spot {
+            position: from,
+            direction: [0.0, 0.0, -1.0],
+            color: [1.0; 3],
+            intensity: 30.0,
+            range: None,
+            inner_cone_angle: 0.4,
+            outer_cone_angle: 0.6,
+            name: None,
+        },
+    ];
+    for light in kinds {
+        let lights = LightSet {
+            lights: vec![light.clone()],
+        };
+        let image = render_with(ctx, &lights, 320, 240, false);
+        let dark = luminance(mean_rgb(&image, SHADOWED, 1));
+        let lit = luminance(mean_rgb(&image, LIT, 1));
+        eprintln!("{light:?}: shadowed {dark:.4}, lit {lit:.4}");
+        assert!(lit > 0.05, "{light:?}: {lit}");
+        assert!(dark < 0.1 * lit, "{light:?}: shadowed {dark}, lit {lit}");
+    }
 }
