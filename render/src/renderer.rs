@@ -55,7 +55,7 @@ impl Camera {
         let fov_y = 45f32.to_radians();
         let half = (hi - lo) / 2.0;
         // Far enough that the front face's larger half-extent fits the field of view.
-        let reach = half.x.max(half.y) / (fov_y / 2.0).tan();
+        let reach = (half.x.max(half.y) / (fov_y / 2.0).tan()).max(1e-3);
         Camera {
             eye: centre + Vec3::Z * (half.z + reach * 1.1),
             target: centre,
@@ -772,4 +772,49 @@ pub fn volume_from_baked(
         .apply_irradiance(indirect)
         .map_err(|e| RenderError::Volume(e.to_string()))?;
     Ok(volume)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn framing_looks_at_the_centre_from_plus_z_and_sees_the_front() {
+        let bounds = (Vec3::new(-1.0, 0.0, -1.0), Vec3::new(1.0, 2.0, 1.0));
+        let c = Camera::framing(bounds);
+        assert_eq!(c.target, Vec3::new(0.0, 1.0, 0.0));
+        assert!(c.eye.z > 1.0 && c.eye.x == 0.0 && c.eye.y == 1.0, "{c:?}");
+        let m = c.view_proj(1.0, bounds).unwrap();
+        for corner in [Vec3::new(-1.0, 0.0, 1.0), Vec3::new(1.0, 2.0, 1.0)] {
+            let p = m.project_point3(corner);
+            assert!(p.x.abs() <= 1.0 && p.y.abs() <= 1.0, "{corner} at {p}");
+            assert!((0.0..=1.0).contains(&p.z), "{corner} at {p}");
+        }
+        // A point scene still gets a camera that works.
+        let dot = (Vec3::ONE, Vec3::ONE);
+        assert!(Camera::framing(dot).view_proj(1.0, dot).is_ok());
+    }
+
+    #[test]
+    fn bad_cameras_are_errors() {
+        let bounds = (Vec3::ZERO, Vec3::ONE);
+        let at = |eye, target, fov_y| Camera { eye, target, fov_y };
+        assert!(
+            at(Vec3::ONE, Vec3::ONE, 1.0)
+                .view_proj(1.0, bounds)
+                .is_err()
+        );
+        assert!(
+            at(Vec3::NAN, Vec3::ONE, 1.0)
+                .view_proj(1.0, bounds)
+                .is_err()
+        );
+        assert!(at(Vec3::Z, Vec3::ZERO, 0.0).view_proj(1.0, bounds).is_err());
+        assert!(at(Vec3::Z, Vec3::ZERO, 3.2).view_proj(1.0, bounds).is_err());
+        // Looking straight down (along Y) needs another up vector, not a NaN matrix.
+        let m = at(Vec3::Y * 5.0, Vec3::ZERO, 1.0)
+            .view_proj(1.0, bounds)
+            .unwrap();
+        assert!(m.is_finite());
+    }
 }
