@@ -63,6 +63,8 @@ pub fn run(args: &RenderArgs) -> Result<()> {
     let Some(baked_path) = &args.baked else {
         bail!("give the baked scene with --baked FILE");
     };
+    // Argument errors before any file is read.
+    let camera = args.camera.as_deref().map(parse_camera).transpose()?;
     let scene =
         import_path(&args.scene).with_context(|| format!("importing {}", args.scene.display()))?;
     let bounds = scene
@@ -81,10 +83,7 @@ pub fn run(args: &RenderArgs) -> Result<()> {
             lights: scene.lights.clone(),
         },
     };
-    let camera = match &args.camera {
-        Some(text) => parse_camera(text)?,
-        None => Camera::framing(bounds),
-    };
+    let camera = camera.unwrap_or_else(|| Camera::framing(bounds));
 
     let baked =
         Baked::read(baked_path).with_context(|| format!("reading {}", baked_path.display()))?;
