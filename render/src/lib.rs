@@ -16,5 +16,6 @@ mod renderer;
 
 pub use gpu_types::{Globals, GpuLight, Vertex};
 pub use renderer::{
-    Camera, Image, RenderError, RenderOptions, Renderer, SHADER, volume_from_baked,
+    Camera, Image, MAX_SHADOW_VIEWS, MAX_SIDE, RenderError, RenderOptions, Renderer, SHADER,
+    volume_from_baked,
 };

@@ -19,6 +19,9 @@ pub const SHADER: &str = include_str!("shade.wgsl");
 const COLOR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8UnormSrgb;
 const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
 const SHADOW_SIZE: u32 = 1024;
+/// Most shadow-map layers one image may use (a directional or spot light takes one, a point
+/// light six): 4 MiB each.
+pub const MAX_SHADOW_VIEWS: usize = 64;
 /// Largest image side: wgpu's default `max_texture_dimension_2d`.
 pub const MAX_SIDE: u32 = 8192;
 
@@ -28,6 +31,11 @@ pub enum RenderError {
     EmptyScene,
     #[error("image size {width}×{height} is not within 1..={MAX_SIDE} a side")]
     Size { width: u32, height: u32 },
+    #[error(
+        "the lights need {views} shadow maps, more than the {max} one image may use (a point \
+         light takes 6, a spot or directional light 1)"
+    )]
+    TooManyShadows { views: usize, max: usize },
     #[error("camera: {0}")]
     Camera(String),
     #[error("shader: {0}")]
@@ -245,6 +253,13 @@ impl<'a> Renderer<'a> {
             usage: wgpu::BufferUsages::VERTEX,
         });
         let (gpu_lights, shadow_views) = prepare_lights(lights, bounds);
+        let max = MAX_SHADOW_VIEWS.min(device.limits().max_texture_array_layers as usize);
+        if shadow_views.len() > max {
+            return Err(RenderError::TooManyShadows {
+                views: shadow_views.len(),
+                max,
+            });
+        }
 
         let view_proj = camera.view_proj(width as f32 / height as f32, bounds)?;
         let (lo, hi) = bounds;

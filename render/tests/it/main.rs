@@ -428,3 +428,36 @@ fn every_light_kind_casts_shadows() {
         assert!(dark < 0.1 * lit, "{light:?}: shadowed {dark}, lit {lit}");
     }
 }
+
+#[test]
+fn too_many_shadow_maps_or_a_bad_size_are_errors() {
+    let Some(ctx) = context() else { return };
+    let point = Light::Point {
+        position: [0.0, 1.0, 0.0],
+        color: [1.0; 3],
+        intensity: 1.0,
+        range: None,
+        name: None,
+    };
+    let lights = LightSet {
+        lights: vec![point; bounce_render::MAX_SHADOW_VIEWS / 6 + 1],
+    };
+    let renderer = Renderer::new(ctx).unwrap();
+    let v = volume(&spot());
+    let options = |width, height| RenderOptions {
+        width,
+        height,
+        exposure: 1.0,
+        indirect: true,
+    };
+    let err = renderer
+        .render(&cornell().scene, &camera(), &lights, &v, &options(8, 8))
+        .unwrap_err();
+    assert!(err.to_string().contains("shadow maps"), "{err}");
+    for (w, h) in [(0, 8), (8, bounce_render::MAX_SIDE + 1)] {
+        let err = renderer
+            .render(&cornell().scene, &camera(), &spot(), &v, &options(w, h))
+            .unwrap_err();
+        assert!(err.to_string().contains("image size"), "{err}");
+    }
+}
