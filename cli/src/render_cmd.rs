@@ -1,11 +1,14 @@
 //! `bounce render`: one image of a glTF scene lit by a baked transport, offscreen, to a PNG.
 //!
 //! `--baked` relights in this process (engine → indirect per patch → irradiance volume →
-//! renderer); `--server` (a running `bounce serve`) is not built yet.
+//! renderer); `--server` takes the indirect light from a running `bounce serve` (layout, a
+//! session, its first frame → irradiance volume → renderer), as a viewer does.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
+use bounce_client::{Client, ClientConfig, Volume};
 use bounce_core::format::Baked;
 use bounce_core::import::import_path;
 use bounce_core::light::LightSet;
@@ -22,9 +25,25 @@ pub struct RenderArgs {
     /// A file from `bounce bake` of this scene: indirect light is computed in this process.
     #[arg(long, value_name = "FILE")]
     pub baked: Option<PathBuf>,
-    /// A running `bounce serve` to take indirect light from (not yet supported).
-    #[arg(long, value_name = "URL", conflicts_with = "baked")]
+    /// A running `bounce serve` to take indirect light from: `http://HOST:PORT` (gRPC) or
+    /// `ws://HOST:PORT` (WebSocket). Needs --scene-name.
+    #[arg(
+        long,
+        value_name = "URL",
+        conflicts_with = "baked",
+        requires = "scene_name"
+    )]
     pub server: Option<String>,
+    /// The scene's name on the server (its baked file's stem: `cornell-box`).
+    #[arg(long, value_name = "NAME")]
+    pub scene_name: Option<String>,
+    /// Watch this session instead of creating one with --lights (its lights should match
+    /// --lights, which direct light is drawn with).
+    #[arg(long, value_name = "ID", requires = "server")]
+    pub session: Option<String>,
+    /// The server's write token, needed to create a session when it has one.
+    #[arg(long, value_name = "T", env = "BOUNCE_TOKEN", hide_env_values = true)]
+    pub token: Option<String>,
     /// Light configuration, `{"lights": [...]}`; without it, the scene's own glTF lights.
     #[arg(long, value_name = "L.json")]
     pub lights: Option<PathBuf>,
@@ -57,12 +76,9 @@ pub fn run(args: &RenderArgs) -> Result<()> {
         other => bail!("--indirect must be on or off, not {other:?}"),
     };
     let choice: EngineChoice = args.engine.parse()?;
-    if args.server.is_some() {
-        bail!("--server is not yet supported: render with --baked FILE");
+    if args.baked.is_none() && args.server.is_none() {
+        bail!("give the indirect light's source: --baked FILE or --server URL");
     }
-    let Some(baked_path) = &args.baked else {
-        bail!("give the baked scene with --baked FILE");
-    };
     // Argument errors before any file is read.
     let camera = args.camera.as_deref().map(parse_camera).transpose()?;
     let scene =
@@ -85,20 +101,23 @@ pub fn run(args: &RenderArgs) -> Result<()> {
     };
     let camera = camera.unwrap_or_else(|| Camera::framing(bounds));
 
-    let baked =
-        Baked::read(baked_path).with_context(|| format!("reading {}", baked_path.display()))?;
-    let engine = Engine::new(choice)?;
-    eprintln!("engine: {}", engine.describe());
-    let loaded = engine.load(&baked)?;
-    let lit = engine.relight(&loaded, std::slice::from_ref(&lights))?;
-    let Some(lit) = lit.first() else {
-        bail!("the engine answered no light set");
+    let volume = match (&args.baked, &args.server) {
+        (Some(baked), _) => relight_here(baked, choice, &lights)?,
+        (None, Some(url)) => {
+            let name = args
+                .scene_name
+                .as_deref()
+                .context("--server needs --scene-name NAME")?;
+            from_server(
+                url,
+                args.token.as_deref(),
+                name,
+                args.session.as_deref(),
+                &lights,
+            )?
+        }
+        (None, None) => bail!("give the indirect light's source: --baked FILE or --server URL"),
     };
-    let name = baked_path
-        .file_stem()
-        .map(|s| s.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    let volume = volume_from_baked(&name, &baked.layout, &lit.indirect)?;
 
     let ctx = GpuContext::new().context("the renderer needs a GPU adapter (lavapipe will do)")?;
     eprintln!("renderer: {}", ctx.adapter());
@@ -125,6 +144,83 @@ pub fn run(args: &RenderArgs) -> Result<()> {
         image.height
     );
     Ok(())
+}
+
+/// The engine in this process: relight once, fill a volume.
+fn relight_here(baked_path: &Path, choice: EngineChoice, lights: &LightSet) -> Result<Volume> {
+    let baked =
+        Baked::read(baked_path).with_context(|| format!("reading {}", baked_path.display()))?;
+    let engine = Engine::new(choice)?;
+    eprintln!("engine: {}", engine.describe());
+    let loaded = engine.load(&baked)?;
+    let lit = engine.relight(&loaded, std::slice::from_ref(lights))?;
+    let Some(lit) = lit.first() else {
+        bail!("the engine answered no light set");
+    };
+    let name = baked_path
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    Ok(volume_from_baked(&name, &baked.layout, &lit.indirect)?)
+}
+
+/// How long to wait for a session's first frame.
+const FIRST_FRAME: Duration = Duration::from_secs(60);
+
+/// As a viewer: the layout, a session (given, or created with `lights`), its newest frame.
+fn from_server(
+    url: &str,
+    token: Option<&str>,
+    scene: &str,
+    session: Option<&str>,
+    lights: &LightSet,
+) -> Result<Volume> {
+    let runtime = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .context("starting the async runtime")?;
+    runtime.block_on(async {
+        let mut config = ClientConfig::new(url);
+        if let Some(t) = token {
+            config = config.with_token(t);
+        }
+        let client = Client::connect(config)
+            .await
+            .with_context(|| format!("connecting to {url}"))?;
+        let layout = client
+            .get_layout(scene)
+            .await
+            .with_context(|| format!("fetching the layout of {scene:?}"))?;
+        let mut volume = Volume::new(&layout).context("building the irradiance volume")?;
+        let id = match session {
+            Some(id) => id.to_string(),
+            None => {
+                client
+                    .create_session(scene, lights)
+                    .await
+                    .context("creating a session")?
+                    .id
+            }
+        };
+        let mut frames = client
+            .subscribe(&id)
+            .await
+            .with_context(|| format!("subscribing to session {id}"))?;
+        let frame = tokio::time::timeout(FIRST_FRAME, frames.next())
+            .await
+            .with_context(|| format!("no frame from session {id} within a minute"))?
+            .with_context(|| format!("reading session {id}'s frames"))?
+            .with_context(|| format!("session {id}'s stream ended before its first frame"))?;
+        frames.close().await;
+        volume
+            .apply(&frame)
+            .context("the frame does not fit the layout")?;
+        eprintln!(
+            "session {id}: frame {} answering lights version {}",
+            frame.header.sequence, frame.header.lights_version
+        );
+        anyhow::Ok(volume)
+    })
 }
 
 fn parse_camera(text: &str) -> Result<Camera> {

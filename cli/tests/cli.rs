@@ -587,3 +587,66 @@ fn serve_keeps_sessions_across_kill_9() {
         );
     });
 }
+
+/// `render --server` takes its indirect light from a running server as a viewer does; it must
+/// draw the same image as `render --baked` on the same file, up to the frame's RGB9E5 rounding.
+#[test]
+fn render_from_a_server_matches_render_in_process() {
+    let dir = tempfile::tempdir().unwrap();
+    let scenes = dir.path().join("scenes");
+    std::fs::create_dir_all(&scenes).unwrap();
+    let baked = scenes.join("box.bounce");
+    let out = run(bounce()
+        .args(["bake", "--patches", "300", "--rays", "256", "--quiet", "-o"])
+        .arg(&baked)
+        .arg(cornell()));
+    assert!(out.status.success(), "{}", stderr(&out));
+    let lights = dir.path().join("spot.json");
+    std::fs::write(
+        &lights,
+        r#"{"lights":[{"type":"spot","position":[0,1.9,0],"direction":[0,-1,0],"intensity":15,"inner_cone_angle":0.8,"outer_cone_angle":1.0}]}"#,
+    )
+    .unwrap();
+    let server = ServeProcess::start(&scenes, &dir.path().join("data"));
+    let render = |source: &[&std::ffi::OsStr], png: &Path| {
+        let out = run(bounce()
+            .arg("render")
+            .arg(cornell())
+            .args(source)
+            .arg("--lights")
+            .arg(&lights)
+            .args([
+                "--engine", "cpu", "--width", "160", "--height", "120", "--out",
+            ])
+            .arg(png)
+            .env("XDG_RUNTIME_DIR", std::env::temp_dir()));
+        assert!(out.status.success(), "{}", stderr(&out));
+        image::open(png).expect("a PNG").to_rgba8()
+    };
+    let here = render(
+        &["--baked".as_ref(), baked.as_os_str()],
+        &dir.path().join("here.png"),
+    );
+    let grpc = server.grpc.clone();
+    let remote = render(
+        &[
+            "--server".as_ref(),
+            grpc.as_ref(),
+            "--scene-name".as_ref(),
+            "box".as_ref(),
+        ],
+        &dir.path().join("remote.png"),
+    );
+    assert_eq!(here.dimensions(), remote.dimensions());
+    let diffs: Vec<i32> = here
+        .as_raw()
+        .iter()
+        .zip(remote.as_raw())
+        .map(|(a, b)| (i32::from(*a) - i32::from(*b)).abs())
+        .collect();
+    let max = diffs.iter().copied().max().unwrap_or(0);
+    let mean = diffs.iter().sum::<i32>() as f64 / diffs.len() as f64;
+    assert!(max <= 3 && mean < 0.5, "max {max}, mean {mean}");
+    // And not trivially: the image has light in it.
+    assert!(here.as_raw().iter().map(|&v| u64::from(v)).sum::<u64>() > 160 * 120 * 40);
+}

@@ -88,9 +88,27 @@ fn render_user_errors_read_clearly() {
         assert_eq!(out.status.code(), Some(1), "{args:?}: {}", stderr(&out));
         assert!(stderr(&out).contains(want), "{args:?}: {}", stderr(&out));
     };
+    let dir = tempfile::tempdir().unwrap();
+    let lights = dir.path().join("lights.json");
+    std::fs::write(
+        &lights,
+        r#"{"lights":[{"type":"point","position":[0,1.5,0],"intensity":5}]}"#,
+    )
+    .unwrap();
+    let lights = lights.to_str().unwrap();
+    // Nothing listens on port 1.
     check(
-        &["--server", "http://127.0.0.1:1", "--out", "x.png"],
-        "--server is not yet supported",
+        &[
+            "--server",
+            "http://127.0.0.1:1",
+            "--scene-name",
+            "box",
+            "--lights",
+            lights,
+            "--out",
+            "x.png",
+        ],
+        "127.0.0.1:1",
     );
     check(&["--out", "x.png"], "--baked");
     check(
