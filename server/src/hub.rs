@@ -348,12 +348,26 @@ impl Hub {
     /// A viewer of session `id`: the newest frame at once, then each newer one.
     pub fn viewer(&self, id: &str, transport: Transport) -> Result<Viewer, ServerError> {
         let session = self.session(id)?;
-        Ok(Viewer::new(
-            session,
+        let viewer = Viewer::new(
+            Arc::clone(&session),
             self.inner.shutdown.subscribe(),
             transport,
             Arc::clone(&self.inner.metrics),
-        ))
+        );
+        // Expiry removes a session only while it has no viewers, checked under the map's lock.
+        // If it removed this one before the viewer counted, the viewer would wait forever on a
+        // session nobody publishes to: look again now that it counts.
+        let still_here = self
+            .inner
+            .sessions
+            .read()
+            .unwrap_or_else(|e| e.into_inner())
+            .get(id)
+            .is_some_and(|s| Arc::ptr_eq(s, &session));
+        if !still_here {
+            return Err(ServerError::UnknownSession(id.to_string()));
+        }
+        Ok(viewer)
     }
 
     /// Relights `scene` once, outside any session, batched with whatever the worker solves
