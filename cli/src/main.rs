@@ -16,6 +16,7 @@ mod progress;
 mod relight_cmd;
 mod render_cmd;
 mod serve_cmd;
+mod view;
 
 use std::process::ExitCode;
 
@@ -51,6 +52,9 @@ enum Command {
     /// Draw one image of a glTF scene lit by a baked transport (direct light with shadow maps,
     /// indirect light from the irradiance volume), offscreen, to a PNG.
     Render(render_cmd::RenderArgs),
+    /// Open a window on a glTF scene: direct light from its own shadow maps, indirect light
+    /// streamed from a server session (or relit in process from a baked file); fly, move lights.
+    View(view::ViewArgs),
     /// Benchmarks: tables (and CSV) comparing variants measured in one run.
     Bench(bench::BenchArgs),
     /// Serve baked scenes over gRPC: sessions, light changes, frames streamed to every viewer.
@@ -77,6 +81,7 @@ fn main() -> ExitCode {
         Command::Demo(args) => demo::run(&args),
         Command::Relight(args) => relight_cmd::run(&args),
         Command::Render(args) => render_cmd::run(&args),
+        Command::View(args) => view::run(&args),
         Command::Bench(args) => bench::run(&args),
         Command::Serve(args) => serve_cmd::run(&args),
     };

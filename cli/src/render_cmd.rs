@@ -223,7 +223,7 @@ fn from_server(
     })
 }
 
-fn parse_camera(text: &str) -> Result<Camera> {
+pub(crate) fn parse_camera(text: &str) -> Result<Camera> {
     let values = text
         .split(',')
         .map(|v| v.trim().parse::<f32>())

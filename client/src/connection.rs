@@ -81,6 +81,15 @@ pub struct SessionInfo {
     pub lights_version: u64,
 }
 
+/// A session as [`Client::get_session`] reads it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SessionState {
+    pub id: String,
+    pub scene: String,
+    pub lights_version: u64,
+    pub lights: LightSet,
+}
+
 /// What [`Client::set_lights`] answers.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct LightsChange {
@@ -140,6 +149,14 @@ impl Client {
         match &self.transport {
             Transport::Grpc(t) => t.create_session(scene, lights).await,
             Transport::WebSocket(t) => t.create_session(scene, lights).await,
+        }
+    }
+
+    /// A session's scene, lights and lights version.
+    pub async fn get_session(&self, session: &str) -> Result<SessionState, ClientError> {
+        match &self.transport {
+            Transport::Grpc(t) => t.get_session(session).await,
+            Transport::WebSocket(t) => t.get_session(session).await,
         }
     }
 

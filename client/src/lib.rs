@@ -28,6 +28,7 @@ pub use bounce_core::light::{Light, LightSet};
 pub use bounce_server::frame::{Frame, FrameHeader};
 pub use connection::{
     Client, ClientConfig, FrameStream, LightsChange, MAX_MESSAGE_BYTES, Scheme, SessionInfo,
+    SessionState,
 };
 pub use error::{ClientError, Refusal};
 pub use layout::{Face, Layout, LayoutError, PatchFace};

@@ -4,66 +4,9 @@
 //! Nothing is validated here: the server is the one judge of a light configuration, and its
 //! refusal names the field (`lights[0].intensity: ...`).
 
-use bounce_core::light::{Light, LightSet};
-use bounce_server::proto;
+use bounce_core::light::LightSet;
 
-/// The proto form: the same fields, absent ones left out.
-pub fn to_proto(set: &LightSet) -> Vec<proto::Light> {
-    set.lights.iter().map(light_to_proto).collect()
-}
-
-fn light_to_proto(l: &Light) -> proto::Light {
-    match l {
-        Light::Directional {
-            direction,
-            color,
-            intensity,
-            name,
-        } => proto::Light {
-            r#type: "directional".into(),
-            direction: direction.to_vec(),
-            color: color.to_vec(),
-            intensity: Some(*intensity),
-            name: name.clone(),
-            ..Default::default()
-        },
-        Light::Point {
-            position,
-            color,
-            intensity,
-            range,
-            name,
-        } => proto::Light {
-            r#type: "point".into(),
-            position: position.to_vec(),
-            color: color.to_vec(),
-            intensity: Some(*intensity),
-            range: *range,
-            name: name.clone(),
-            ..Default::default()
-        },
-        Light::Spot {
-            position,
-            direction,
-            color,
-            intensity,
-            range,
-            inner_cone_angle,
-            outer_cone_angle,
-            name,
-        } => proto::Light {
-            r#type: "spot".into(),
-            position: position.to_vec(),
-            direction: direction.to_vec(),
-            color: color.to_vec(),
-            intensity: Some(*intensity),
-            range: *range,
-            inner_cone_angle: Some(*inner_cone_angle),
-            outer_cone_angle: Some(*outer_cone_angle),
-            name: name.clone(),
-        },
-    }
-}
+pub use bounce_server::lights::to_proto;
 
 /// The `lights` array of the JSON form.
 pub fn to_json(set: &LightSet) -> serde_json::Value {

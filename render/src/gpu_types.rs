@@ -42,8 +42,14 @@ pub struct GpuLight {
 pub struct Vertex {
     pub position: [f32; 3],
     pub normal: [f32; 3],
+    /// Linear RGB, multiplied by the albedo map's texel.
     pub albedo: [f32; 3],
     pub emission: [f32; 3],
+    /// Albedo map coordinates.
+    pub uv: [f32; 2],
+    /// Albedo map layer; 0 is white.
+    pub layer: u32,
+    pub pad: u32,
 }
 
 pub const KIND_DIRECTIONAL: u32 = 0;

@@ -1,21 +1,32 @@
-//! `bounce-render`: the headless renderer of issue 7, one image of an imported scene offscreen.
+//! `bounce-render`: the renderer every bounce viewer shares, the window's and the headless one.
 //!
-//! It owns the shading every bounce viewer uses (`shade.wgsl`): per fragment
-//! `albedo / π · (E_direct + E_indirect)` plus emission, with `E_direct` from the lights with a
-//! shadow map each (directional: orthographic over the scene's bounds; spot: perspective; point:
-//! six perspective faces), `E_indirect` from the six-direction irradiance volume
-//! ([`bounce_client::Volume`], sampled as its module doc says), and the tonemap: radiance times
-//! [`RenderOptions::exposure`], then Reinhard `x / (1 + x)` per channel, then sRGB encoding.
+//! It owns the shading (`shade.wgsl`): per fragment `albedo / π · (E_direct + E_indirect)` plus
+//! emission, with `albedo` the triangle's base colour times its albedo map, `E_direct` from the
+//! lights with a shadow map each (directional: orthographic over the scene's bounds; spot:
+//! perspective; point: six perspective faces), `E_indirect` from the six-direction irradiance
+//! volume ([`bounce_client::Volume`], sampled as its module doc says), and the tonemap: radiance
+//! times the exposure, then Reinhard `x / (1 + x)` per channel, then sRGB encoding. A [`Stage`]
+//! holds one scene on the GPU; [`Renderer::draw`] records it into any target (a window's
+//! surface texture or an offscreen image), so the window and `bounce render` run the same code.
+//! [`Overlay`] draws the viewer's text on top.
 //!
-//! Not here: relighting (`bounce_engine`), the volume's contents (`bounce_client`), windows and
-//! file formats (the CLI writes the PNG).
+//! Not here: relighting (`bounce_engine`), the volume's contents (`bounce_client`), windows,
+//! input and file formats (the CLI's viewer and `render` command).
 
+mod camera;
 mod gpu_types;
+mod lights;
 mod math;
+mod mesh;
+mod overlay;
 mod renderer;
+mod stage;
 
+pub use camera::Camera;
 pub use gpu_types::{Globals, GpuLight, Vertex};
+pub use overlay::{OVERLAY_SHADER, Overlay, OverlayParams};
 pub use renderer::{
-    Camera, Image, MAX_SHADOW_VIEWS, MAX_SIDE, RenderError, RenderOptions, Renderer, SHADER,
-    volume_from_baked,
+    IMAGE_FORMAT, Image, MAX_SHADOW_VIEWS, MAX_SIDE, RenderError, RenderOptions, Renderer, SHADER,
+    Target, Terms, layout_from_baked, volume_from_baked,
 };
+pub use stage::Stage;

@@ -1,24 +1,28 @@
+//! [`Renderer`]: the pipelines on one device, and drawing a [`Stage`] into any colour target
+//! (a window's surface texture or an offscreen image read back to memory).
+
 use std::sync::{Mutex, MutexGuard, mpsc};
 
-use bounce_client::{Face, Layout, PatchFace, Volume};
-use bounce_core::direct::{LightKind, PreparedLight};
+use bounce_client::{Layout, PatchFace, Volume};
 use bounce_core::light::LightSet;
 use bounce_core::patch::PatchLayout;
 use bounce_core::scene::Scene;
 use bounce_engine::gpu::GpuContext;
-use glam::{Mat4, UVec3, Vec3};
+use glam::{UVec3, Vec3};
 use thiserror::Error;
 use wgpu::util::DeviceExt;
 
-use crate::gpu_types::{Globals, GpuLight, KIND_DIRECTIONAL, KIND_POINT, KIND_SPOT, Vertex};
-use crate::math::{look_at_rh, orthographic_rh, perspective_rh};
+use crate::camera::Camera;
+use crate::gpu_types::{Globals, Vertex};
+use crate::stage::{Stage, VolumeGpu};
 
 /// The shading module (see the crate doc).
 pub const SHADER: &str = include_str!("shade.wgsl");
 
-const COLOR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8UnormSrgb;
-const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
-const SHADOW_SIZE: u32 = 1024;
+/// The offscreen images' format.
+pub const IMAGE_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8UnormSrgb;
+pub(crate) const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
+pub(crate) const SHADOW_SIZE: u32 = 1024;
 /// Most shadow-map layers one image may use (a directional or spot light takes one, a point
 /// light six): 4 MiB each.
 pub const MAX_SHADOW_VIEWS: usize = 64;
@@ -40,73 +44,14 @@ pub enum RenderError {
     Camera(String),
     #[error("shader: {0}")]
     Shader(String),
+    #[error("no pipeline for colour format {0:?}: create the renderer with it")]
+    Format(wgpu::TextureFormat),
+    #[error("albedo maps: {0}")]
+    Textures(String),
     #[error("irradiance volume: {0}")]
     Volume(String),
     #[error("reading the image back: {0}")]
     Readback(String),
-}
-
-/// A pinhole camera.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Camera {
-    pub eye: Vec3,
-    pub target: Vec3,
-    /// Vertical field of view, radians.
-    pub fov_y: f32,
-}
-
-impl Camera {
-    /// Looking at the whole of `bounds` from +Z, with a 45° vertical field of view.
-    pub fn framing(bounds: (Vec3, Vec3)) -> Camera {
-        let (lo, hi) = bounds;
-        let centre = (lo + hi) / 2.0;
-        let fov_y = 45f32.to_radians();
-        let half = (hi - lo) / 2.0;
-        // Far enough that the front face's larger half-extent fits the field of view.
-        let reach = (half.x.max(half.y) / (fov_y / 2.0).tan()).max(1e-3);
-        Camera {
-            eye: centre + Vec3::Z * (half.z + reach * 1.1),
-            target: centre,
-            fov_y,
-        }
-    }
-
-    /// World to clip space for an image of this aspect ratio, with depth planes that hold
-    /// `bounds`.
-    pub fn view_proj(&self, aspect: f32, bounds: (Vec3, Vec3)) -> Result<Mat4, RenderError> {
-        let view = self.view()?;
-        let (lo, hi) = bounds;
-        let radius = ((hi - lo).length() / 2.0).max(1e-3);
-        let distance = (self.eye - (lo + hi) / 2.0).length();
-        let far = distance + radius * 2.0;
-        let near = (far / 2000.0).max(1e-4);
-        Ok(perspective_rh(self.fov_y, aspect, near, far) * view)
-    }
-
-    fn view(&self) -> Result<Mat4, RenderError> {
-        let dir = self.target - self.eye;
-        if !(dir.length() > 0.0 && dir.is_finite()) {
-            return Err(RenderError::Camera(
-                "the eye and the target must be distinct finite points".into(),
-            ));
-        }
-        if !(self.fov_y > 0.0 && self.fov_y < std::f32::consts::PI) {
-            return Err(RenderError::Camera(format!(
-                "field of view {}° is not within (0°, 180°)",
-                self.fov_y.to_degrees()
-            )));
-        }
-        Ok(look_at_rh(self.eye, self.target, up_for(dir)))
-    }
-}
-
-/// Y up, unless the view runs along Y.
-fn up_for(dir: Vec3) -> Vec3 {
-    if dir.normalize().y.abs() > 0.99 {
-        Vec3::Z
-    } else {
-        Vec3::Y
-    }
 }
 
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -130,6 +75,13 @@ impl Default for RenderOptions {
     }
 }
 
+/// What the direct and indirect terms contribute to an image: the viewer's toggles.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Terms {
+    pub direct: bool,
+    pub indirect: bool,
+}
+
 /// RGBA8 pixels (sRGB), rows top to bottom, no padding.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Image {
@@ -138,16 +90,40 @@ pub struct Image {
     pub pixels: Vec<u8>,
 }
 
-/// Pipelines on one device; a render uploads the scene, the lights and the volume each time.
+/// Where a draw goes: a colour view of a format the renderer has a pipeline for, and a depth
+/// view of the same size ([`Renderer::depth_view`]).
+pub struct Target<'t> {
+    pub color: &'t wgpu::TextureView,
+    pub format: wgpu::TextureFormat,
+    pub depth: &'t wgpu::TextureView,
+    pub width: u32,
+    pub height: u32,
+}
+
+/// Pipelines and samplers on one device.
 pub struct Renderer<'a> {
-    ctx: &'a GpuContext,
+    pub(crate) ctx: &'a GpuContext,
     module: wgpu::ShaderModule,
-    main: wgpu::RenderPipeline,
-    shadow: wgpu::RenderPipeline,
+    pub(crate) main_layout: wgpu::BindGroupLayout,
+    mains: Vec<(wgpu::TextureFormat, wgpu::RenderPipeline)>,
+    pub(crate) shadow: wgpu::RenderPipeline,
+    pub(crate) shadow_sampler: wgpu::Sampler,
+    pub(crate) linear_sampler: wgpu::Sampler,
+    pub(crate) albedo_sampler: wgpu::Sampler,
 }
 
 impl<'a> Renderer<'a> {
+    /// A renderer for offscreen images ([`IMAGE_FORMAT`]).
     pub fn new(ctx: &'a GpuContext) -> Result<Renderer<'a>, RenderError> {
+        Renderer::with_formats(ctx, &[IMAGE_FORMAT])
+    }
+
+    /// A renderer that can draw into each of `formats` (a window's surface format, say, and
+    /// [`IMAGE_FORMAT`] for screenshots).
+    pub fn with_formats(
+        ctx: &'a GpuContext,
+        formats: &[wgpu::TextureFormat],
+    ) -> Result<Renderer<'a>, RenderError> {
         let device = ctx.device();
         let _one = compiling();
         let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
@@ -156,40 +132,57 @@ impl<'a> Renderer<'a> {
             source: wgpu::ShaderSource::Wgsl(SHADER.into()),
         });
         let attributes = wgpu::vertex_attr_array![
-            0 => Float32x3, 1 => Float32x3, 2 => Float32x3, 3 => Float32x3
+            0 => Float32x3, 1 => Float32x3, 2 => Float32x3, 3 => Float32x3,
+            4 => Float32x2, 5 => Uint32
         ];
         let buffers = [Some(wgpu::VertexBufferLayout {
             array_stride: std::mem::size_of::<Vertex>() as u64,
             step_mode: wgpu::VertexStepMode::Vertex,
             attributes: &attributes,
         })];
-        let main = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-            label: Some("main"),
-            layout: None,
-            vertex: wgpu::VertexState {
-                module: &module,
-                entry_point: Some("vs_main"),
-                compilation_options: Default::default(),
-                buffers: &buffers,
-            },
-            primitive: wgpu::PrimitiveState::default(),
-            depth_stencil: Some(wgpu::DepthStencilState {
-                format: DEPTH_FORMAT,
-                depth_write_enabled: Some(true),
-                depth_compare: Some(wgpu::CompareFunction::Less),
-                stencil: Default::default(),
-                bias: Default::default(),
-            }),
-            multisample: Default::default(),
-            fragment: Some(wgpu::FragmentState {
-                module: &module,
-                entry_point: Some("fs_main"),
-                compilation_options: Default::default(),
-                targets: &[Some(COLOR_FORMAT.into())],
-            }),
-            multiview_mask: None,
-            cache: None,
+        // One explicit layout, so a stage's bind group fits the pipeline of every format.
+        let main_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("shade"),
+            entries: &main_layout_entries(),
         });
+        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("shade"),
+            bind_group_layouts: &[Some(&main_layout)],
+            immediate_size: 0,
+        });
+        let mains = formats
+            .iter()
+            .map(|&format| {
+                let pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+                    label: Some("main"),
+                    layout: Some(&pipeline_layout),
+                    vertex: wgpu::VertexState {
+                        module: &module,
+                        entry_point: Some("vs_main"),
+                        compilation_options: Default::default(),
+                        buffers: &buffers,
+                    },
+                    primitive: wgpu::PrimitiveState::default(),
+                    depth_stencil: Some(wgpu::DepthStencilState {
+                        format: DEPTH_FORMAT,
+                        depth_write_enabled: Some(true),
+                        depth_compare: Some(wgpu::CompareFunction::Less),
+                        stencil: Default::default(),
+                        bias: Default::default(),
+                    }),
+                    multisample: Default::default(),
+                    fragment: Some(wgpu::FragmentState {
+                        module: &module,
+                        entry_point: Some("fs_main"),
+                        compilation_options: Default::default(),
+                        targets: &[Some(format.into())],
+                    }),
+                    multiview_mask: None,
+                    cache: None,
+                });
+                (format, pipeline)
+            })
+            .collect();
         let shadow = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
             label: Some("shadow"),
             layout: None,
@@ -220,12 +213,149 @@ impl<'a> Renderer<'a> {
         if let Some(e) = pollster::block_on(scope.pop()) {
             return Err(RenderError::Shader(e.to_string()));
         }
+        let shadow_sampler = device.create_sampler(&wgpu::SamplerDescriptor {
+            label: Some("shadow"),
+            mag_filter: wgpu::FilterMode::Linear,
+            min_filter: wgpu::FilterMode::Linear,
+            compare: Some(wgpu::CompareFunction::LessEqual),
+            ..Default::default()
+        });
+        let linear_sampler = device.create_sampler(&wgpu::SamplerDescriptor {
+            label: Some("volume"),
+            address_mode_u: wgpu::AddressMode::ClampToEdge,
+            address_mode_v: wgpu::AddressMode::ClampToEdge,
+            address_mode_w: wgpu::AddressMode::ClampToEdge,
+            mag_filter: wgpu::FilterMode::Linear,
+            min_filter: wgpu::FilterMode::Linear,
+            ..Default::default()
+        });
+        let albedo_sampler = device.create_sampler(&wgpu::SamplerDescriptor {
+            label: Some("albedo"),
+            address_mode_u: wgpu::AddressMode::Repeat,
+            address_mode_v: wgpu::AddressMode::Repeat,
+            mag_filter: wgpu::FilterMode::Linear,
+            min_filter: wgpu::FilterMode::Linear,
+            mipmap_filter: wgpu::MipmapFilterMode::Linear,
+            ..Default::default()
+        });
         Ok(Renderer {
             ctx,
             module,
-            main,
+            main_layout,
+            mains,
             shadow,
+            shadow_sampler,
+            linear_sampler,
+            albedo_sampler,
         })
+    }
+
+    pub fn context(&self) -> &'a GpuContext {
+        self.ctx
+    }
+
+    /// A depth buffer for targets of this size.
+    pub fn depth_view(&self, width: u32, height: u32) -> wgpu::TextureView {
+        self.ctx
+            .device()
+            .create_texture(&wgpu::TextureDescriptor {
+                label: Some("depth"),
+                size: wgpu::Extent3d {
+                    width,
+                    height,
+                    depth_or_array_layers: 1,
+                },
+                mip_level_count: 1,
+                sample_count: 1,
+                dimension: wgpu::TextureDimension::D2,
+                format: DEPTH_FORMAT,
+                usage: wgpu::TextureUsages::RENDER_ATTACHMENT,
+                view_formats: &[],
+            })
+            .create_view(&Default::default())
+    }
+
+    /// Records one image of `stage` from `camera` into `target`: the shadow maps first if the
+    /// lights changed since they were drawn, then the scene.
+    pub fn draw(
+        &self,
+        stage: &mut Stage,
+        encoder: &mut wgpu::CommandEncoder,
+        target: &Target<'_>,
+        camera: &Camera,
+        exposure: f32,
+        terms: Terms,
+    ) -> Result<(), RenderError> {
+        let (width, height) = (target.width, target.height);
+        if !(1..=MAX_SIDE).contains(&width) || !(1..=MAX_SIDE).contains(&height) {
+            return Err(RenderError::Size { width, height });
+        }
+        let pipeline = self
+            .mains
+            .iter()
+            .find(|(f, _)| *f == target.format)
+            .map(|(_, p)| p)
+            .ok_or(RenderError::Format(target.format))?;
+        let view_proj = camera.view_proj(width as f32 / height as f32, stage.bounds)?;
+        let (lo, hi) = stage.bounds;
+        let radius = ((hi - lo).length() / 2.0).max(1e-3);
+        let globals = Globals {
+            view_proj: view_proj.to_cols_array_2d(),
+            eye: camera.eye.to_array(),
+            exposure,
+            volume_origin: stage.volume.origin.to_array(),
+            voxel_size: stage.volume.voxel_size,
+            volume_dims: stage.volume.dims.as_vec3().to_array(),
+            light_count: if terms.direct { stage.lights.count } else { 0 },
+            indirect: u32::from(terms.indirect),
+            normal_offset: radius * 0.004,
+            pad0: 0,
+            pad1: 0,
+        };
+        self.ctx
+            .queue()
+            .write_buffer(&stage.globals, 0, bytemuck::bytes_of(&globals));
+
+        if stage.shadows_stale {
+            for (layer, view) in stage.lights.layers.iter().enumerate() {
+                let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
+                    label: Some("shadow"),
+                    color_attachments: &[],
+                    depth_stencil_attachment: Some(depth_attachment(view)),
+                    timestamp_writes: None,
+                    occlusion_query_set: None,
+                    multiview_mask: None,
+                });
+                pass.set_pipeline(&self.shadow);
+                pass.set_bind_group(0, &stage.shadow_group, &[]);
+                pass.set_vertex_buffer(0, stage.vertices.slice(..));
+                let layer = layer as u32;
+                pass.draw(0..stage.vertex_count, layer..layer + 1);
+            }
+            stage.shadows_stale = false;
+        }
+
+        let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
+            label: Some("main"),
+            color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+                view: target.color,
+                depth_slice: None,
+                resolve_target: None,
+                ops: wgpu::Operations {
+                    load: wgpu::LoadOp::Clear(wgpu::Color::BLACK),
+                    store: wgpu::StoreOp::Store,
+                },
+            })],
+            depth_stencil_attachment: Some(depth_attachment(target.depth)),
+            timestamp_writes: None,
+            occlusion_query_set: None,
+            multiview_mask: None,
+        });
+        pass.set_pipeline(pipeline);
+        pass.set_bind_group(0, &stage.main_group, &[]);
+        pass.set_vertex_buffer(0, stage.vertices.slice(..));
+        pass.draw(0..stage.vertex_count, 0..1);
+        Ok(())
     }
 
     /// One image of `scene` from `camera` under `lights`, with `volume`'s indirect light unless
@@ -238,72 +368,35 @@ impl<'a> Renderer<'a> {
         volume: &Volume,
         options: &RenderOptions,
     ) -> Result<Image, RenderError> {
-        let (width, height) = (options.width, options.height);
-        if !(1..=MAX_SIDE).contains(&width) || !(1..=MAX_SIDE).contains(&height) {
-            return Err(RenderError::Size { width, height });
-        }
-        let bounds = scene.bounds().ok_or(RenderError::EmptyScene)?;
-        let device = self.ctx.device();
-        let queue = self.ctx.queue();
-
-        let vertices = vertices(scene);
-        let vertex_buf = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some("vertices"),
-            contents: bytemuck::cast_slice(&vertices),
-            usage: wgpu::BufferUsages::VERTEX,
-        });
-        let (gpu_lights, shadow_views) = prepare_lights(lights, bounds);
-        let max = MAX_SHADOW_VIEWS.min(device.limits().max_texture_array_layers as usize);
-        if shadow_views.len() > max {
-            return Err(RenderError::TooManyShadows {
-                views: shadow_views.len(),
-                max,
-            });
-        }
-
-        let view_proj = camera.view_proj(width as f32 / height as f32, bounds)?;
-        let (lo, hi) = bounds;
-        let radius = ((hi - lo).length() / 2.0).max(1e-3);
-        let globals = Globals {
-            view_proj: view_proj.to_cols_array_2d(),
-            eye: camera.eye.to_array(),
-            exposure: options.exposure,
-            volume_origin: volume.origin().to_array(),
-            voxel_size: volume.voxel_size(),
-            volume_dims: volume.dims().as_vec3().to_array(),
-            light_count: gpu_lights.len() as u32,
-            indirect: u32::from(options.indirect),
-            normal_offset: radius * 0.004,
-            pad0: 0,
-            pad1: 0,
+        check_size(options.width, options.height)?;
+        let mut stage = Stage::new(self, scene, volume)?;
+        stage.set_lights(self, lights)?;
+        let terms = Terms {
+            direct: true,
+            indirect: options.indirect,
         };
-        let resources = self.resources(&globals, &gpu_lights, &shadow_views, volume);
+        self.render_stage(
+            &mut stage,
+            camera,
+            options.width,
+            options.height,
+            options.exposure,
+            terms,
+        )
+    }
 
-        let mut encoder = device.create_command_encoder(&Default::default());
-        for (layer, _) in shadow_views.iter().enumerate() {
-            let target = resources
-                .shadow_maps
-                .create_view(&wgpu::TextureViewDescriptor {
-                    dimension: Some(wgpu::TextureViewDimension::D2),
-                    base_array_layer: layer as u32,
-                    array_layer_count: Some(1),
-                    ..Default::default()
-                });
-            let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
-                label: Some("shadow"),
-                color_attachments: &[],
-                depth_stencil_attachment: Some(depth_attachment(&target)),
-                timestamp_writes: None,
-                occlusion_query_set: None,
-                multiview_mask: None,
-            });
-            pass.set_pipeline(&self.shadow);
-            pass.set_bind_group(0, &resources.shadow_group, &[]);
-            pass.set_vertex_buffer(0, vertex_buf.slice(..));
-            let layer = layer as u32;
-            pass.draw(0..vertices.len() as u32, layer..layer + 1);
-        }
-
+    /// One image of a stage, offscreen, read back.
+    pub fn render_stage(
+        &self,
+        stage: &mut Stage,
+        camera: &Camera,
+        width: u32,
+        height: u32,
+        exposure: f32,
+        terms: Terms,
+    ) -> Result<Image, RenderError> {
+        check_size(width, height)?;
+        let device = self.ctx.device();
         let size = wgpu::Extent3d {
             width,
             height,
@@ -315,44 +408,21 @@ impl<'a> Renderer<'a> {
             mip_level_count: 1,
             sample_count: 1,
             dimension: wgpu::TextureDimension::D2,
-            format: COLOR_FORMAT,
+            format: IMAGE_FORMAT,
             usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC,
             view_formats: &[],
         });
-        let depth = device.create_texture(&wgpu::TextureDescriptor {
-            label: Some("depth"),
-            size,
-            mip_level_count: 1,
-            sample_count: 1,
-            dimension: wgpu::TextureDimension::D2,
-            format: DEPTH_FORMAT,
-            usage: wgpu::TextureUsages::RENDER_ATTACHMENT,
-            view_formats: &[],
-        });
         let color_view = color.create_view(&Default::default());
-        let depth_view = depth.create_view(&Default::default());
-        {
-            let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
-                label: Some("main"),
-                color_attachments: &[Some(wgpu::RenderPassColorAttachment {
-                    view: &color_view,
-                    depth_slice: None,
-                    resolve_target: None,
-                    ops: wgpu::Operations {
-                        load: wgpu::LoadOp::Clear(wgpu::Color::BLACK),
-                        store: wgpu::StoreOp::Store,
-                    },
-                })],
-                depth_stencil_attachment: Some(depth_attachment(&depth_view)),
-                timestamp_writes: None,
-                occlusion_query_set: None,
-                multiview_mask: None,
-            });
-            pass.set_pipeline(&self.main);
-            pass.set_bind_group(0, &resources.main_group, &[]);
-            pass.set_vertex_buffer(0, vertex_buf.slice(..));
-            pass.draw(0..vertices.len() as u32, 0..1);
-        }
+        let depth_view = self.depth_view(width, height);
+        let mut encoder = device.create_command_encoder(&Default::default());
+        let target = Target {
+            color: &color_view,
+            format: IMAGE_FORMAT,
+            depth: &depth_view,
+            width,
+            height,
+        };
+        self.draw(stage, &mut encoder, &target, camera, exposure, terms)?;
         let row = width * 4;
         let padded = row.next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT);
         let readback = device.create_buffer(&wgpu::BufferDescriptor {
@@ -373,7 +443,7 @@ impl<'a> Renderer<'a> {
             },
             size,
         );
-        queue.submit([encoder.finish()]);
+        self.ctx.queue().submit([encoder.finish()]);
         let bytes = read_buffer(device, &readback)?;
         let mut pixels = Vec::with_capacity((row * height) as usize);
         for r in bytes.chunks(padded as usize).take(height as usize) {
@@ -416,10 +486,15 @@ impl<'a> Renderer<'a> {
             volume_dims: volume.dims().as_vec3().to_array(),
             ..Default::default()
         };
-        let res = self.resources(&globals, &[], &[Mat4::IDENTITY], volume);
-        let mut bindings = vec![(0, res.globals.as_entire_binding())];
-        bindings.push((5, wgpu::BindingResource::Sampler(&res.volume_sampler)));
-        for (i, v) in res.volume_views.iter().enumerate() {
+        let globals = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("probe globals"),
+            contents: bytemuck::bytes_of(&globals),
+            usage: wgpu::BufferUsages::UNIFORM,
+        });
+        let textures = VolumeGpu::new(self, volume);
+        let mut bindings = vec![(0, globals.as_entire_binding())];
+        bindings.push((5, wgpu::BindingResource::Sampler(&self.linear_sampler)));
+        for (i, v) in textures.views().iter().enumerate() {
             bindings.push((6 + i as u32, wgpu::BindingResource::TextureView(v)));
         }
         let group0 = bind_group(device, &pipeline.get_bind_group_layout(0), bindings);
@@ -479,155 +554,96 @@ impl<'a> Renderer<'a> {
         let values: &[[f32; 4]] = bytemuck::cast_slice(&data);
         Ok(values.iter().map(|v| [v[0], v[1], v[2]]).collect())
     }
+}
 
-    fn resources(
-        &self,
-        globals: &Globals,
-        lights: &[GpuLight],
-        shadow_views: &[Mat4],
-        volume: &Volume,
-    ) -> Resources {
-        let device = self.ctx.device();
-        let queue = self.ctx.queue();
-        let globals_buf = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some("globals"),
-            contents: bytemuck::bytes_of(globals),
-            usage: wgpu::BufferUsages::UNIFORM,
-        });
-        // wgpu binds no empty buffer: a scene without lights still gets one (unread) entry.
-        let lights: Vec<GpuLight> = if lights.is_empty() {
-            vec![GpuLight::default()]
-        } else {
-            lights.to_vec()
-        };
-        let lights_buf = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some("lights"),
-            contents: bytemuck::cast_slice(&lights),
-            usage: wgpu::BufferUsages::STORAGE,
-        });
-        let mut views: Vec<[[f32; 4]; 4]> =
-            shadow_views.iter().map(|m| m.to_cols_array_2d()).collect();
-        if views.is_empty() {
-            views.push(Mat4::IDENTITY.to_cols_array_2d());
-        }
-        let views_buf = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some("shadow views"),
-            contents: bytemuck::cast_slice(&views),
-            usage: wgpu::BufferUsages::STORAGE,
-        });
-        let shadow_maps = device.create_texture(&wgpu::TextureDescriptor {
-            label: Some("shadow maps"),
-            size: wgpu::Extent3d {
-                width: SHADOW_SIZE,
-                height: SHADOW_SIZE,
-                depth_or_array_layers: views.len() as u32,
-            },
-            mip_level_count: 1,
-            sample_count: 1,
-            dimension: wgpu::TextureDimension::D2,
-            format: DEPTH_FORMAT,
-            usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING,
-            view_formats: &[],
-        });
-        let shadow_view = shadow_maps.create_view(&wgpu::TextureViewDescriptor {
-            dimension: Some(wgpu::TextureViewDimension::D2Array),
-            ..Default::default()
-        });
-        let shadow_sampler = device.create_sampler(&wgpu::SamplerDescriptor {
-            label: Some("shadow"),
-            mag_filter: wgpu::FilterMode::Linear,
-            min_filter: wgpu::FilterMode::Linear,
-            compare: Some(wgpu::CompareFunction::LessEqual),
-            ..Default::default()
-        });
-        let volume_sampler = device.create_sampler(&wgpu::SamplerDescriptor {
-            label: Some("volume"),
-            address_mode_u: wgpu::AddressMode::ClampToEdge,
-            address_mode_v: wgpu::AddressMode::ClampToEdge,
-            address_mode_w: wgpu::AddressMode::ClampToEdge,
-            mag_filter: wgpu::FilterMode::Linear,
-            min_filter: wgpu::FilterMode::Linear,
-            ..Default::default()
-        });
-        let dims = volume.dims();
-        let extent = wgpu::Extent3d {
-            width: dims.x,
-            height: dims.y,
-            depth_or_array_layers: dims.z,
-        };
-        let volume_views: Vec<wgpu::TextureView> = Face::ALL
-            .iter()
-            .map(|&face| {
-                let texture = device.create_texture(&wgpu::TextureDescriptor {
-                    label: Some("volume"),
-                    size: extent,
-                    mip_level_count: 1,
-                    sample_count: 1,
-                    dimension: wgpu::TextureDimension::D3,
-                    format: wgpu::TextureFormat::Rgba16Float,
-                    usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
-                    view_formats: &[],
-                });
-                queue.write_texture(
-                    texture.as_image_copy(),
-                    volume.texel_bytes(face),
-                    wgpu::TexelCopyBufferLayout {
-                        offset: 0,
-                        bytes_per_row: Some(8 * dims.x),
-                        rows_per_image: Some(dims.y),
-                    },
-                    extent,
-                );
-                texture.create_view(&Default::default())
-            })
-            .collect();
-        let mut entries = vec![
-            (0, globals_buf.as_entire_binding()),
-            (1, lights_buf.as_entire_binding()),
-            (2, views_buf.as_entire_binding()),
-            (3, wgpu::BindingResource::TextureView(&shadow_view)),
-            (4, wgpu::BindingResource::Sampler(&shadow_sampler)),
-            (5, wgpu::BindingResource::Sampler(&volume_sampler)),
-        ];
-        for (i, v) in volume_views.iter().enumerate() {
-            entries.push((6 + i as u32, wgpu::BindingResource::TextureView(v)));
-        }
-        let main_group = bind_group(device, &self.main.get_bind_group_layout(0), entries);
-        let shadow_group = bind_group(
-            device,
-            &self.shadow.get_bind_group_layout(0),
-            vec![(2, views_buf.as_entire_binding())],
-        );
-        Resources {
-            globals: globals_buf,
-            shadow_maps,
-            volume_sampler,
-            volume_views,
-            main_group,
-            shadow_group,
-        }
+fn check_size(width: u32, height: u32) -> Result<(), RenderError> {
+    if !(1..=MAX_SIDE).contains(&width) || !(1..=MAX_SIDE).contains(&height) {
+        return Err(RenderError::Size { width, height });
     }
+    Ok(())
+}
+
+/// `shade.wgsl`'s group 0, binding by binding.
+fn main_layout_entries() -> Vec<wgpu::BindGroupLayoutEntry> {
+    use wgpu::ShaderStages as S;
+    let entry = |binding, visibility, ty| wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility,
+        ty,
+        count: None,
+    };
+    let storage = wgpu::BindingType::Buffer {
+        ty: wgpu::BufferBindingType::Storage { read_only: true },
+        has_dynamic_offset: false,
+        min_binding_size: None,
+    };
+    let texture = |sample_type, view_dimension| wgpu::BindingType::Texture {
+        sample_type,
+        view_dimension,
+        multisampled: false,
+    };
+    let float = wgpu::TextureSampleType::Float { filterable: true };
+    let mut entries = vec![
+        entry(
+            0,
+            S::VERTEX | S::FRAGMENT,
+            wgpu::BindingType::Buffer {
+                ty: wgpu::BufferBindingType::Uniform,
+                has_dynamic_offset: false,
+                min_binding_size: None,
+            },
+        ),
+        entry(1, S::FRAGMENT, storage),
+        entry(2, S::VERTEX | S::FRAGMENT, storage),
+        entry(
+            3,
+            S::FRAGMENT,
+            texture(
+                wgpu::TextureSampleType::Depth,
+                wgpu::TextureViewDimension::D2Array,
+            ),
+        ),
+        entry(
+            4,
+            S::FRAGMENT,
+            wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Comparison),
+        ),
+        entry(
+            5,
+            S::FRAGMENT,
+            wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Filtering),
+        ),
+    ];
+    for binding in 6..12 {
+        entries.push(entry(
+            binding,
+            S::FRAGMENT,
+            texture(float, wgpu::TextureViewDimension::D3),
+        ));
+    }
+    entries.push(entry(
+        12,
+        S::FRAGMENT,
+        texture(float, wgpu::TextureViewDimension::D2Array),
+    ));
+    entries.push(entry(
+        13,
+        S::FRAGMENT,
+        wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Filtering),
+    ));
+    entries
 }
 
 /// Error scopes are a stack per device, shared by every thread: two renderers compiling at once
 /// would pop each other's scope, so compilation is one at a time.
-fn compiling() -> MutexGuard<'static, ()> {
+pub(crate) fn compiling() -> MutexGuard<'static, ()> {
     static COMPILING: Mutex<()> = Mutex::new(());
     COMPILING
         .lock()
         .unwrap_or_else(|poisoned| poisoned.into_inner())
 }
 
-struct Resources {
-    globals: wgpu::Buffer,
-    shadow_maps: wgpu::Texture,
-    volume_sampler: wgpu::Sampler,
-    volume_views: Vec<wgpu::TextureView>,
-    main_group: wgpu::BindGroup,
-    shadow_group: wgpu::BindGroup,
-}
-
-fn bind_group(
+pub(crate) fn bind_group(
     device: &wgpu::Device,
     layout: &wgpu::BindGroupLayout,
     entries: Vec<(u32, wgpu::BindingResource<'_>)>,
@@ -654,7 +670,10 @@ fn depth_attachment(view: &wgpu::TextureView) -> wgpu::RenderPassDepthStencilAtt
     }
 }
 
-fn read_buffer(device: &wgpu::Device, buffer: &wgpu::Buffer) -> Result<Vec<u8>, RenderError> {
+pub(crate) fn read_buffer(
+    device: &wgpu::Device,
+    buffer: &wgpu::Buffer,
+) -> Result<Vec<u8>, RenderError> {
     let slice = buffer.slice(..);
     let (tx, rx) = mpsc::channel();
     slice.map_async(wgpu::MapMode::Read, move |r| {
@@ -675,90 +694,6 @@ fn read_buffer(device: &wgpu::Device, buffer: &wgpu::Buffer) -> Result<Vec<u8>, 
     Ok(bytes)
 }
 
-/// Flat-shaded triangles: the importer resolves materials per triangle and keeps no vertex
-/// normals, so each vertex carries its triangle's.
-fn vertices(scene: &Scene) -> Vec<Vertex> {
-    scene
-        .triangles
-        .iter()
-        .flat_map(|t| {
-            let normal = t.cross().normalize_or_zero().to_array();
-            t.positions.map(|p| Vertex {
-                position: p.to_array(),
-                normal,
-                albedo: t.albedo.to_array(),
-                emission: t.emission.to_array(),
-            })
-        })
-        .collect()
-}
-
-/// The lights as the shader reads them, and the shadow views they use (one per directional
-/// and spot light, six per point light). Lights that cannot light anything are left out.
-fn prepare_lights(lights: &LightSet, bounds: (Vec3, Vec3)) -> (Vec<GpuLight>, Vec<Mat4>) {
-    let (lo, hi) = bounds;
-    let centre = (lo + hi) / 2.0;
-    let radius = ((hi - lo).length() / 2.0).max(1e-3);
-    let mut out = Vec::new();
-    let mut views = Vec::new();
-    for light in &lights.lights {
-        let Some(l) = PreparedLight::new(light) else {
-            continue;
-        };
-        let first_view = views.len() as u32;
-        // Depth range of a light inside or near the scene: from close by to past its far side.
-        let reach = (l.position - centre).length() + radius;
-        let near = (reach / 1000.0).max(1e-4);
-        let kind = match l.kind {
-            LightKind::Directional => {
-                let eye = centre - l.axis * radius * 2.0;
-                let view = look_at_rh(eye, centre, up_for(l.axis));
-                let proj = orthographic_rh(radius, 0.0, radius * 4.0);
-                views.push(proj * view);
-                KIND_DIRECTIONAL
-            }
-            LightKind::Spot => {
-                // The outer cone plus a margin, short of 180° where perspective breaks down.
-                let outer = (l.angle_offset / -l.angle_scale.max(1e-6))
-                    .clamp(-1.0, 1.0)
-                    .acos();
-                let fov = (2.0 * outer + 0.1).min(3.0);
-                let view = look_at_rh(l.position, l.position + l.axis, up_for(l.axis));
-                views.push(perspective_rh(fov, 1.0, near, reach) * view);
-                KIND_SPOT
-            }
-            LightKind::Point => {
-                let faces = [
-                    (Vec3::X, Vec3::NEG_Y),
-                    (Vec3::NEG_X, Vec3::NEG_Y),
-                    (Vec3::Y, Vec3::Z),
-                    (Vec3::NEG_Y, Vec3::NEG_Z),
-                    (Vec3::Z, Vec3::NEG_Y),
-                    (Vec3::NEG_Z, Vec3::NEG_Y),
-                ];
-                let proj = perspective_rh(std::f32::consts::FRAC_PI_2, 1.0, near, reach);
-                for (dir, up) in faces {
-                    views.push(proj * look_at_rh(l.position, l.position + dir, up));
-                }
-                KIND_POINT
-            }
-        };
-        out.push(GpuLight {
-            position: l.position.to_array(),
-            kind,
-            axis: l.axis.to_array(),
-            inv_range: l.inv_range,
-            radiant: l.radiant.to_array(),
-            angle_scale: l.angle_scale,
-            angle_offset: l.angle_offset,
-            first_view,
-            pad0: 0,
-            pad1: 0,
-        });
-    }
-    (out, views)
-}
-
 /// The irradiance volume of a baked scene filled with in-process indirect irradiance (one RGB
 /// triple a patch, in the baked layout's order, as `Engine::relight` gives it).
 pub fn volume_from_baked(
@@ -766,6 +701,16 @@ pub fn volume_from_baked(
     layout: &PatchLayout,
     indirect: &[[f32; 3]],
 ) -> Result<Volume, RenderError> {
+    let mut volume = Volume::new(&layout_from_baked(name, layout)?)
+        .map_err(|e| RenderError::Volume(e.to_string()))?;
+    volume
+        .apply_irradiance(indirect)
+        .map_err(|e| RenderError::Volume(e.to_string()))?;
+    Ok(volume)
+}
+
+/// A baked file's patch layout in the form a client receives it from a server.
+pub fn layout_from_baked(name: &str, layout: &PatchLayout) -> Result<Layout, RenderError> {
     let patches = layout
         .patches
         .iter()
@@ -774,62 +719,12 @@ pub fn volume_from_baked(
             face: p.face,
         })
         .collect();
-    let layout = Layout::new(
+    Layout::new(
         name,
         Vec3::from_array(layout.origin),
         layout.voxel_size,
         UVec3::from_array(layout.dims),
         patches,
     )
-    .map_err(|e| RenderError::Volume(e.to_string()))?;
-    let mut volume = Volume::new(&layout).map_err(|e| RenderError::Volume(e.to_string()))?;
-    volume
-        .apply_irradiance(indirect)
-        .map_err(|e| RenderError::Volume(e.to_string()))?;
-    Ok(volume)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn framing_looks_at_the_centre_from_plus_z_and_sees_the_front() {
-        let bounds = (Vec3::new(-1.0, 0.0, -1.0), Vec3::new(1.0, 2.0, 1.0));
-        let c = Camera::framing(bounds);
-        assert_eq!(c.target, Vec3::new(0.0, 1.0, 0.0));
-        assert!(c.eye.z > 1.0 && c.eye.x == 0.0 && c.eye.y == 1.0, "{c:?}");
-        let m = c.view_proj(1.0, bounds).unwrap();
-        for corner in [Vec3::new(-1.0, 0.0, 1.0), Vec3::new(1.0, 2.0, 1.0)] {
-            let p = m.project_point3(corner);
-            assert!(p.x.abs() <= 1.0 && p.y.abs() <= 1.0, "{corner} at {p}");
-            assert!((0.0..=1.0).contains(&p.z), "{corner} at {p}");
-        }
-        // A point scene still gets a camera that works.
-        let dot = (Vec3::ONE, Vec3::ONE);
-        assert!(Camera::framing(dot).view_proj(1.0, dot).is_ok());
-    }
-
-    #[test]
-    fn bad_cameras_are_errors() {
-        let bounds = (Vec3::ZERO, Vec3::ONE);
-        let at = |eye, target, fov_y| Camera { eye, target, fov_y };
-        assert!(
-            at(Vec3::ONE, Vec3::ONE, 1.0)
-                .view_proj(1.0, bounds)
-                .is_err()
-        );
-        assert!(
-            at(Vec3::NAN, Vec3::ONE, 1.0)
-                .view_proj(1.0, bounds)
-                .is_err()
-        );
-        assert!(at(Vec3::Z, Vec3::ZERO, 0.0).view_proj(1.0, bounds).is_err());
-        assert!(at(Vec3::Z, Vec3::ZERO, 3.2).view_proj(1.0, bounds).is_err());
-        // Looking straight down (along Y) needs another up vector, not a NaN matrix.
-        let m = at(Vec3::Y * 5.0, Vec3::ZERO, 1.0)
-            .view_proj(1.0, bounds)
-            .unwrap();
-        assert!(m.is_finite());
-    }
+    .map_err(|e| RenderError::Volume(e.to_string()))
 }

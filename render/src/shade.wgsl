@@ -48,6 +48,9 @@ struct GpuLight {
 @group(0) @binding(9) var vol_ny: texture_3d<f32>;
 @group(0) @binding(10) var vol_pz: texture_3d<f32>;
 @group(0) @binding(11) var vol_nz: texture_3d<f32>;
+// Base-colour maps, one layer a texture, layer 0 white (render/src/mesh.rs).
+@group(0) @binding(12) var albedo_maps: texture_2d_array<f32>;
+@group(0) @binding(13) var albedo_sampler: sampler;
 
 // One grid filtered at `p` (hardware trilinear, clamp to edge): rgb and coverage. Texel centres
 // sit at voxel centres, so the normalised coordinate is (p − origin) / (voxel_size · dims).
@@ -153,6 +156,8 @@ struct VertexIn {
     @location(1) normal: vec3<f32>,
     @location(2) albedo: vec3<f32>,
     @location(3) emission: vec3<f32>,
+    @location(4) uv: vec2<f32>,
+    @location(5) layer: u32,
 }
 
 struct VertexOut {
@@ -161,6 +166,8 @@ struct VertexOut {
     @location(1) normal: vec3<f32>,
     @location(2) albedo: vec3<f32>,
     @location(3) emission: vec3<f32>,
+    @location(4) uv: vec2<f32>,
+    @location(5) @interpolate(flat) layer: u32,
 }
 
 @vertex
@@ -171,6 +178,8 @@ fn vs_main(v: VertexIn) -> VertexOut {
     out.normal = v.normal;
     out.albedo = v.albedo;
     out.emission = v.emission;
+    out.uv = v.uv;
+    out.layer = v.layer;
     return out;
 }
 
@@ -193,8 +202,10 @@ fn fs_main(frag: VertexOut, @builtin(front_facing) front: bool) -> @location(0) 
     if g.indirect != 0u {
         e += sample_volume(frag.world, n);
     }
+    // The map is sRGB-encoded, so the sample is linear; the white layer leaves the tint.
+    let albedo = frag.albedo * textureSample(albedo_maps, albedo_sampler, frag.uv, frag.layer).rgb;
     // Radiance of a diffuse surface: albedo / π · E, plus emitted exitance / π.
-    let radiance = (frag.albedo * e + frag.emission) / PI;
+    let radiance = (albedo * e + frag.emission) / PI;
     // Tonemap: exposure, then Reinhard per channel; the sRGB target encodes the result.
     let x = radiance * g.exposure;
     return vec4<f32>(x / (vec3<f32>(1.0) + x), 1.0);

@@ -11,7 +11,7 @@ use tracing::debug;
 use crate::error::ServerError;
 use crate::frame::Frame;
 use crate::hub::Hub;
-use crate::lights::light_set;
+use crate::lights::{light_set, to_proto as lights_to_proto};
 use crate::metrics::{Metrics, Transport};
 use crate::proto;
 use crate::proto::bounce_server::Bounce;
@@ -128,6 +128,20 @@ impl Bounce for BounceService {
         Ok(Response::new(proto::CreateSessionResponse {
             session_id: session.id.clone(),
             lights_version: session.lights_version(),
+        }))
+    }
+
+    async fn get_session(
+        &self,
+        request: Request<proto::GetSessionRequest>,
+    ) -> Result<Response<proto::Session>, Status> {
+        let id = request.into_inner().session_id;
+        let session = self.hub.session(&id).map_err(|e| self.refuse(e.into()))?;
+        Ok(Response::new(proto::Session {
+            session_id: session.id.clone(),
+            scene: self.hub.scene_of(&session),
+            lights_version: session.lights_version(),
+            lights: lights_to_proto(&session.lights()),
         }))
     }
 

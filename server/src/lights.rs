@@ -1,4 +1,4 @@
-//! Light messages of the proto into [`LightSet`], refused with the same field paths as the JSON
+//! Light messages of the proto into [`LightSet`] and back ([`to_proto`]), refused with the same field paths as the JSON
 //! form (`lights[2].intensity: ...`), so a gRPC client reads the errors a CLI user would.
 //!
 //! The messages mirror the JSON objects field for field (vectors as three numbers, optional
@@ -110,6 +110,64 @@ fn unused(absent: bool, field: &'static str, kind: &str) -> Result<(), FieldErro
 fn no_cones(l: &proto::Light, kind: &str) -> Result<(), FieldError> {
     unused(l.inner_cone_angle.is_none(), "inner_cone_angle", kind)?;
     unused(l.outer_cone_angle.is_none(), "outer_cone_angle", kind)
+}
+
+/// The proto form: the same fields, absent ones left out.
+pub fn to_proto(set: &LightSet) -> Vec<proto::Light> {
+    set.lights.iter().map(light_to_proto).collect()
+}
+
+fn light_to_proto(l: &Light) -> proto::Light {
+    match l {
+        Light::Directional {
+            direction,
+            color,
+            intensity,
+            name,
+        } => proto::Light {
+            r#type: "directional".into(),
+            direction: direction.to_vec(),
+            color: color.to_vec(),
+            intensity: Some(*intensity),
+            name: name.clone(),
+            ..Default::default()
+        },
+        Light::Point {
+            position,
+            color,
+            intensity,
+            range,
+            name,
+        } => proto::Light {
+            r#type: "point".into(),
+            position: position.to_vec(),
+            color: color.to_vec(),
+            intensity: Some(*intensity),
+            range: *range,
+            name: name.clone(),
+            ..Default::default()
+        },
+        Light::Spot {
+            position,
+            direction,
+            color,
+            intensity,
+            range,
+            inner_cone_angle,
+            outer_cone_angle,
+            name,
+        } => proto::Light {
+            r#type: "spot".into(),
+            position: position.to_vec(),
+            direction: direction.to_vec(),
+            color: color.to_vec(),
+            intensity: Some(*intensity),
+            range: *range,
+            inner_cone_angle: Some(*inner_cone_angle),
+            outer_cone_angle: Some(*outer_cone_angle),
+            name: name.clone(),
+        },
+    }
 }
 
 #[cfg(test)]

@@ -10,7 +10,7 @@ use tonic::Request;
 use tonic::metadata::{Ascii, MetadataValue};
 use tonic::transport::{Channel, Endpoint};
 
-use super::{ClientConfig, LightsChange, MAX_MESSAGE_BYTES, SessionInfo};
+use super::{ClientConfig, LightsChange, MAX_MESSAGE_BYTES, SessionInfo, SessionState};
 use crate::error::ClientError;
 use crate::layout::Layout;
 use crate::lights;
@@ -113,6 +113,25 @@ impl Grpc {
         Ok(SessionInfo {
             id: r.session_id,
             lights_version: r.lights_version,
+        })
+    }
+
+    pub async fn get_session(&self, session: &str) -> Result<SessionState, ClientError> {
+        let mut c = self.client.clone();
+        let request = proto::GetSessionRequest {
+            session_id: session.to_string(),
+        };
+        let r = self.call("GetSession", c.get_session(request)).await?;
+        let lights = bounce_server::lights::light_set(&r.lights).map_err(|e| {
+            ClientError::Protocol(format!(
+                "GetSession answered lights the client cannot read: {e}"
+            ))
+        })?;
+        Ok(SessionState {
+            id: r.session_id,
+            scene: r.scene,
+            lights_version: r.lights_version,
+            lights,
         })
     }
 

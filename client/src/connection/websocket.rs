@@ -27,7 +27,7 @@ use tracing::debug;
 
 use super::address::{Address, escape};
 use super::http_json::{Call, refusal};
-use super::{ClientConfig, LightsChange, MAX_MESSAGE_BYTES, SessionInfo};
+use super::{ClientConfig, LightsChange, MAX_MESSAGE_BYTES, SessionInfo, SessionState};
 use crate::error::{ClientError, Refusal};
 use crate::layout::Layout;
 use crate::lights;
@@ -115,6 +115,32 @@ impl WebSocket {
         Ok(SessionInfo {
             id: created.session_id,
             lights_version: created.lights_version,
+        })
+    }
+
+    /// `GET /v1/sessions/{id}`.
+    pub async fn get_session(&self, session: &str) -> Result<SessionState, ClientError> {
+        let path = format!("/v1/sessions/{}", escape(session));
+        let body = self.call(Method::GET, path, None).send().await?;
+        #[derive(Deserialize)]
+        struct State {
+            session_id: String,
+            scene: String,
+            lights_version: u64,
+            lights: serde_json::Value,
+        }
+        let state: State = serde_json::from_slice(&body)
+            .map_err(|e| ClientError::Protocol(format!("GET /v1/sessions answered: {e}")))?;
+        let lights =
+            LightSet::from_json(&serde_json::json!({ "lights": state.lights }).to_string())
+                .map_err(|e| {
+                    ClientError::Protocol(format!("GET /v1/sessions answered lights: {e}"))
+                })?;
+        Ok(SessionState {
+            id: state.session_id,
+            scene: state.scene,
+            lights_version: state.lights_version,
+            lights,
         })
     }
 

@@ -1,0 +1,352 @@
+//! [`Stage`]: one scene resident on the GPU, ready to be drawn any number of times.
+//!
+//! The mesh and its albedo maps are uploaded once; lights and the irradiance volume are
+//! replaced when they change, in place where the sizes allow. Shadow maps are drawn again only
+//! after the lights changed: the geometry is static, so a camera move costs one main pass.
+
+use bounce_client::{Face, Volume};
+use bounce_core::light::LightSet;
+use bounce_core::scene::Scene;
+use glam::{Mat4, UVec3, Vec3};
+use wgpu::util::DeviceExt;
+
+use crate::gpu_types::GpuLight;
+use crate::lights::prepare_lights;
+use crate::mesh::{AlbedoMaps, mesh};
+use crate::renderer::{DEPTH_FORMAT, MAX_SHADOW_VIEWS, RenderError, Renderer, SHADOW_SIZE};
+
+/// A scene's GPU resources: see the module doc.
+pub struct Stage {
+    pub(crate) bounds: (Vec3, Vec3),
+    pub(crate) vertices: wgpu::Buffer,
+    pub(crate) vertex_count: u32,
+    pub(crate) globals: wgpu::Buffer,
+    albedo: wgpu::TextureView,
+    pub(crate) lights: LightsGpu,
+    pub(crate) volume: VolumeGpu,
+    pub(crate) main_group: wgpu::BindGroup,
+    pub(crate) shadow_group: wgpu::BindGroup,
+    /// The lights changed since the shadow maps were last drawn.
+    pub(crate) shadows_stale: bool,
+}
+
+pub(crate) struct LightsGpu {
+    pub count: u32,
+    lights: wgpu::Buffer,
+    views: wgpu::Buffer,
+    array: wgpu::TextureView,
+    /// One depth view a shadow-map layer, for the shadow passes.
+    pub layers: Vec<wgpu::TextureView>,
+}
+
+pub(crate) struct VolumeGpu {
+    pub origin: Vec3,
+    pub voxel_size: f32,
+    pub dims: UVec3,
+    textures: Vec<wgpu::Texture>,
+    views: Vec<wgpu::TextureView>,
+}
+
+impl Stage {
+    /// Uploads `scene` with no lights and `volume`'s current contents.
+    pub fn new(
+        renderer: &Renderer<'_>,
+        scene: &Scene,
+        volume: &Volume,
+    ) -> Result<Stage, RenderError> {
+        let bounds = scene.bounds().ok_or(RenderError::EmptyScene)?;
+        let device = renderer.ctx.device();
+        let mesh = mesh(scene);
+        let vertices = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("vertices"),
+            contents: bytemuck::cast_slice(&mesh.vertices),
+            usage: wgpu::BufferUsages::VERTEX,
+        });
+        let globals = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("globals"),
+            size: std::mem::size_of::<crate::Globals>() as u64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let albedo = upload_maps(renderer, &mesh.maps)?;
+        let lights = LightsGpu::new(renderer, &[], &[]);
+        let volume = VolumeGpu::new(renderer, volume);
+        let (main_group, shadow_group) = groups(renderer, &globals, &albedo, &lights, &volume);
+        Ok(Stage {
+            bounds,
+            vertices,
+            vertex_count: mesh.vertices.len() as u32,
+            globals,
+            albedo,
+            lights,
+            volume,
+            main_group,
+            shadow_group,
+            shadows_stale: true,
+        })
+    }
+
+    /// The scene's axis-aligned bounds.
+    pub fn bounds(&self) -> (Vec3, Vec3) {
+        self.bounds
+    }
+
+    /// Replaces the lights; their shadow maps are drawn with the next image.
+    pub fn set_lights(
+        &mut self,
+        renderer: &Renderer<'_>,
+        lights: &LightSet,
+    ) -> Result<(), RenderError> {
+        let (gpu_lights, views) = prepare_lights(lights, self.bounds);
+        let max =
+            MAX_SHADOW_VIEWS.min(renderer.ctx.device().limits().max_texture_array_layers as usize);
+        if views.len() > max {
+            return Err(RenderError::TooManyShadows {
+                views: views.len(),
+                max,
+            });
+        }
+        self.lights = LightsGpu::new(renderer, &gpu_lights, &views);
+        self.rebind(renderer);
+        self.shadows_stale = true;
+        Ok(())
+    }
+
+    /// Copies `volume`'s texels in; a volume of another grid replaces the textures.
+    pub fn set_volume(&mut self, renderer: &Renderer<'_>, volume: &Volume) {
+        let v = &self.volume;
+        if v.dims == volume.dims()
+            && v.origin == volume.origin()
+            && v.voxel_size == volume.voxel_size()
+        {
+            v.write(renderer, volume);
+        } else {
+            self.volume = VolumeGpu::new(renderer, volume);
+            self.rebind(renderer);
+        }
+    }
+
+    fn rebind(&mut self, renderer: &Renderer<'_>) {
+        (self.main_group, self.shadow_group) = groups(
+            renderer,
+            &self.globals,
+            &self.albedo,
+            &self.lights,
+            &self.volume,
+        );
+    }
+}
+
+impl LightsGpu {
+    fn new(renderer: &Renderer<'_>, lights: &[GpuLight], views: &[Mat4]) -> LightsGpu {
+        let device = renderer.ctx.device();
+        // wgpu binds no empty buffer: no lights still get one (unread) entry.
+        let padded: Vec<GpuLight> = if lights.is_empty() {
+            vec![GpuLight::default()]
+        } else {
+            lights.to_vec()
+        };
+        let lights_buf = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("lights"),
+            contents: bytemuck::cast_slice(&padded),
+            usage: wgpu::BufferUsages::STORAGE,
+        });
+        let mut matrices: Vec<[[f32; 4]; 4]> = views.iter().map(|m| m.to_cols_array_2d()).collect();
+        if matrices.is_empty() {
+            matrices.push(Mat4::IDENTITY.to_cols_array_2d());
+        }
+        let views_buf = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("shadow views"),
+            contents: bytemuck::cast_slice(&matrices),
+            usage: wgpu::BufferUsages::STORAGE,
+        });
+        let maps = device.create_texture(&wgpu::TextureDescriptor {
+            label: Some("shadow maps"),
+            size: wgpu::Extent3d {
+                width: SHADOW_SIZE,
+                height: SHADOW_SIZE,
+                depth_or_array_layers: matrices.len() as u32,
+            },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: DEPTH_FORMAT,
+            usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING,
+            view_formats: &[],
+        });
+        let array = maps.create_view(&wgpu::TextureViewDescriptor {
+            dimension: Some(wgpu::TextureViewDimension::D2Array),
+            ..Default::default()
+        });
+        let layers = (0..views.len() as u32)
+            .map(|layer| {
+                maps.create_view(&wgpu::TextureViewDescriptor {
+                    dimension: Some(wgpu::TextureViewDimension::D2),
+                    base_array_layer: layer,
+                    array_layer_count: Some(1),
+                    ..Default::default()
+                })
+            })
+            .collect();
+        LightsGpu {
+            count: lights.len() as u32,
+            lights: lights_buf,
+            views: views_buf,
+            array,
+            layers,
+        }
+    }
+}
+
+impl VolumeGpu {
+    pub(crate) fn new(renderer: &Renderer<'_>, volume: &Volume) -> VolumeGpu {
+        let device = renderer.ctx.device();
+        let dims = volume.dims();
+        let textures: Vec<wgpu::Texture> = Face::ALL
+            .iter()
+            .map(|_| {
+                device.create_texture(&wgpu::TextureDescriptor {
+                    label: Some("volume"),
+                    size: extent(dims),
+                    mip_level_count: 1,
+                    sample_count: 1,
+                    dimension: wgpu::TextureDimension::D3,
+                    format: wgpu::TextureFormat::Rgba16Float,
+                    usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+                    view_formats: &[],
+                })
+            })
+            .collect();
+        let views = textures
+            .iter()
+            .map(|t| t.create_view(&Default::default()))
+            .collect();
+        let gpu = VolumeGpu {
+            origin: volume.origin(),
+            voxel_size: volume.voxel_size(),
+            dims,
+            textures,
+            views,
+        };
+        gpu.write(renderer, volume);
+        gpu
+    }
+
+    fn write(&self, renderer: &Renderer<'_>, volume: &Volume) {
+        for (texture, &face) in self.textures.iter().zip(Face::ALL.iter()) {
+            renderer.ctx.queue().write_texture(
+                texture.as_image_copy(),
+                volume.texel_bytes(face),
+                wgpu::TexelCopyBufferLayout {
+                    offset: 0,
+                    bytes_per_row: Some(8 * self.dims.x),
+                    rows_per_image: Some(self.dims.y),
+                },
+                extent(self.dims),
+            );
+        }
+    }
+
+    pub(crate) fn views(&self) -> &[wgpu::TextureView] {
+        &self.views
+    }
+}
+
+fn extent(dims: UVec3) -> wgpu::Extent3d {
+    wgpu::Extent3d {
+        width: dims.x,
+        height: dims.y,
+        depth_or_array_layers: dims.z,
+    }
+}
+
+fn upload_maps(
+    renderer: &Renderer<'_>,
+    maps: &AlbedoMaps,
+) -> Result<wgpu::TextureView, RenderError> {
+    let device = renderer.ctx.device();
+    let limits = device.limits();
+    let layers = maps.levels.len() as u32;
+    if layers > limits.max_texture_array_layers || maps.side > limits.max_texture_dimension_2d {
+        return Err(RenderError::Textures(format!(
+            "{layers} albedo maps of {side}² exceed the device's limits",
+            side = maps.side
+        )));
+    }
+    let texture = device.create_texture(&wgpu::TextureDescriptor {
+        label: Some("albedo maps"),
+        size: wgpu::Extent3d {
+            width: maps.side,
+            height: maps.side,
+            depth_or_array_layers: layers,
+        },
+        mip_level_count: maps.mip_count(),
+        sample_count: 1,
+        dimension: wgpu::TextureDimension::D2,
+        format: wgpu::TextureFormat::Rgba8UnormSrgb,
+        usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+        view_formats: &[],
+    });
+    for (layer, levels) in maps.levels.iter().enumerate() {
+        for (level, texels) in levels.iter().enumerate() {
+            let side = (maps.side >> level).max(1);
+            renderer.ctx.queue().write_texture(
+                wgpu::TexelCopyTextureInfo {
+                    texture: &texture,
+                    mip_level: level as u32,
+                    origin: wgpu::Origin3d {
+                        x: 0,
+                        y: 0,
+                        z: layer as u32,
+                    },
+                    aspect: wgpu::TextureAspect::All,
+                },
+                texels,
+                wgpu::TexelCopyBufferLayout {
+                    offset: 0,
+                    bytes_per_row: Some(4 * side),
+                    rows_per_image: Some(side),
+                },
+                wgpu::Extent3d {
+                    width: side,
+                    height: side,
+                    depth_or_array_layers: 1,
+                },
+            );
+        }
+    }
+    Ok(texture.create_view(&wgpu::TextureViewDescriptor {
+        dimension: Some(wgpu::TextureViewDimension::D2Array),
+        ..Default::default()
+    }))
+}
+
+fn groups(
+    renderer: &Renderer<'_>,
+    globals: &wgpu::Buffer,
+    albedo: &wgpu::TextureView,
+    lights: &LightsGpu,
+    volume: &VolumeGpu,
+) -> (wgpu::BindGroup, wgpu::BindGroup) {
+    let device = renderer.ctx.device();
+    let mut entries = vec![
+        (0, globals.as_entire_binding()),
+        (1, lights.lights.as_entire_binding()),
+        (2, lights.views.as_entire_binding()),
+        (3, wgpu::BindingResource::TextureView(&lights.array)),
+        (4, wgpu::BindingResource::Sampler(&renderer.shadow_sampler)),
+        (5, wgpu::BindingResource::Sampler(&renderer.linear_sampler)),
+    ];
+    for (i, v) in volume.views.iter().enumerate() {
+        entries.push((6 + i as u32, wgpu::BindingResource::TextureView(v)));
+    }
+    entries.push((12, wgpu::BindingResource::TextureView(albedo)));
+    entries.push((13, wgpu::BindingResource::Sampler(&renderer.albedo_sampler)));
+    let main = crate::renderer::bind_group(device, &renderer.main_layout, entries);
+    let shadow = crate::renderer::bind_group(
+        device,
+        &renderer.shadow.get_bind_group_layout(0),
+        vec![(2, lights.views.as_entire_binding())],
+    );
+    (main, shadow)
+}
