@@ -755,3 +755,206 @@ fn render_user_errors_read_clearly() {
         "no lights of its own",
     );
 }
+
+/// An X server of the test's own (Xvfb picks a free display and prints it), for the window.
+/// Without Xvfb the window tests fail, unless `BOUNCE_ALLOW_NO_GPU=1` says skipping is intended
+/// (`.ci/run` installs it).
+struct Xvfb {
+    child: std::process::Child,
+    display: String,
+}
+
+impl Xvfb {
+    fn start() -> Option<Xvfb> {
+        use std::io::{BufRead, BufReader};
+        let spawned = Command::new("Xvfb")
+            .args([
+                "-displayfd",
+                "1",
+                "-screen",
+                "0",
+                "1024x768x24",
+                "-nolisten",
+                "tcp",
+            ])
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::null())
+            .spawn();
+        let mut child = match spawned {
+            Ok(c) => c,
+            Err(e) if std::env::var("BOUNCE_ALLOW_NO_GPU").as_deref() == Ok("1") => {
+                eprintln!("SKIPPED (BOUNCE_ALLOW_NO_GPU=1): Xvfb: {e}");
+                return None;
+            }
+            Err(e) => panic!("the window tests need Xvfb (apt-get install xvfb): {e}"),
+        };
+        let mut line = String::new();
+        BufReader::new(child.stdout.take().expect("stdout"))
+            .read_line(&mut line)
+            .expect("Xvfb prints its display");
+        let display = format!(":{}", line.trim());
+        assert!(display.len() > 1, "Xvfb printed no display number");
+        Some(Xvfb { child, display })
+    }
+}
+
+impl Drop for Xvfb {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+const SPOT: &str = r#"{"lights":[{"type":"spot","position":[0,1.9,0],"direction":[0,-1,0],"intensity":15,"inner_cone_angle":0.8,"outer_cone_angle":1.0}]}"#;
+
+/// The real window under Xvfb on lavapipe: it opens, draws frames with indirect light, writes
+/// what its surface showed, and exits by itself. The picture is the one `bounce render` draws
+/// of the same frame (same stage, same shader), and brighter than direct light alone.
+#[test]
+fn the_window_opens_renders_and_exits_under_xvfb() {
+    let Some(x) = Xvfb::start() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let baked = dir.path().join("cb.bounce");
+    let out = run(bounce()
+        .args(["bake", "--patches", "300", "--rays", "256", "--quiet", "-o"])
+        .arg(&baked)
+        .arg(cornell()));
+    assert!(out.status.success(), "{}", stderr(&out));
+    let lights = dir.path().join("spot.json");
+    std::fs::write(&lights, SPOT).unwrap();
+    let camera = "0,1,3.5,0,1,0,50";
+    let shot = dir.path().join("window.png");
+    let stats = dir.path().join("stats.json");
+    let out = run(bounce()
+        .arg("view")
+        .arg(cornell())
+        .arg("--baked")
+        .arg(&baked)
+        .arg("--lights")
+        .arg(&lights)
+        .args(["--camera", camera, "--width", "320", "--height", "240"])
+        .args(["--engine", "cpu", "--vsync", "off", "--overlay", "off"])
+        .args(["--frames", "5", "--timeout", "120", "--screenshot"])
+        .arg(&shot)
+        .arg("--stats")
+        .arg(&stats)
+        .env("DISPLAY", &x.display)
+        .env("XDG_RUNTIME_DIR", std::env::temp_dir()));
+    assert!(out.status.success(), "{}", stderr(&out));
+    let stats: Value = serde_json::from_slice(&std::fs::read(&stats).unwrap()).unwrap();
+    assert!(stats["frames"].as_u64().unwrap() >= 5, "{stats}");
+    assert!(stats["first_indirect_ms"].as_f64().is_some(), "{stats}");
+    assert!(
+        stats["screenshot"].as_str().unwrap().contains("surface"),
+        "the screenshot should be the window's own surface: {stats}"
+    );
+
+    let headless = |indirect: &str| {
+        let png = dir.path().join(format!("headless-{indirect}.png"));
+        let out = run(bounce()
+            .arg("render")
+            .arg(cornell())
+            .arg("--baked")
+            .arg(&baked)
+            .arg("--lights")
+            .arg(&lights)
+            .args(["--camera", camera, "--width", "320", "--height", "240"])
+            .args(["--engine", "cpu", "--indirect", indirect, "--out"])
+            .arg(&png)
+            .env("XDG_RUNTIME_DIR", std::env::temp_dir()));
+        assert!(out.status.success(), "{}", stderr(&out));
+        image::open(&png).unwrap().to_rgba8()
+    };
+    let window = image::open(&shot).unwrap().to_rgba8();
+    let on = headless("on");
+    let off = headless("off");
+    assert_eq!(window.dimensions(), (320, 240));
+    let diffs: Vec<i32> = window
+        .as_raw()
+        .iter()
+        .zip(on.as_raw())
+        .map(|(a, b)| (i32::from(*a) - i32::from(*b)).abs())
+        .collect();
+    let max = diffs.iter().copied().max().unwrap_or(0);
+    let mean = diffs.iter().sum::<i32>() as f64 / diffs.len() as f64;
+    assert!(
+        max <= 2 && mean < 0.1,
+        "window vs headless: max {max}, mean {mean}"
+    );
+    // The top rows see the ceiling, which the spot does not light: only indirect light does.
+    let top = |img: &image::RgbaImage| -> u64 {
+        img.as_raw()[..(320 * 40 * 4)]
+            .iter()
+            .map(|&v| u64::from(v))
+            .sum()
+    };
+    assert!(
+        top(&window) > top(&off) + 320 * 40 * 3 * 5,
+        "the ceiling with indirect light {} vs without {}",
+        top(&window),
+        top(&off)
+    );
+}
+
+/// The window as a server's viewer: it creates a session, moves the light twice (each move
+/// once the last one's indirect light is on screen), times each move to the frame that shows
+/// it, and the session on the server ends with the moved light.
+#[test]
+fn the_window_moves_a_sessions_light_on_a_server() {
+    use bounce_server::proto::{self, bounce_client::BounceClient};
+
+    let Some(x) = Xvfb::start() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let scenes = dir.path().join("scenes");
+    std::fs::create_dir_all(&scenes).unwrap();
+    let out = run(bounce()
+        .args(["bake", "--patches", "200", "--rays", "256", "--quiet", "-o"])
+        .arg(scenes.join("box.bounce"))
+        .arg(cornell()));
+    assert!(out.status.success(), "{}", stderr(&out));
+    let lights = dir.path().join("l.json");
+    std::fs::write(
+        &lights,
+        r#"{"lights":[{"type":"point","position":[0.5,1.5,0],"intensity":8}]}"#,
+    )
+    .unwrap();
+    let server = ServeProcess::start(&scenes, &dir.path().join("data"));
+    let stats = dir.path().join("stats.json");
+    let out = run(bounce()
+        .arg("view")
+        .arg(cornell())
+        .args(["--server", &server.grpc, "--scene-name", "box", "--lights"])
+        .arg(&lights)
+        .args(["--width", "200", "--height", "150", "--vsync", "off"])
+        .args(["--frames", "3", "--auto-move", "2", "--timeout", "120"])
+        .arg("--stats")
+        .arg(&stats)
+        .env("DISPLAY", &x.display)
+        .env("XDG_RUNTIME_DIR", std::env::temp_dir()));
+    assert!(out.status.success(), "{}", stderr(&out));
+    let stats: Value = serde_json::from_slice(&std::fs::read(&stats).unwrap()).unwrap();
+    assert_eq!(stats["gi_latency_ms"]["count"], 2, "{stats}");
+    assert!(stats["gi_latency_ms"]["max"].as_f64().unwrap() > 0.0);
+    let session = stderr(&out)
+        .lines()
+        .find_map(|l| l.strip_prefix("session ").map(str::to_owned))
+        .expect("view prints its session");
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let state = rt.block_on(async {
+        let mut c = BounceClient::connect(server.grpc.clone()).await.unwrap();
+        c.get_session(proto::GetSessionRequest {
+            session_id: session.trim().to_string(),
+        })
+        .await
+        .expect("the viewer's session")
+        .into_inner()
+    });
+    assert_eq!(state.scene, "box");
+    assert_eq!(state.lights_version, 3, "created, then moved twice");
+    let p = &state.lights[0].position;
+    // Turned 40° about the vertical axis through the box's centre: no longer at x = 0.5.
+    assert!(
+        (p[0] - 0.5).abs() > 0.05 && (p[1] - 1.5).abs() < 1e-4,
+        "{p:?}"
+    );
+}

@@ -141,6 +141,29 @@ async fn websocket_calls_answer_as_grpc_does() {
         .expect("set lights");
     assert!(!same.changed);
     assert_eq!(same.lights_version, 2);
+
+    // A viewer joining the session reads its lights (for direct light) on either transport.
+    let read_ws = ws
+        .get_session(&session.id)
+        .await
+        .expect("session over HTTP");
+    let read_grpc = grpc
+        .get_session(&session.id)
+        .await
+        .expect("session over gRPC");
+    assert_eq!(read_ws, read_grpc);
+    assert_eq!(
+        (
+            read_ws.scene.as_str(),
+            read_ws.lights_version,
+            &read_ws.lights
+        ),
+        (SCENE, 2, &point(20.0))
+    );
+    for client in [&ws, &grpc] {
+        let err = client.get_session("no-such-session").await.unwrap_err();
+        assert_eq!(err.refusal(), Some(&Refusal::NotFound), "{err}");
+    }
     over_ws.close().await;
     server.stop().await;
 }
