@@ -27,6 +27,6 @@ pub use gpu_types::{Globals, GpuLight, Vertex};
 pub use overlay::{OVERLAY_SHADER, Overlay, OverlayParams};
 pub use renderer::{
     IMAGE_FORMAT, Image, MAX_SHADOW_VIEWS, MAX_SIDE, RenderError, RenderOptions, Renderer, SHADER,
-    Target, Terms, layout_from_baked, volume_from_baked,
+    Target, Terms, layout_from_baked, read_buffer, volume_from_baked,
 };
 pub use stage::Stage;

@@ -3,14 +3,14 @@
 
 use std::collections::HashSet;
 use std::path::PathBuf;
-use std::sync::{Arc, mpsc};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, anyhow, bail};
 use bounce_client::{LightSet, Volume};
 use bounce_core::scene::Scene;
 use bounce_engine::gpu::GpuContext;
-use bounce_render::{Camera, IMAGE_FORMAT, Overlay, Renderer, Stage, Target, Terms};
+use bounce_render::{Camera, IMAGE_FORMAT, Overlay, Renderer, Stage, Target, Terms, read_buffer};
 use glam::Vec3;
 use winit::application::ApplicationHandler;
 use winit::dpi::{PhysicalPosition, PhysicalSize};
@@ -768,20 +768,7 @@ fn save_copy(
     config: &wgpu::SurfaceConfiguration,
     path: &std::path::Path,
 ) -> Result<()> {
-    let slice = buffer.slice(..);
-    let (tx, rx) = mpsc::channel();
-    slice.map_async(wgpu::MapMode::Read, move |r| {
-        let _ = tx.send(r);
-    });
-    device
-        .poll(wgpu::PollType::wait_indefinitely())
-        .context("waiting for the screenshot")?;
-    rx.recv()
-        .context("the screenshot's mapping was dropped")?
-        .context("mapping the screenshot")?;
-    let data = slice
-        .get_mapped_range()
-        .map_err(|e| anyhow!("reading the screenshot: {e}"))?;
+    let data = read_buffer(device, buffer).context("reading the screenshot back")?;
     let (w, h) = (config.width, config.height);
     let bgra = matches!(
         config.format,
@@ -797,8 +784,6 @@ fn save_copy(
             }
         }
     }
-    drop(data);
-    buffer.unmap();
     image::save_buffer(path, &pixels, w, h, image::ColorType::Rgba8)
         .with_context(|| format!("writing {}", path.display()))
 }
