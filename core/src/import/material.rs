@@ -246,7 +246,7 @@ impl Importer<'_> {
                 mime_type,
             ),
         };
-        let decoded = bytes.and_then(|b| Image::decode(&b, mime));
+        let decoded = bytes.and_then(|b| Image::decode(&b, mime, false));
         self.materials.images[index] = match decoded {
             Ok(decoded) => ImageSlot::Loaded(decoded),
             Err(reason) => {
