@@ -78,6 +78,15 @@ impl Image {
         })
     }
 
+    pub(crate) fn size(&self) -> (usize, usize) {
+        (self.width, self.height)
+    }
+
+    /// The RGBA texels, if the image was decoded keeping alpha.
+    pub(crate) fn into_rgba(self) -> Option<Vec<u8>> {
+        (self.channels == 4).then_some(self.pixels)
+    }
+
     /// Linear mean of the whole image: the best guess when a primitive has no texture coordinates.
     pub(crate) fn mean(&self) -> Vec3 {
         self.mean
@@ -238,7 +247,7 @@ mod tests {
     }
 
     #[test]
-    fn rgba_images_sample_like_rgb_ones() {
+    fn rgba_images_sample_like_rgb_ones_and_hand_their_texels_on() {
         let rgba = Image {
             width: 2,
             height: 1,
@@ -256,6 +265,8 @@ mod tests {
             l.footprint_average(&rgba, tri),
             l.footprint_average(&checker(), tri)
         );
+        assert_eq!(checker().into_rgba(), None);
+        assert_eq!(rgba.into_rgba(), Some(vec![0, 0, 0, 7, 255, 255, 255, 9]));
     }
 
     #[test]
