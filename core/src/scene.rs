@@ -1,9 +1,10 @@
 //! The imported scene: world-space triangles with their diffuse material, and the scene's lights.
 //!
 //! This is the boundary between file formats and the lighting pipeline: everything downstream
-//! (voxelisation, the reference path tracer) sees only these flat triangles.
+//! (voxelisation, the reference path tracer) sees only these flat triangles. A viewer that draws
+//! the surfaces themselves can ask the importer for [`Shading`] data alongside them.
 
-use glam::Vec3;
+use glam::{Vec2, Vec3};
 use serde::{Deserialize, Serialize};
 
 use crate::light::Light;
@@ -79,6 +80,65 @@ pub struct Scene {
     /// The scene's own `KHR_lights_punctual` lights, placed by their nodes, in world space.
     pub lights: Vec<Light>,
     pub report: ImportReport,
+    /// What a viewer needs to draw the original surfaces at full resolution. Only filled when the
+    /// import asked for it ([`crate::import::ImportOptions::shading`]): a bake does not pay for it.
+    pub shading: Option<Shading>,
+}
+
+/// Per-corner shading attributes of [`Scene::triangles`], and the base-colour images they use.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Shading {
+    /// Parallel to [`Scene::triangles`]: one entry per triangle, same order.
+    pub triangles: Vec<TriangleShading>,
+    /// Base-colour images, decoded, in the order [`TriangleShading::texture`] indexes them.
+    pub textures: Vec<ShadingTexture>,
+}
+
+/// How one triangle is drawn: a fragment's albedo is `tint × texture(uv)` (or `tint` alone),
+/// interpolated across the corners as they are ordered in [`Triangle::positions`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TriangleShading {
+    /// World-space unit normals at the corners. The file's `NORMAL` through the node's normal
+    /// matrix; without one, the angle-weighted smooth normal over the primitive's triangles that
+    /// share the vertex; the face normal where either is unusable. They face the side
+    /// [`Triangle::cross`] faces, mirroring transforms included. (glTF asks a viewer to shade a
+    /// primitive without `NORMAL` flat; one that wants to has the face normal in `cross`.)
+    pub normals: [Vec3; 3],
+    /// Base-colour texture coordinates at the corners, `KHR_texture_transform` applied; zero
+    /// when there is no texture.
+    pub uvs: [Vec2; 3],
+    /// Linear RGB base-colour factor × vertex colour at the corners, not multiplied by the
+    /// texture. Where the texture is absent this is what the bake averaged (times the image's
+    /// mean when the texture could only be used as its mean, for want of texture coordinates).
+    pub tint: [Vec3; 3],
+    /// Index into [`Shading::textures`], or `None`.
+    pub texture: Option<u32>,
+}
+
+/// A decoded base-colour image and how its texture wraps.
+#[derive(Clone, PartialEq)]
+pub struct ShadingTexture {
+    pub width: u32,
+    pub height: u32,
+    /// RGBA8 as stored in the image (sRGB-encoded colour, per glTF), rows top to bottom.
+    pub rgba: Vec<u8>,
+    /// The sampler's wrap modes: true = repeat (glTF's mirrored repeat is also `true`: it tiles,
+    /// and drawing it as a plain repeat is closer than clamping), false = clamp to edge.
+    pub repeat_u: bool,
+    pub repeat_v: bool,
+}
+
+/// Without the texels: a derived `Debug` would print megabytes of them.
+impl std::fmt::Debug for ShadingTexture {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ShadingTexture")
+            .field("width", &self.width)
+            .field("height", &self.height)
+            .field("rgba", &format_args!("[{} bytes]", self.rgba.len()))
+            .field("repeat_u", &self.repeat_u)
+            .field("repeat_v", &self.repeat_v)
+            .finish()
+    }
 }
 
 impl Scene {

@@ -137,6 +137,18 @@ impl Materials {
         }
     }
 
+    /// Moves a loaded image out; later lookups see it as absent.
+    pub(super) fn take_image(&mut self, index: usize) -> Option<Image> {
+        let slot = self.images.get_mut(index)?;
+        match std::mem::replace(slot, ImageSlot::Failed) {
+            ImageSlot::Loaded(image) => Some(image),
+            other => {
+                *slot = other;
+                None
+            }
+        }
+    }
+
     pub(super) fn into_infos(self) -> Vec<MaterialInfo> {
         self.infos
     }
@@ -246,7 +258,10 @@ impl Importer<'_> {
                 mime_type,
             ),
         };
-        let decoded = bytes.and_then(|b| Image::decode(&b, mime));
+        // Shading hands the pixels on with their alpha; decoding them that way now saves
+        // decoding the image twice.
+        let keep_alpha = self.shading.is_some();
+        let decoded = bytes.and_then(|b| Image::decode(&b, mime, keep_alpha));
         self.materials.images[index] = match decoded {
             Ok(decoded) => ImageSlot::Loaded(decoded),
             Err(reason) => {

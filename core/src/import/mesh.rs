@@ -6,6 +6,7 @@ use gltf::mesh::{Mode, Semantic};
 
 use super::accessor::{self, ReadError};
 use super::material::TexRef;
+use super::shading::{PrimitiveShading, normal_matrix, smooth_normals};
 use super::{ImportError, Importer, mirrors};
 use crate::scene::Triangle;
 
@@ -125,7 +126,7 @@ impl Importer<'_> {
         if let Some(&bad) = indices.iter().find(|&&i| i as usize >= n) {
             return Err(format!("index {bad} out of range ({n} vertices)").into());
         }
-        let (corners, leftover) = assemble(mode, &indices);
+        let (mut corners, leftover) = assemble(mode, &indices);
         if leftover > 0 {
             warnings.push(format!(
                 "{leftover} trailing index(es) do not form a triangle and were ignored"
@@ -143,16 +144,36 @@ impl Importer<'_> {
             .map(|&p| world.transform_point3(p))
             .collect();
         let flip = mirrors(&world);
-        for &[a, b, c] in &corners {
-            // Under a mirroring transform the same index order winds the other way; swapping two
-            // corners keeps `cross()` pointing where the author's normal pointed.
-            let [a, b, c] = if flip { [a, c, b] } else { [a, b, c] }.map(|i| i as usize);
+        // Under a mirroring transform the same index order winds the other way; swapping two
+        // corners keeps `cross()` pointing where the author's normal pointed.
+        if flip {
+            for t in &mut corners {
+                t.swap(1, 2);
+            }
+        }
+        let shading = self.shading.is_some().then(|| {
+            self.primitive_shading(
+                primitive,
+                world,
+                &world_positions,
+                &corners,
+                (entry.albedo, colors.as_deref(), &base),
+                warnings,
+            )
+        });
+        for &t in &corners {
+            let [a, b, c] = t.map(|i| i as usize);
             let tri = [world_positions[a], world_positions[b], world_positions[c]];
             let cross = (tri[1] - tri[0]).cross(tri[2] - tri[0]);
             let len2 = cross.length_squared();
             if !(len2 > 0.0 && len2.is_finite()) {
                 self.scene.report.degenerate_triangles += 1;
                 continue;
+            }
+            // Pushed only beside a kept triangle, so the two lists stay parallel.
+            if let (Some(shading), Some(out)) = (&shading, &mut self.shading) {
+                out.triangles
+                    .push(shading.triangle([a, b, c], cross / len2.sqrt()));
             }
             let mut albedo = entry.albedo;
             if let Some(colors) = &colors {
@@ -173,6 +194,100 @@ impl Importer<'_> {
             });
         }
         Ok(())
+    }
+
+    /// Per-vertex shading inputs of one primitive instance: normals (the file's, else smooth
+    /// ones over `corners`), transformed texture coordinates and tints.
+    fn primitive_shading(
+        &mut self,
+        primitive: &gltf::Primitive<'_>,
+        world: Mat4,
+        world_positions: &[Vec3],
+        corners: &[[u32; 3]],
+        (factor, colors, base): (Vec3, Option<&[Vec3]>, &TextureInput),
+        warnings: &mut Vec<String>,
+    ) -> PrimitiveShading {
+        let n = world_positions.len();
+        let normals = match self.normals(primitive, n, warnings) {
+            Some(normals) => {
+                let m = normal_matrix(&world);
+                normals
+                    .into_iter()
+                    .map(|v| (m * v).normalize_or_zero())
+                    .collect()
+            }
+            None => smooth_normals(world_positions, corners),
+        };
+        let mean = match base {
+            TextureInput::Mean(image) => {
+                self.materials.image(*image).map_or(Vec3::ONE, |i| i.mean())
+            }
+            _ => Vec3::ONE,
+        };
+        let tints = (0..n)
+            .map(|i| {
+                unit_clamp(
+                    factor * mean * colors.and_then(|c| c.get(i).copied()).unwrap_or(Vec3::ONE),
+                )
+            })
+            .collect();
+        let texture = match (base, &mut self.shading) {
+            (TextureInput::Mapped { slot, uv }, Some(shading)) => {
+                let uv = uv
+                    .iter()
+                    .map(|&p| {
+                        let p = slot.lookup.transform.transform_point2(p);
+                        // As the averaging does: a texture lookup at NaN would poison a pixel.
+                        if p.is_finite() { p } else { Vec2::ZERO }
+                    })
+                    .collect();
+                Some((uv, shading.texture_index(slot)))
+            }
+            _ => None,
+        };
+        PrimitiveShading {
+            normals,
+            texture,
+            tints,
+        }
+    }
+
+    /// `NORMAL` per vertex in the primitive's space, or `None` (with a warning if it is present
+    /// but unusable) so that smooth normals stand in.
+    fn normals(
+        &self,
+        primitive: &gltf::Primitive<'_>,
+        n: usize,
+        warnings: &mut Vec<String>,
+    ) -> Option<Vec<Vec3>> {
+        let acc = primitive.get(&Semantic::Normals)?;
+        if acc.dimensions() != Dimensions::Vec3 {
+            warnings.push(format!(
+                "NORMAL is {:?}, not Vec3; used smooth normals",
+                acc.dimensions()
+            ));
+            return None;
+        }
+        match self.read(&acc, "NORMAL", |v| v as f32) {
+            Ok(values) if values.len() == n * 3 => {
+                Some(values.chunks_exact(3).map(Vec3::from_slice).collect())
+            }
+            Ok(values) => {
+                warnings.push(format!(
+                    "NORMAL has {} values for {n} vertices; used smooth normals",
+                    values.len() / 3
+                ));
+                None
+            }
+            Err(Problem::Skip(reason) | Problem::Fatal(ImportError::Buffer { reason, .. })) => {
+                warnings.push(format!("{reason}; used smooth normals"));
+                None
+            }
+            Err(Problem::Fatal(e)) => {
+                warnings.push(format!("{e}; used smooth normals"));
+                None
+            }
+        }
     }
 
     fn read<T: Copy>(

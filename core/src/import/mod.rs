@@ -9,11 +9,15 @@
 //! line, never a panic.
 //!
 //! Owned here: parsing and validation, node transforms, triangle assembly, per-triangle material
-//! resolution (the `texture` submodule does the texture averaging) and light placement.
+//! resolution (the `texture` submodule does the texture averaging) and light placement. On request
+//! ([`ImportOptions::shading`]) it also keeps what a viewer needs to draw the surfaces rather than
+//! bake them: per-corner normals, texture coordinates and tints, and the decoded base-colour
+//! images (the `shading` submodule); a bake leaves it off and does none of that work.
 
 mod accessor;
 mod material;
 mod mesh;
+mod shading;
 mod source;
 mod texture;
 
@@ -29,6 +33,7 @@ use crate::scene::{ImportReport, Scene};
 
 use self::accessor::BufferData;
 use self::material::Materials;
+use self::shading::ShadingBuilder;
 
 /// Why a file could not be imported at all.
 #[derive(Debug, thiserror::Error)]
@@ -74,8 +79,21 @@ pub enum ImportError {
     },
 }
 
+/// What an import produces beyond the bake's triangles.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct ImportOptions {
+    /// Fill [`Scene::shading`] with per-corner normals, texture coordinates and tints and the
+    /// decoded base-colour images, for drawing the surfaces at full resolution.
+    pub shading: bool,
+}
+
 /// Imports a `.gltf` or `.glb` file; external buffers and images are resolved relative to it.
 pub fn import_path(path: &Path) -> Result<Scene, ImportError> {
+    import_path_with(path, &ImportOptions::default())
+}
+
+/// [`import_path`] with options.
+pub fn import_path_with(path: &Path, options: &ImportOptions) -> Result<Scene, ImportError> {
     let bytes = std::fs::read(path).map_err(|source| match source.kind() {
         std::io::ErrorKind::NotFound => ImportError::NotFound {
             path: path.to_path_buf(),
@@ -89,13 +107,22 @@ pub fn import_path(path: &Path) -> Result<Scene, ImportError> {
         Some(p) if !p.as_os_str().is_empty() => p,
         _ => Path::new("."),
     };
-    import(&bytes, Some(base), path.to_path_buf())
+    import(&bytes, Some(base), path.to_path_buf(), options)
 }
 
 /// Imports glTF or GLB bytes. External (non-`data:`) URIs are resolved relative to `base_dir`;
 /// without one, a buffer they name is an error and an image they name is reported missing.
 pub fn import_slice(bytes: &[u8], base_dir: Option<&Path>) -> Result<Scene, ImportError> {
-    import(bytes, base_dir, PathBuf::from("<in-memory glTF>"))
+    import_slice_with(bytes, base_dir, &ImportOptions::default())
+}
+
+/// [`import_slice`] with options.
+pub fn import_slice_with(
+    bytes: &[u8],
+    base_dir: Option<&Path>,
+    options: &ImportOptions,
+) -> Result<Scene, ImportError> {
+    import(bytes, base_dir, PathBuf::from("<in-memory glTF>"), options)
 }
 
 /// Required extensions that can be honoured, or safely ignored for diffuse lighting.
@@ -111,7 +138,12 @@ fn used_extension_silent(name: &str) -> bool {
     required_extension_ok(name) && name != "KHR_materials_pbrSpecularGlossiness"
 }
 
-fn import(bytes: &[u8], base_dir: Option<&Path>, path: PathBuf) -> Result<Scene, ImportError> {
+fn import(
+    bytes: &[u8],
+    base_dir: Option<&Path>,
+    path: PathBuf,
+    options: &ImportOptions,
+) -> Result<Scene, ImportError> {
     let (container, root) = parse(bytes, &path)?;
 
     let mut report = ImportReport::default();
@@ -151,6 +183,7 @@ fn import(bytes: &[u8], base_dir: Option<&Path>, path: PathBuf) -> Result<Scene,
         },
         seen_meshes: HashSet::new(),
         placed_lights: HashSet::new(),
+        shading: options.shading.then(ShadingBuilder::default),
     };
     importer.walk()?;
     importer.finish()
@@ -275,6 +308,8 @@ struct Importer<'a> {
     /// Meshes already instanced once: report lines and counts are per mesh, not per instance.
     seen_meshes: HashSet<usize>,
     placed_lights: HashSet<usize>,
+    /// Present only when the import was asked for shading data.
+    shading: Option<ShadingBuilder>,
 }
 
 impl Importer<'_> {
@@ -426,6 +461,9 @@ impl Importer<'_> {
                     "light {i} '{name}': not placed by any node of the imported scene"
                 ));
             }
+        }
+        if let Some(shading) = self.shading.take() {
+            self.scene.shading = Some(shading.finish(&mut self.materials));
         }
         self.scene.materials = self.materials.into_infos();
         let report = &mut self.scene.report;

@@ -14,19 +14,26 @@ use gltf::texture::{MagFilter, WrappingMode};
 /// Subdivision cap: at most `MAX_SPLIT²` = 64 samples per triangle.
 const MAX_SPLIT: usize = 8;
 
-/// A decoded image, still sRGB-encoded, 8 bits per channel (alpha dropped: it does not change a
-/// diffuse albedo).
+/// A decoded image, still sRGB-encoded, 8 bits per channel. Alpha is dropped unless asked for:
+/// it does not change a diffuse albedo, but a viewer drawing the image needs it.
 pub(crate) struct Image {
     width: usize,
     height: usize,
-    rgb: Vec<u8>,
+    /// 3 (RGB) or 4 (RGBA) bytes per texel, rows top to bottom.
+    channels: usize,
+    pixels: Vec<u8>,
     mean: Vec3,
 }
 
 impl Image {
     /// Decodes PNG or JPEG, recognised by content first (files are often mislabelled), then by
-    /// the declared MIME type.
-    pub(crate) fn decode(bytes: &[u8], mime: Option<&str>) -> Result<Self, String> {
+    /// the declared MIME type. `keep_alpha` keeps RGBA texels so the pixels can be handed on
+    /// as they are instead of decoding the image a second time.
+    pub(crate) fn decode(
+        bytes: &[u8],
+        mime: Option<&str>,
+        keep_alpha: bool,
+    ) -> Result<Self, String> {
         let format = match image::guess_format(bytes) {
             Ok(format) => format,
             Err(_) => match mime {
@@ -39,15 +46,19 @@ impl Image {
         // The default limits cap the decoder's allocation, so a hostile header cannot make us
         // reserve gigabytes.
         let reader = image::ImageReader::with_format(Cursor::new(bytes), format);
-        let decoded = reader.decode().map_err(|e| e.to_string())?.into_rgb8();
+        let decoded = reader.decode().map_err(|e| e.to_string())?;
         let (width, height) = (decoded.width() as usize, decoded.height() as usize);
         if width == 0 || height == 0 {
             return Err("image has no pixels".into());
         }
-        let rgb = decoded.into_raw();
+        let (channels, pixels) = if keep_alpha {
+            (4, decoded.into_rgba8().into_raw())
+        } else {
+            (3, decoded.into_rgb8().into_raw())
+        };
         let lut = srgb_to_linear_table();
         let mut sum = [0f64; 3];
-        for px in rgb.chunks_exact(3) {
+        for px in pixels.chunks_exact(channels) {
             for (s, &c) in sum.iter_mut().zip(px) {
                 *s += f64::from(lut[usize::from(c)]);
             }
@@ -61,9 +72,19 @@ impl Image {
         Ok(Image {
             width,
             height,
-            rgb,
+            channels,
+            pixels,
             mean,
         })
+    }
+
+    pub(crate) fn size(&self) -> (usize, usize) {
+        (self.width, self.height)
+    }
+
+    /// The RGBA texels, if the image was decoded keeping alpha.
+    pub(crate) fn into_rgba(self) -> Option<Vec<u8>> {
+        (self.channels == 4).then_some(self.pixels)
     }
 
     /// Linear mean of the whole image: the best guess when a primitive has no texture coordinates.
@@ -73,8 +94,8 @@ impl Image {
 
     fn texel(&self, x: usize, y: usize) -> Vec3 {
         let lut = srgb_to_linear_table();
-        let at = (y * self.width + x) * 3;
-        match self.rgb.get(at..at + 3) {
+        let at = (y * self.width + x) * self.channels;
+        match self.pixels.get(at..at + 3) {
             Some(&[r, g, b]) => Vec3::new(
                 lut[usize::from(r)],
                 lut[usize::from(g)],
@@ -210,7 +231,8 @@ mod tests {
         Image {
             width: 2,
             height: 1,
-            rgb: vec![0, 0, 0, 255, 255, 255],
+            channels: 3,
+            pixels: vec![0, 0, 0, 255, 255, 255],
             mean: Vec3::splat(0.5),
         }
     }
@@ -222,6 +244,29 @@ mod tests {
             nearest: false,
             transform: Affine2::IDENTITY,
         }
+    }
+
+    #[test]
+    fn rgba_images_sample_like_rgb_ones_and_hand_their_texels_on() {
+        let rgba = Image {
+            width: 2,
+            height: 1,
+            channels: 4,
+            pixels: vec![0, 0, 0, 7, 255, 255, 255, 9],
+            mean: Vec3::splat(0.5),
+        };
+        let tri = [
+            Vec2::new(0.8, 0.4),
+            Vec2::new(0.85, 0.4),
+            Vec2::new(0.8, 0.45),
+        ];
+        let l = lookup(WrappingMode::ClampToEdge);
+        assert_eq!(
+            l.footprint_average(&rgba, tri),
+            l.footprint_average(&checker(), tri)
+        );
+        assert_eq!(checker().into_rgba(), None);
+        assert_eq!(rgba.into_rgba(), Some(vec![0, 0, 0, 7, 255, 255, 255, 9]));
     }
 
     #[test]
