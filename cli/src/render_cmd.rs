@@ -10,8 +10,9 @@ use std::time::Duration;
 use anyhow::{Context, Result, bail};
 use bounce_client::{Client, ClientConfig, Volume};
 use bounce_core::format::Baked;
-use bounce_core::import::import_path;
+use bounce_core::import::{ImportOptions, import_path_with};
 use bounce_core::light::LightSet;
+use bounce_core::scene::Scene;
 use bounce_engine::gpu::GpuContext;
 use bounce_engine::{Engine, EngineChoice};
 use bounce_render::{Camera, RenderOptions, Renderer, volume_from_baked};
@@ -81,8 +82,7 @@ pub fn run(args: &RenderArgs) -> Result<()> {
     }
     // Argument errors before any file is read.
     let camera = args.camera.as_deref().map(parse_camera).transpose()?;
-    let scene =
-        import_path(&args.scene).with_context(|| format!("importing {}", args.scene.display()))?;
+    let scene = import_for_drawing(&args.scene)?;
     let bounds = scene
         .bounds()
         .with_context(|| format!("{} has no triangles", args.scene.display()))?;
@@ -221,6 +221,13 @@ fn from_server(
         );
         anyhow::Ok(volume)
     })
+}
+
+/// The scene as the renderers draw it: with the file's normals, texture coordinates and
+/// base-colour images, which a bake does not import.
+pub(crate) fn import_for_drawing(path: &Path) -> Result<Scene> {
+    import_path_with(path, &ImportOptions { shading: true })
+        .with_context(|| format!("importing {}", path.display()))
 }
 
 pub(crate) fn parse_camera(text: &str) -> Result<Camera> {

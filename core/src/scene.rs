@@ -98,11 +98,9 @@ pub struct Shading {
 /// interpolated across the corners as they are ordered in [`Triangle::positions`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct TriangleShading {
-    /// World-space unit normals at the corners. The file's `NORMAL` through the node's normal
-    /// matrix; without one, the angle-weighted smooth normal over the primitive's triangles that
-    /// share the vertex; the face normal where either is unusable. They face the side
-    /// [`Triangle::cross`] faces, mirroring transforms included. (glTF asks a viewer to shade a
-    /// primitive without `NORMAL` flat; one that wants to has the face normal in `cross`.)
+    /// World-space unit normals at the corners: the file's `NORMAL` through the node's normal
+    /// matrix, mirroring transforms included. Where a primitive has none (or one that cannot be
+    /// used), the face normal, as glTF asks (flat shading, §3.7.2.1).
     pub normals: [Vec3; 3],
     /// Base-colour texture coordinates at the corners, `KHR_texture_transform` applied; zero
     /// when there is no texture.

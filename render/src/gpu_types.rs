@@ -49,8 +49,13 @@ pub struct Vertex {
     pub uv: [f32; 2],
     /// Albedo map layer; 0 is white.
     pub layer: u32,
-    pub pad: u32,
+    /// How the layer wraps: [`WRAP_REPEAT_U`] | [`WRAP_REPEAT_V`], clamped to the edge where a
+    /// bit is clear.
+    pub wrap: u32,
 }
+
+pub const WRAP_REPEAT_U: u32 = 1;
+pub const WRAP_REPEAT_V: u32 = 2;
 
 pub const KIND_DIRECTIONAL: u32 = 0;
 pub const KIND_POINT: u32 = 1;

@@ -133,7 +133,7 @@ impl<'a> Renderer<'a> {
         });
         let attributes = wgpu::vertex_attr_array![
             0 => Float32x3, 1 => Float32x3, 2 => Float32x3, 3 => Float32x3,
-            4 => Float32x2, 5 => Uint32
+            4 => Float32x2, 5 => Uint32, 6 => Uint32
         ];
         let buffers = [Some(wgpu::VertexBufferLayout {
             array_stride: std::mem::size_of::<Vertex>() as u64,

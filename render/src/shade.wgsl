@@ -8,6 +8,8 @@ const PI: f32 = 3.14159265358979;
 const KIND_DIRECTIONAL: u32 = 0u;
 const KIND_POINT: u32 = 1u;
 const KIND_SPOT: u32 = 2u;
+const WRAP_REPEAT_U: u32 = 1u;
+const WRAP_REPEAT_V: u32 = 2u;
 
 struct Globals {
     view_proj: mat4x4<f32>,
@@ -158,6 +160,7 @@ struct VertexIn {
     @location(3) emission: vec3<f32>,
     @location(4) uv: vec2<f32>,
     @location(5) layer: u32,
+    @location(6) wrap: u32,
 }
 
 struct VertexOut {
@@ -168,6 +171,7 @@ struct VertexOut {
     @location(3) emission: vec3<f32>,
     @location(4) uv: vec2<f32>,
     @location(5) @interpolate(flat) layer: u32,
+    @location(6) @interpolate(flat) wrap: u32,
 }
 
 @vertex
@@ -180,6 +184,7 @@ fn vs_main(v: VertexIn) -> VertexOut {
     out.emission = v.emission;
     out.uv = v.uv;
     out.layer = v.layer;
+    out.wrap = v.wrap;
     return out;
 }
 
@@ -203,7 +208,12 @@ fn fs_main(frag: VertexOut, @builtin(front_facing) front: bool) -> @location(0) 
         e += sample_volume(frag.world, n);
     }
     // The map is sRGB-encoded, so the sample is linear; the white layer leaves the tint.
-    let albedo = frag.albedo * textureSample(albedo_maps, albedo_sampler, frag.uv, frag.layer).rgb;
+    // The array's sampler repeats; a layer that clamps to its edge keeps its coordinates half a
+    // texel inside, so bilinear filtering does not blend in the opposite edge.
+    let half_texel = 0.5 / vec2<f32>(textureDimensions(albedo_maps));
+    let repeat = vec2<bool>((frag.wrap & WRAP_REPEAT_U) != 0u, (frag.wrap & WRAP_REPEAT_V) != 0u);
+    let uv = select(clamp(frag.uv, half_texel, vec2<f32>(1.0) - half_texel), frag.uv, repeat);
+    let albedo = frag.albedo * textureSample(albedo_maps, albedo_sampler, uv, frag.layer).rgb;
     // Radiance of a diffuse surface: albedo / π · E, plus emitted exitance / π.
     let radiance = (albedo * e + frag.emission) / PI;
     // Tonemap: exposure, then Reinhard per channel; the sRGB target encodes the result.

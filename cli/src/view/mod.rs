@@ -15,13 +15,12 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
-use bounce_core::import::import_path;
 use bounce_core::light::LightSet;
 use bounce_engine::EngineChoice;
 use bounce_render::Camera;
 use clap::Args;
 
-use crate::render_cmd::parse_camera;
+use crate::render_cmd::{import_for_drawing, parse_camera};
 use app::{App, Options};
 use source::{Local, Remote, Source};
 
@@ -109,8 +108,7 @@ pub fn run(args: &ViewArgs) -> Result<()> {
         bail!("--frames must be at least 1");
     }
     let camera = args.camera.as_deref().map(parse_camera).transpose()?;
-    let scene =
-        import_path(&args.scene).with_context(|| format!("importing {}", args.scene.display()))?;
+    let scene = import_for_drawing(&args.scene)?;
     let bounds = scene
         .bounds()
         .with_context(|| format!("{} has no triangles", args.scene.display()))?;

@@ -6,7 +6,7 @@ use gltf::mesh::{Mode, Semantic};
 
 use super::accessor::{self, ReadError};
 use super::material::TexRef;
-use super::shading::{PrimitiveShading, normal_matrix, smooth_normals};
+use super::shading::{PrimitiveShading, normal_matrix};
 use super::{ImportError, Importer, mirrors};
 use crate::scene::Triangle;
 
@@ -155,8 +155,7 @@ impl Importer<'_> {
             self.primitive_shading(
                 primitive,
                 world,
-                &world_positions,
-                &corners,
+                world_positions.len(),
                 (entry.albedo, colors.as_deref(), &base),
                 warnings,
             )
@@ -196,18 +195,16 @@ impl Importer<'_> {
         Ok(())
     }
 
-    /// Per-vertex shading inputs of one primitive instance: normals (the file's, else smooth
-    /// ones over `corners`), transformed texture coordinates and tints.
+    /// Per-vertex shading inputs of one primitive instance: normals (the file's, else none:
+    /// flat), transformed texture coordinates and tints.
     fn primitive_shading(
         &mut self,
         primitive: &gltf::Primitive<'_>,
         world: Mat4,
-        world_positions: &[Vec3],
-        corners: &[[u32; 3]],
+        n: usize,
         (factor, colors, base): (Vec3, Option<&[Vec3]>, &TextureInput),
         warnings: &mut Vec<String>,
     ) -> PrimitiveShading {
-        let n = world_positions.len();
         let normals = match self.normals(primitive, n, warnings) {
             Some(normals) => {
                 let m = normal_matrix(&world);
@@ -216,7 +213,10 @@ impl Importer<'_> {
                     .map(|v| (m * v).normalize_or_zero())
                     .collect()
             }
-            None => smooth_normals(world_positions, corners),
+            // glTF: "When normals are not specified, client implementations MUST calculate flat
+            // normals" (§3.7.2.1); zero makes each triangle take its face normal. three.js
+            // does the same, so the browser and native viewers shade such a mesh alike.
+            None => vec![Vec3::ZERO; n],
         };
         let mean = match base {
             TextureInput::Mean(image) => {
@@ -253,7 +253,7 @@ impl Importer<'_> {
     }
 
     /// `NORMAL` per vertex in the primitive's space, or `None` (with a warning if it is present
-    /// but unusable) so that smooth normals stand in.
+    /// but unusable) so that flat normals stand in.
     fn normals(
         &self,
         primitive: &gltf::Primitive<'_>,
@@ -263,7 +263,7 @@ impl Importer<'_> {
         let acc = primitive.get(&Semantic::Normals)?;
         if acc.dimensions() != Dimensions::Vec3 {
             warnings.push(format!(
-                "NORMAL is {:?}, not Vec3; used smooth normals",
+                "NORMAL is {:?}, not Vec3; used flat normals",
                 acc.dimensions()
             ));
             return None;
@@ -274,17 +274,17 @@ impl Importer<'_> {
             }
             Ok(values) => {
                 warnings.push(format!(
-                    "NORMAL has {} values for {n} vertices; used smooth normals",
+                    "NORMAL has {} values for {n} vertices; used flat normals",
                     values.len() / 3
                 ));
                 None
             }
             Err(Problem::Skip(reason) | Problem::Fatal(ImportError::Buffer { reason, .. })) => {
-                warnings.push(format!("{reason}; used smooth normals"));
+                warnings.push(format!("{reason}; used flat normals"));
                 None
             }
             Err(Problem::Fatal(e)) => {
-                warnings.push(format!("{e}; used smooth normals"));
+                warnings.push(format!("{e}; used flat normals"));
                 None
             }
         }

@@ -144,33 +144,6 @@ pub(super) fn normal_matrix(world: &Mat4) -> Mat3 {
     if mirrors(world) { -cofactor } else { cofactor }
 }
 
-/// Per-vertex smooth normals of the triangles `corners` (vertex indices into `positions`, in the
-/// winding the triangles are stored with), each face's unit normal weighted by its angle at the
-/// vertex: unlike area weighting, this does not lean towards however the surface happened to be
-/// split into triangles. Zero where the faces cancel or there are none.
-pub(super) fn smooth_normals(positions: &[Vec3], corners: &[[u32; 3]]) -> Vec<Vec3> {
-    let mut sum = vec![Vec3::ZERO; positions.len()];
-    for &tri in corners {
-        let tri = tri.map(|i| i as usize);
-        let [Some(a), Some(b), Some(c)] = tri.map(|i| positions.get(i).copied()) else {
-            continue;
-        };
-        let p = [a, b, c];
-        let face = (p[1] - p[0]).cross(p[2] - p[0]).normalize_or_zero();
-        if face == Vec3::ZERO {
-            continue;
-        }
-        for k in 0..3 {
-            let (a, b) = (p[(k + 1) % 3] - p[k], p[(k + 2) % 3] - p[k]);
-            let angle = a.angle_between(b);
-            if angle.is_finite() {
-                sum[tri[k]] += face * angle;
-            }
-        }
-    }
-    sum.into_iter().map(Vec3::normalize_or_zero).collect()
-}
-
 #[cfg(test)]
 mod tests {
     use std::path::Path;
@@ -404,7 +377,7 @@ mod tests {
     }
 
     #[test]
-    fn missing_normals_are_smooth_at_shared_vertices_and_face_outwards() {
+    fn missing_normals_are_flat_and_face_outwards() {
         let (corners, indices) = cube();
         let mut g = Glb::default();
         let pos = g.vec3(&corners);
@@ -416,56 +389,22 @@ mod tests {
         let (scene, shading) = import_shaded(&bytes, None);
         assert_eq!(scene.triangles.len(), 24);
         for (instance, centre) in [(0, Vec3::ZERO), (1, Vec3::new(10.0, 0.0, 0.0))] {
-            let mut at_vertex: Vec<Option<Vec3>> = vec![None; corners.len()];
             for k in 0..12 {
                 let (t, s) = (
                     &scene.triangles[12 * instance + k],
                     &shading.triangles[12 * instance + k],
                 );
-                let [a, b, c] = [0, 1, 2].map(|i| usize::from(indices[3 * k + i]));
-                // The second instance mirrors, so its corners are stored as a, c, b.
-                let vertices = if instance == 1 { [a, c, b] } else { [a, b, c] };
+                // glTF §3.7.2.1: without NORMAL, flat. The cube shares its 8 corners between
+                // faces, so smoothing would have bent every normal towards a diagonal.
                 let face = t.cross().normalize();
-                for ((p, n), v) in t.positions.iter().zip(s.normals).zip(vertices) {
+                let middle = (t.positions[0] + t.positions[1] + t.positions[2]) / 3.0;
+                assert!(face.dot(middle - centre) > 0.0, "{face} points inwards");
+                for n in s.normals {
                     assert_unit(n);
-                    assert!(n.dot(face) > 0.0, "{n} against face {face}");
-                    assert!(n.dot(*p - centre) > 0.0, "{n} at {p} points inwards");
-                    match at_vertex[v] {
-                        None => at_vertex[v] = Some(n),
-                        Some(first) => assert_close(n, first),
-                    }
-                }
-            }
-            // Unscaled, a corner's normal is its diagonal.
-            if instance == 0 {
-                for (v, n) in at_vertex.iter().enumerate() {
-                    let n = n.expect("every corner is used");
-                    assert_close(n, Vec3::from(corners[v]).normalize());
+                    assert_close(n, face);
                 }
             }
         }
-    }
-
-    #[test]
-    fn smooth_normals_of_a_flat_grid_are_the_plane_normal() {
-        // 3 × 3 vertices, 8 triangles, every interior edge shared.
-        let positions: Vec<Vec3> = (0..9)
-            .map(|i| Vec3::new((i % 3) as f32, (i / 3) as f32, 0.0))
-            .collect();
-        let mut corners = Vec::new();
-        for y in 0..2 {
-            for x in 0..2 {
-                let v = y * 3 + x;
-                corners.push([v, v + 1, v + 4]);
-                corners.push([v, v + 4, v + 3]);
-            }
-        }
-        for n in super::smooth_normals(&positions, &corners) {
-            assert_close(n, Vec3::Z);
-        }
-        // Two faces back to back cancel: no smooth normal, so the face normal stands in.
-        let back_to_back = super::smooth_normals(&positions, &[[0, 1, 3], [0, 3, 1]]);
-        assert_eq!(back_to_back[0], Vec3::ZERO);
     }
 
     #[test]

@@ -10,13 +10,15 @@ use std::sync::OnceLock;
 use bounce_client::{Face, Volume};
 use bounce_core::bake::{BakeOptions, NoProgress, bake_file};
 use bounce_core::format::Baked;
-use bounce_core::import::import_path;
+use bounce_core::import::{ImportOptions, import_path_with};
 use bounce_core::light::{Light, LightSet};
-use bounce_core::scene::Scene;
+use bounce_core::scene::{Scene, Shading, ShadingTexture, TriangleShading};
 use bounce_core::voxel::Resolution;
 use bounce_engine::gpu::GpuContext;
 use bounce_engine::{Engine, EngineChoice};
-use bounce_render::{Camera, Globals, GpuLight, Image, RenderOptions, Renderer, volume_from_baked};
+use bounce_render::{
+    Camera, Globals, GpuLight, Image, OverlayParams, RenderOptions, Renderer, volume_from_baked,
+};
 use glam::{UVec3, Vec3};
 
 fn gltf() -> PathBuf {
@@ -52,7 +54,8 @@ fn cornell() -> &'static Cornell {
             ..BakeOptions::default()
         };
         Cornell {
-            scene: import_path(&gltf()).expect("importing the Cornell box"),
+            scene: import_path_with(&gltf(), &ImportOptions { shading: true })
+                .expect("importing the Cornell box"),
             baked: bake_file(&gltf(), &options, &NoProgress).expect("baking the Cornell box"),
         }
     })
@@ -333,6 +336,15 @@ fn shared_structs_match_the_wgsl() {
         offsets!(GpuLight; position, kind, axis, inv_range, radiant, angle_scale, angle_offset,
             first_view, pad0, pad1)
     );
+
+    let overlay = naga::front::wgsl::parse_str(bounce_render::OVERLAY_SHADER)
+        .unwrap_or_else(|e| panic!("{}", e.emit_to_string(bounce_render::OVERLAY_SHADER)));
+    let (members, span) = wgsl_struct(&overlay, "OverlayParams");
+    assert_eq!(span as usize, std::mem::size_of::<OverlayParams>());
+    assert_eq!(
+        members,
+        offsets!(OverlayParams; origin, size, target_size, pad)
+    );
 }
 
 /// The Cornell box under the spot at 160×120 against `tests/golden/cornell-spot.png`, rendered
@@ -460,4 +472,103 @@ fn too_many_shadow_maps_or_a_bad_size_are_errors() {
             .unwrap_err();
         assert!(err.to_string().contains("image size"), "{err}");
     }
+}
+
+/// A checkerboard mapped onto the back wall through per-corner UVs: black checks draw black
+/// (a zero albedo reflects nothing, whatever the light) and white ones as the untextured wall.
+/// The upper wall is used, where no box stands in front of it and only indirect light reaches.
+#[test]
+fn albedo_maps_are_sampled_through_the_uvs() {
+    let Some(ctx) = context() else { return };
+    const CHECKS: u32 = 8;
+    const TEXELS: u32 = 64;
+    let rgba: Vec<u8> = (0..TEXELS * TEXELS)
+        .flat_map(|i| {
+            let (x, y) = (i % TEXELS, i / TEXELS);
+            let per = TEXELS / CHECKS;
+            let v = if (x / per + y / per).is_multiple_of(2) {
+                255
+            } else {
+                0
+            };
+            [v, v, v, 255]
+        })
+        .collect();
+    let plain = &cornell().scene;
+    let (lo, hi) = plain.bounds().unwrap();
+    let extent = hi - lo;
+    let on_back_wall =
+        |t: &bounce_core::scene::Triangle| t.positions.iter().all(|p| p.z - lo.z < 1e-3 * extent.z);
+    assert!(plain.triangles.iter().any(on_back_wall));
+    let uv = |p: Vec3| glam::Vec2::new((p.x - lo.x) / extent.x, (hi.y - p.y) / extent.y);
+    let shading = Shading {
+        triangles: plain
+            .triangles
+            .iter()
+            .map(|t| TriangleShading {
+                normals: [t.cross().normalize(); 3],
+                uvs: t.positions.map(uv),
+                tint: [t.albedo; 3],
+                texture: on_back_wall(t).then_some(0),
+            })
+            .collect(),
+        textures: vec![ShadingTexture {
+            width: TEXELS,
+            height: TEXELS,
+            rgba,
+            repeat_u: false,
+            repeat_v: false,
+        }],
+    };
+    let textured = Scene {
+        shading: Some(shading),
+        ..plain.clone()
+    };
+    let lights = spot();
+    let options = RenderOptions {
+        width: 320,
+        height: 240,
+        exposure: 4.0,
+        indirect: true,
+    };
+    let renderer = Renderer::new(ctx).unwrap();
+    let volume = volume(&lights);
+    let with = renderer
+        .render(&textured, &camera(), &lights, &volume, &options)
+        .unwrap();
+    let without = renderer
+        .render(plain, &camera(), &lights, &volume, &options)
+        .unwrap();
+    let (mut white, mut black) = (0, 0);
+    for row in 0..2 {
+        for column in 1..CHECKS - 1 {
+            let centre = |c: u32| (c as f32 + 0.5) / CHECKS as f32;
+            let p = Vec3::new(
+                lo.x + centre(column) * extent.x,
+                hi.y - centre(row) * extent.y,
+                lo.z + 1e-3,
+            );
+            let textured = luminance(mean_rgb(&with, p, 2));
+            let untextured = luminance(mean_rgb(&without, p, 2));
+            eprintln!("check ({column}, {row}): {textured:.4} against {untextured:.4}");
+            assert!(
+                untextured > 0.005,
+                "the upper back wall is lit: {untextured}"
+            );
+            if (column + row).is_multiple_of(2) {
+                white += 1;
+                assert!(
+                    (textured - untextured).abs() <= 0.05 * untextured,
+                    "white check ({column}, {row}): {textured} against {untextured}"
+                );
+            } else {
+                black += 1;
+                assert!(
+                    textured <= 0.02 * untextured,
+                    "black check ({column}, {row}): {textured} against {untextured}"
+                );
+            }
+        }
+    }
+    assert_eq!((white, black), (6, 6));
 }
