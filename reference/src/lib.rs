@@ -1,0 +1,216 @@
+//! `bounce-reference`: an independent Monte-Carlo reference for the indirect irradiance the
+//! pipeline computes, to measure the pipeline's error against.
+//!
+//! It owns a path tracer of diffuse transport on the **original triangles** (a BVH over the full
+//! mesh, not the patches), its own light evaluation, random numbers and sampling, and the
+//! placement of reference points on the surfaces patches stand for. It shares nothing with the
+//! bake's form factors, transport or direct light but the scene and light *types* and the BVH
+//! crate, so a bug in one cannot hide in the other. It does not compare anything: `bounce verify`
+//! and `bounce bench tradeoff` do.
+//!
+//! Every value comes with its standard error, and a value depends only on the seed, the point's
+//! index and the sample count, not on the thread count.
+
+mod estimate;
+mod lights;
+mod mesh;
+mod rng;
+
+use bounce_core::light::LightSet;
+use bounce_core::meta::Bounces;
+use bounce_core::patch::PatchLayout;
+use bounce_core::scene::Scene;
+use glam::Vec3;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use thiserror::Error;
+
+use crate::lights::Source;
+use crate::mesh::Mesh;
+use crate::rng::{Pcg32, mix};
+
+#[derive(Debug, Error)]
+pub enum ReferenceError {
+    #[error("the scene has no triangle with an area to trace")]
+    EmptyScene,
+    #[error("point {index}: {reason}")]
+    BadPoint { index: usize, reason: String },
+    #[error("--spp must be at least 2 (a standard error needs two samples)")]
+    TooFewSamples,
+}
+
+/// Where to estimate: a point on a surface and the side it faces.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Point {
+    pub position: [f32; 3],
+    pub normal: [f32; 3],
+}
+
+/// An estimate of linear RGB indirect irradiance and its standard error (one sigma of the mean).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Estimate {
+    pub mean: [f64; 3],
+    pub stderr: [f64; 3],
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Options {
+    /// Sample paths per point.
+    pub spp: u32,
+    /// Light bounces carried, in the design's sense (`T_k`): 1 is light reflected once before it
+    /// reaches the point.
+    pub bounces: Bounces,
+    pub seed: u64,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Options {
+            spp: 1024,
+            bounces: Bounces::K(3),
+            seed: 1,
+        }
+    }
+}
+
+/// The traced scene: build once, estimate many light configurations.
+pub struct Reference {
+    mesh: Mesh,
+}
+
+/// How [`Reference::snap_patches`] placed each point.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct SnapReport {
+    /// Moved onto the nearest surface along the patch normal.
+    pub snapped: usize,
+    /// Left at the recorded centroid: no surface within half a voxel along the normal.
+    pub kept: usize,
+}
+
+impl Reference {
+    pub fn new(scene: &Scene) -> Result<Reference, ReferenceError> {
+        Ok(Reference {
+            mesh: Mesh::new(scene).ok_or(ReferenceError::EmptyScene)?,
+        })
+    }
+
+    /// Triangles traced (zero-area ones are left out).
+    pub fn triangles(&self) -> usize {
+        self.mesh.tris.len()
+    }
+
+    /// The points the patches of `layout` stand for: each patch's recorded centroid (the
+    /// area-weighted centroid of its triangles), moved along its normal onto the nearest original
+    /// surface within half a voxel. A centroid of triangles that meet at an angle (a corner, a
+    /// curve) lies off every surface, in the air or inside the solid; irradiance there is not what
+    /// the patch stands for. The normal is the surface's, turned to the patch's side.
+    pub fn snap_patches(&self, layout: &PatchLayout) -> (Vec<Point>, SnapReport) {
+        let reach = layout.voxel_size * 0.5;
+        let mut report = SnapReport::default();
+        let points = layout
+            .patches
+            .iter()
+            .map(|p| {
+                let c = Vec3::from(p.centroid);
+                let n = Vec3::from(p.normal)
+                    .try_normalize()
+                    .unwrap_or(p.face.normal());
+                // Start each probe just behind the centroid so a surface through it is found.
+                let back = self.mesh.epsilon * 2.0;
+                let nearest = [n, -n]
+                    .into_iter()
+                    .filter_map(|d| {
+                        let hit = self.mesh.closest(c - d * back, d)?;
+                        let t = hit.t - back;
+                        (t <= reach).then_some((t.abs(), hit.tri))
+                    })
+                    .min_by(|a, b| a.0.total_cmp(&b.0));
+                match nearest {
+                    Some((_, tri)) => {
+                        let tri = &self.mesh.tris[tri as usize];
+                        // The exact foot of the perpendicular onto the triangle's plane.
+                        let foot = c - tri.normal * (c - tri.p0).dot(tri.normal);
+                        let side = if tri.normal.dot(n) >= 0.0 {
+                            tri.normal
+                        } else {
+                            -tri.normal
+                        };
+                        report.snapped += 1;
+                        Point {
+                            position: foot.to_array(),
+                            normal: side.to_array(),
+                        }
+                    }
+                    None => {
+                        report.kept += 1;
+                        Point {
+                            position: p.centroid,
+                            normal: n.to_array(),
+                        }
+                    }
+                }
+            })
+            .collect();
+        (points, report)
+    }
+
+    /// Indirect irradiance at every point under `lights`, in parallel; `progress` is called with
+    /// the number of points finished since its last call.
+    pub fn estimate(
+        &self,
+        lights: &LightSet,
+        points: &[Point],
+        options: &Options,
+        progress: &(dyn Fn(u64) + Sync),
+    ) -> Result<Vec<Estimate>, ReferenceError> {
+        if options.spp < 2 {
+            return Err(ReferenceError::TooFewSamples);
+        }
+        for (index, p) in points.iter().enumerate() {
+            let bad = |reason: &str| ReferenceError::BadPoint {
+                index,
+                reason: reason.to_string(),
+            };
+            if !Vec3::from(p.position).is_finite() {
+                return Err(bad("position is not finite"));
+            }
+            if Vec3::from(p.normal).try_normalize().is_none() {
+                return Err(bad("normal is zero or not finite"));
+            }
+        }
+        let sources: Vec<Source> = lights.lights.iter().filter_map(Source::new).collect();
+        Ok(points
+            .par_iter()
+            .enumerate()
+            .map(|(i, p)| {
+                let e = self.point(&sources, p, i as u64, options);
+                progress(1);
+                e
+            })
+            .collect())
+    }
+
+    fn point(&self, sources: &[Source], p: &Point, index: u64, options: &Options) -> Estimate {
+        let x = Vec3::from(p.position);
+        let n = Vec3::from(p.normal).normalize();
+        let mut rng = Pcg32::new(mix(options.seed), mix(index ^ mix(options.seed)));
+        // Welford: a mean and variance that stay accurate over many samples.
+        let mut mean = [0.0f64; 3];
+        let mut m2 = [0.0f64; 3];
+        for k in 0..options.spp {
+            let s = estimate::sample(&self.mesh, sources, x, n, options.bounces, &mut rng);
+            let count = f64::from(k + 1);
+            for c in 0..3 {
+                let v = f64::from(s[c]);
+                let delta = v - mean[c];
+                mean[c] += delta / count;
+                m2[c] += delta * (v - mean[c]);
+            }
+        }
+        let n = f64::from(options.spp);
+        Estimate {
+            mean,
+            stderr: m2.map(|m| (m / (n - 1.0) / n).sqrt()),
+        }
+    }
+}

@@ -1,0 +1,186 @@
+//! Punctual lights evaluated from their definition (`bounce_core::light`: glTF
+//! `KHR_lights_punctual` units; radiometric use of the intensity, `radiant = intensity · color`;
+//! the range window `clamp(1 − (d/range)⁴, 0, 1)²` and the spot's squared linear cone ramp),
+//! written here again rather than called from `bounce_core::direct`: if the pipeline's light code
+//! drifts from the definition, the reference does not drift with it.
+
+use bounce_core::light::Light;
+use glam::Vec3;
+
+/// A light in the form the tracer evaluates.
+#[derive(Debug, Clone, Copy)]
+pub(crate) enum Source {
+    /// `toward`: unit vector from the scene towards the light; `irradiance` on a surface facing it.
+    Sun { toward: Vec3, irradiance: Vec3 },
+    /// `intensity` per steradian; `cone`: for a spot, its unit axis and the cosines of its outer
+    /// and inner angles.
+    Lamp {
+        position: Vec3,
+        intensity: Vec3,
+        range: Option<f32>,
+        cone: Option<(Vec3, f32, f32)>,
+    },
+}
+
+/// What a light gives a point before visibility: the direction to it, how far that is, and the
+/// irradiance on a surface with the given normal.
+pub(crate) struct Arrival {
+    pub dir: Vec3,
+    pub distance: f32,
+    pub irradiance: Vec3,
+}
+
+impl Source {
+    /// `None` for a light that lights nothing (zero power, or no direction).
+    pub fn new(light: &Light) -> Option<Source> {
+        let colour = |c: [f32; 3], i: f32| Vec3::from(c) * i;
+        let source = match *light {
+            Light::Directional {
+                direction,
+                color,
+                intensity,
+                ..
+            } => Source::Sun {
+                toward: -Vec3::from(direction).try_normalize()?,
+                irradiance: colour(color, intensity),
+            },
+            Light::Point {
+                position,
+                color,
+                intensity,
+                range,
+                ..
+            } => Source::Lamp {
+                position: position.into(),
+                intensity: colour(color, intensity),
+                range,
+                cone: None,
+            },
+            Light::Spot {
+                position,
+                direction,
+                color,
+                intensity,
+                range,
+                inner_cone_angle,
+                outer_cone_angle,
+                ..
+            } => Source::Lamp {
+                position: position.into(),
+                intensity: colour(color, intensity),
+                range,
+                cone: Some((
+                    Vec3::from(direction).try_normalize()?,
+                    outer_cone_angle.cos(),
+                    inner_cone_angle.cos(),
+                )),
+            },
+        };
+        let power = match source {
+            Source::Sun { irradiance, .. } => irradiance,
+            Source::Lamp { intensity, .. } => intensity,
+        };
+        (power.is_finite() && power.max_element() > 0.0).then_some(source)
+    }
+
+    pub fn arrive(&self, p: Vec3, n: Vec3) -> Option<Arrival> {
+        match *self {
+            Source::Sun { toward, irradiance } => {
+                let cos = n.dot(toward);
+                (cos > 0.0).then(|| Arrival {
+                    dir: toward,
+                    distance: f32::INFINITY,
+                    irradiance: irradiance * cos,
+                })
+            }
+            Source::Lamp {
+                position,
+                intensity,
+                range,
+                cone,
+            } => {
+                let to = position - p;
+                let d = to.length();
+                if !(d > 0.0) {
+                    return None;
+                }
+                let dir = to / d;
+                let cos = n.dot(dir);
+                if cos <= 0.0 {
+                    return None;
+                }
+                let mut falloff = 1.0 / (d * d);
+                if let Some(range) = range {
+                    let x = d / range;
+                    let w = (1.0 - x.powi(4)).clamp(0.0, 1.0);
+                    falloff *= w * w;
+                }
+                if let Some((axis, cos_outer, cos_inner)) = cone {
+                    // cos of the angle off the axis, mapped to 0 at the outer and 1 at the inner
+                    // angle, squared (KHR_lights_punctual's recommended smooth falloff).
+                    let off_axis = axis.dot(-dir);
+                    let ramp = ((off_axis - cos_outer) / (cos_inner - cos_outer).max(1e-3))
+                        .clamp(0.0, 1.0);
+                    falloff *= ramp * ramp;
+                }
+                (falloff > 0.0).then(|| Arrival {
+                    dir,
+                    distance: d,
+                    irradiance: intensity * (cos * falloff),
+                })
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn inverse_square_cosine_and_cone() {
+        let point = Source::new(&Light::Point {
+            position: [0.0, 2.0, 0.0],
+            color: [1.0, 0.5, 0.25],
+            intensity: 8.0,
+            range: None,
+            name: None,
+        })
+        .unwrap();
+        let a = point.arrive(Vec3::ZERO, Vec3::Y).unwrap();
+        assert!((a.irradiance - Vec3::new(2.0, 1.0, 0.5)).length() < 1e-6);
+        assert_eq!(a.distance, 2.0);
+        // 60° off the normal: half.
+        let tilted = Vec3::new(3f32.sqrt() / 2.0, 0.5, 0.0);
+        let b = point.arrive(Vec3::ZERO, tilted).unwrap();
+        assert!((b.irradiance.x - 1.0).abs() < 1e-5);
+        assert!(point.arrive(Vec3::ZERO, -Vec3::Y).is_none());
+
+        let spot = Source::new(&Light::Spot {
+            position: [0.0, 1.0, 0.0],
+            direction: [0.0, -1.0, 0.0],
+            color: [1.0; 3],
+            intensity: 1.0,
+            range: None,
+            inner_cone_angle: 0.2,
+            outer_cone_angle: 0.4,
+            name: None,
+        })
+        .unwrap();
+        assert!((spot.arrive(Vec3::ZERO, Vec3::Y).unwrap().irradiance.x - 1.0).abs() < 1e-6);
+        // Outside the outer cone: nothing.
+        assert!(spot.arrive(Vec3::new(1.0, 0.0, 0.0), Vec3::Y).is_none());
+
+        let sun = Source::new(&Light::Directional {
+            direction: [0.0, -1.0, 0.0],
+            color: [1.0; 3],
+            intensity: 3.0,
+            name: None,
+        })
+        .unwrap();
+        assert_eq!(
+            sun.arrive(Vec3::ZERO, Vec3::Y).unwrap().irradiance,
+            Vec3::splat(3.0)
+        );
+    }
+}

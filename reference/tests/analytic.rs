@@ -1,0 +1,196 @@
+//! The reference against closed forms: the white furnace and a point-to-rectangle form factor.
+
+use bounce_core::light::LightSet;
+use bounce_core::meta::Bounces;
+use bounce_core::scene::{Scene, Triangle};
+use bounce_reference::{Options, Point, Reference};
+use glam::Vec3;
+
+fn quad(corners: [Vec3; 4], albedo: f32, emission: f32) -> [Triangle; 2] {
+    let t = |positions| Triangle {
+        positions,
+        albedo: Vec3::splat(albedo),
+        emission: Vec3::splat(emission),
+        double_sided: false,
+        material: 0,
+    };
+    let [a, b, c, d] = corners;
+    // Corners go clockwise seen from the side the quad faces; the triangles wind back.
+    [t([a, c, b]), t([a, d, c])]
+}
+
+/// The unit cube's six faces, wound to face inwards.
+fn closed_box(albedo: f32, emission: f32) -> Scene {
+    let v = |x: f32, y: f32, z: f32| Vec3::new(x, y, z);
+    let faces = [
+        [v(0., 0., 0.), v(1., 0., 0.), v(1., 0., 1.), v(0., 0., 1.)], // floor, normal +y
+        [v(0., 1., 0.), v(0., 1., 1.), v(1., 1., 1.), v(1., 1., 0.)], // ceiling, -y
+        [v(0., 0., 0.), v(0., 0., 1.), v(0., 1., 1.), v(0., 1., 0.)], // x = 0, +x
+        [v(1., 0., 0.), v(1., 1., 0.), v(1., 1., 1.), v(1., 0., 1.)], // x = 1, -x
+        [v(0., 0., 0.), v(0., 1., 0.), v(1., 1., 0.), v(1., 0., 0.)], // z = 0, +z
+        [v(0., 0., 1.), v(1., 0., 1.), v(1., 1., 1.), v(0., 1., 1.)], // z = 1, -z
+    ];
+    let scene = Scene {
+        triangles: faces
+            .iter()
+            .flat_map(|&f| quad(f, albedo, emission))
+            .collect(),
+        ..Scene::default()
+    };
+    let centre = Vec3::splat(0.5);
+    for t in &scene.triangles {
+        let mid = (t.positions[0] + t.positions[1] + t.positions[2]) / 3.0;
+        assert!(t.cross().dot(centre - mid) > 0.0, "faces inwards");
+    }
+    scene
+}
+
+fn points() -> Vec<Point> {
+    vec![
+        Point {
+            position: [0.3, 0.0, 0.7],
+            normal: [0.0, 1.0, 0.0],
+        },
+        Point {
+            position: [1.0, 0.9, 0.1],
+            normal: [-1.0, 0.0, 0.0],
+        },
+        Point {
+            position: [0.5, 1.0, 0.5],
+            normal: [0.0, -1.0, 0.0],
+        },
+    ]
+}
+
+/// Closed room, uniform albedo ρ and emitted exitance E, no lights: every surface receives
+/// `E (1 − ρ^k) / (1 − ρ)` with k bounces and `E / (1 − ρ)` with all of them (DESIGN §1).
+#[test]
+fn white_furnace() {
+    let (rho, e) = (0.8f64, 2.0f64);
+    let reference = Reference::new(&closed_box(rho as f32, e as f32)).unwrap();
+    for k in [1, 3, 7] {
+        let options = Options {
+            spp: 64,
+            bounces: Bounces::K(k),
+            seed: 5,
+        };
+        let expected = e * (1.0 - rho.powi(k as i32)) / (1.0 - rho);
+        for est in reference
+            .estimate(&LightSet::default(), &points(), &options, &|_| {})
+            .unwrap()
+        {
+            for c in 0..3 {
+                // Every path sees the same sum in a uniform closed room: no noise, only rounding.
+                assert!(
+                    (est.mean[c] - expected).abs() < 1e-4 * expected,
+                    "k = {k}: {} against {expected}",
+                    est.mean[c]
+                );
+                assert!(est.stderr[c] < 1e-4 * expected);
+            }
+        }
+    }
+    // All bounces: Russian roulette makes it noisy but unbiased.
+    let options = Options {
+        spp: 20_000,
+        bounces: Bounces::All,
+        seed: 5,
+    };
+    let expected = e / (1.0 - rho);
+    for est in reference
+        .estimate(&LightSet::default(), &points(), &options, &|_| {})
+        .unwrap()
+    {
+        let (m, s) = (est.mean[0], est.stderr[0]);
+        eprintln!("all bounces: {m:.4} ± {s:.4}, expected {expected}");
+        assert!(s > 0.0 && s < 0.01 * expected, "{s}");
+        assert!(
+            (m - expected).abs() < 4.0 * s,
+            "{m} ± {s} against {expected}"
+        );
+    }
+}
+
+/// One bounce from an emitting 2 × 2 square one unit above a point under its centre: the
+/// irradiance is `E` times the differential-area-to-parallel-rectangle form factor (Howell's
+/// catalogue, B-3, summed over four corner rectangles of 1 × 1 at height 1).
+#[test]
+fn one_bounce_from_an_emitting_square_matches_the_form_factor() {
+    let m = 3.0f32;
+    let square = quad(
+        [
+            Vec3::new(-1.0, 1.0, -1.0),
+            Vec3::new(-1.0, 1.0, 1.0),
+            Vec3::new(1.0, 1.0, 1.0),
+            Vec3::new(1.0, 1.0, -1.0),
+        ],
+        0.5,
+        m,
+    );
+    assert!(square[0].cross().y < 0.0, "emits downwards");
+    // A floor far larger than the square, dark, so nothing comes back.
+    let floor = quad(
+        [
+            Vec3::new(-50.0, 0.0, -50.0),
+            Vec3::new(50.0, 0.0, -50.0),
+            Vec3::new(50.0, 0.0, 50.0),
+            Vec3::new(-50.0, 0.0, 50.0),
+        ],
+        0.0,
+        0.0,
+    );
+    let scene = Scene {
+        triangles: square.into_iter().chain(floor).collect(),
+        ..Scene::default()
+    };
+    let reference = Reference::new(&scene).unwrap();
+    let options = Options {
+        spp: 40_000,
+        bounces: Bounces::K(1),
+        seed: 2,
+    };
+    let at = Point {
+        position: [0.0, 0.0, 0.0],
+        normal: [0.0, 1.0, 0.0],
+    };
+    let est = reference
+        .estimate(&LightSet::default(), &[at], &options, &|_| {})
+        .unwrap()[0];
+    let (x, y) = (1.0f64, 1.0f64);
+    let corner = (x / (1.0 + x * x).sqrt() * (y / (1.0 + x * x).sqrt()).atan()
+        + y / (1.0 + y * y).sqrt() * (x / (1.0 + y * y).sqrt()).atan())
+        / (2.0 * std::f64::consts::PI);
+    let expected = f64::from(m) * 4.0 * corner;
+    let (mean, s) = (est.mean[1], est.stderr[1]);
+    eprintln!("form factor 4 × {corner:.5}: {mean:.4} ± {s:.4} against {expected:.4}");
+    assert!(
+        (mean - expected).abs() < 4.0 * s,
+        "{mean} ± {s} against {expected}"
+    );
+    assert!(s < 0.01 * expected);
+}
+
+#[test]
+fn the_same_seed_gives_the_same_values_and_bad_input_is_an_error() {
+    let reference = Reference::new(&closed_box(0.5, 1.0)).unwrap();
+    let options = Options {
+        spp: 100,
+        bounces: Bounces::All,
+        seed: 9,
+    };
+    let run = || {
+        reference
+            .estimate(&LightSet::default(), &points(), &options, &|_| {})
+            .unwrap()
+    };
+    assert_eq!(run(), run());
+    let bad = Point {
+        position: [f32::NAN, 0.0, 0.0],
+        normal: [0.0, 1.0, 0.0],
+    };
+    let err = reference
+        .estimate(&LightSet::default(), &[bad], &options, &|_| {})
+        .unwrap_err();
+    assert!(err.to_string().contains("point 0"), "{err}");
+    assert!(Reference::new(&Scene::default()).is_err());
+}
