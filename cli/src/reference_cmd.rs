@@ -192,8 +192,8 @@ pub(crate) fn mean(estimates: &[Estimate]) -> [f64; 3] {
     let n = estimates.len().max(1) as f64;
     let mut m = [0.0; 3];
     for e in estimates {
-        for c in 0..3 {
-            m[c] += e.mean[c] / n;
+        for (m, v) in m.iter_mut().zip(e.mean) {
+            *m += v / n;
         }
     }
     m
