@@ -40,6 +40,10 @@ pub struct VerifyArgs {
     /// Print the report as JSON on stdout instead of a table.
     #[arg(long)]
     pub json: bool,
+    /// Also write every patch's values as CSV: its reference point, the reference and its
+    /// standard error, and the pipeline's values (compressed, exact, exact on the surfaces' B0).
+    #[arg(long, value_name = "FILE.csv")]
+    pub patches_out: Option<PathBuf>,
     /// No progress bars.
     #[arg(long, short)]
     pub quiet: bool,
@@ -158,6 +162,30 @@ pub fn run(args: &VerifyArgs) -> Result<()> {
             exact_from,
         },
     );
+    if let Some(path) = &args.patches_out {
+        let mut csv = String::from(
+            "patch,x,y,z,nx,ny,nz,ref_r,ref_g,ref_b,se_r,se_g,se_b,compressed_r,compressed_g,\
+             compressed_b,exact_r,exact_g,exact_b,surface_b0_r,surface_b0_g,surface_b0_b\n",
+        );
+        for (i, (p, e)) in traced.points.iter().zip(&traced.estimates).enumerate() {
+            let row: Vec<String> = p
+                .position
+                .iter()
+                .chain(&p.normal)
+                .map(|v| v.to_string())
+                .chain(e.mean.iter().chain(&e.stderr).map(|v| v.to_string()))
+                .chain(
+                    compressed[i]
+                        .iter()
+                        .chain(&exact_e[i])
+                        .chain(&surface_lit[i])
+                        .map(|v| v.to_string()),
+                )
+                .collect();
+            csv += &format!("{i},{}\n", row.join(","));
+        }
+        std::fs::write(path, csv).with_context(|| format!("writing {}", path.display()))?;
+    }
     if args.json {
         println!("{}", serde_json::to_string_pretty(&report)?);
     } else {
