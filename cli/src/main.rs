@@ -8,6 +8,7 @@ mod bench;
 mod bench_codecs;
 mod bench_engines;
 mod bench_serve;
+mod bench_tradeoff;
 mod demo;
 mod inspect;
 mod memory;
