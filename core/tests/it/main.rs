@@ -10,4 +10,5 @@ mod direct;
 mod formfactor;
 mod furnace;
 mod import;
+mod shard;
 mod tracers;
