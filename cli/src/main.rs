@@ -9,6 +9,8 @@ mod bench_codecs;
 mod bench_engines;
 mod bench_serve;
 mod demo;
+#[cfg(test)]
+mod deploy_check;
 mod inspect;
 mod memory;
 mod plot;
@@ -16,6 +18,7 @@ mod progress;
 mod relight_cmd;
 mod render_cmd;
 mod serve_cmd;
+mod shard_cmd;
 mod view;
 
 use std::process::ExitCode;
@@ -40,8 +43,9 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
-    /// Bake a glTF/GLB scene into a transport file.
-    Bake(bake_cmd::BakeArgs),
+    /// Bake a glTF/GLB scene into a transport file, in one process or in shards (`--shard`,
+    /// `bake transport`, `bake merge`).
+    Bake(bake_cmd::BakeCommand),
     /// Show the header, layout, settings, timings and checks of a baked file.
     Inspect(inspect::InspectArgs),
     /// Bake the embedded Cornell box demo scene and inspect the result.
