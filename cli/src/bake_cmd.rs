@@ -47,7 +47,7 @@ pub struct BakeArgs {
     #[arg(required = true)]
     pub scene: Option<PathBuf>,
     /// Where to write the baked file (written atomically: a failed bake leaves no partial file).
-    /// With --shard, the shard file, or a directory to put it in.
+    /// With --shard, a FILE.bshard, or else a directory (created) to write ff-I-of-N.bshard in.
     #[arg(short, long, value_name = "OUT.bounce", required = true)]
     pub out: Option<PathBuf>,
     /// Compute only this shard's rows of the form factors (phase 1 of a sharded bake, see

@@ -27,8 +27,8 @@ Sharded bake (for a cluster; the result is bit for bit the one-process bake's, t
   2. bounce bake transport --shard I/M -o t/ ff/             rows of the transport, per shard
   3. bounce bake merge t/ -o SCENE.bounce                     assemble and encode the transport
 --shard N alone takes the index from JOB_COMPLETION_INDEX (a Kubernetes Indexed Job sets it).
-Shards count from 0. An -o that is a directory (or ends in /) gets files named by phase and
-index. Phase 2 needs every phase-1 shard, M need not equal N, and `merge` of phase-1 shards
+Shards count from 0. An -o that does not end in .bshard is a directory: the shard is named
+there by phase and index. Phase 2 needs every phase-1 shard, M need not equal N, and `merge` of phase-1 shards
 computes the transport itself (fine for one bounce or few patches). Every step checks that its
 shards are one bake's, each exactly once.";
 
@@ -38,11 +38,11 @@ pub fn spec(arg: &str) -> Result<ShardSpec> {
     Ok(ShardSpec::parse(arg, env.as_deref())?)
 }
 
-/// Where a shard goes: `out` itself, or a file named by phase and index inside it when it is a
-/// directory (or ends in `/`, and is then created).
+/// Where a shard goes: `out` itself when it names a `.bshard` file, else a file named by phase
+/// and index inside the directory `out` (created), so that every pod of a job can be given the
+/// same `-o`.
 fn shard_path(out: &Path, phase: Phase, spec: ShardSpec) -> Result<PathBuf> {
-    let as_dir = out.is_dir() || out.as_os_str().to_string_lossy().ends_with('/');
-    if !as_dir {
+    if out.extension().is_some_and(|e| e == shard::SHARD_EXTENSION) {
         return Ok(out.to_path_buf());
     }
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
@@ -80,7 +80,8 @@ pub struct TransportArgs {
     /// This shard: I/N (shard I of N, from 0), or N with the index from JOB_COMPLETION_INDEX.
     #[arg(long, value_name = "I/N|N")]
     pub shard: String,
-    /// Where to write the shard: a file, or a directory (then named t-I-of-N.bshard).
+    /// Where to write the shard: a FILE.bshard, or else a directory (created) to write
+    /// t-I-of-N.bshard in.
     #[arg(short, long, value_name = "OUT")]
     pub out: PathBuf,
     /// No progress bars or stage lines; the summary is still printed.
