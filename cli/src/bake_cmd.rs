@@ -10,19 +10,50 @@ use bounce_core::formfactor::MAX_RAYS;
 use bounce_core::meta::{BakeStats, Bounces, StageTiming};
 use bounce_core::rays::Tracer;
 use bounce_core::voxel::{PatchOrder, Resolution};
-use clap::Args;
+use clap::{Args, Subcommand};
 use serde::{Deserialize, Serialize};
 
 use crate::memory::peak_rss_bytes;
 use crate::progress::TermProgress;
 
+/// `bounce bake`: a whole bake, or a step of a sharded one.
+#[derive(Args, Debug)]
+#[command(
+    args_conflicts_with_subcommands = true,
+    subcommand_negates_reqs = true,
+    after_help = crate::shard_cmd::SHARDING_HELP
+)]
+pub struct BakeCommand {
+    #[command(subcommand)]
+    pub step: Option<BakeStep>,
+    #[command(flatten)]
+    pub args: BakeArgs,
+}
+
+/// The steps of a sharded bake after the first (which is `bounce bake SCENE --shard I/N`).
+#[derive(Subcommand, Debug)]
+pub enum BakeStep {
+    /// Phase 2 of a sharded bake: this shard's rows of the transport, from every phase-1 shard.
+    Transport(crate::shard_cmd::TransportArgs),
+    /// The last step of a sharded bake: assemble the shards, encode the transport, write the
+    /// baked file.
+    Merge(crate::shard_cmd::MergeArgs),
+}
+
 #[derive(Args, Debug)]
 pub struct BakeArgs {
+    // Both required, but `Option`s: the `transport` and `merge` steps parse without them.
     /// The scene: a .gltf (with its .bin and textures beside it) or a .glb file.
-    pub scene: PathBuf,
+    #[arg(required = true)]
+    pub scene: Option<PathBuf>,
     /// Where to write the baked file (written atomically: a failed bake leaves no partial file).
-    #[arg(short, long, value_name = "OUT.bounce")]
-    pub out: PathBuf,
+    /// With --shard, a FILE.bshard, or else a directory (created) to write ff-I-of-N.bshard in.
+    #[arg(short, long, value_name = "OUT.bounce", required = true)]
+    pub out: Option<PathBuf>,
+    /// Compute only this shard's rows of the form factors (phase 1 of a sharded bake, see
+    /// below): I/N is shard I of N (from 0); N alone takes I from JOB_COMPLETION_INDEX.
+    #[arg(long, value_name = "I/N|N")]
+    pub shard: Option<String>,
     /// Target patch count; the voxel size is searched so that the count lands near it.
     #[arg(
         long,
@@ -102,14 +133,39 @@ impl BakeArgs {
     }
 }
 
-pub fn run(args: &BakeArgs) -> Result<()> {
+pub fn run(command: &BakeCommand) -> Result<()> {
+    match &command.step {
+        Some(BakeStep::Transport(args)) => crate::shard_cmd::transport(args),
+        Some(BakeStep::Merge(args)) => crate::shard_cmd::merge(args),
+        None => run_bake(&command.args),
+    }
+}
+
+fn run_bake(args: &BakeArgs) -> Result<()> {
+    // clap requires both; a missing one here is a bug in the parser's setup.
+    let (Some(scene), Some(out)) = (&args.scene, &args.out) else {
+        bail!("bake needs a SCENE and -o OUT");
+    };
+    if let Some(shard) = &args.shard {
+        if args.report_json.is_some() {
+            bail!("--report-json describes a whole bake; a shard prints its own summary");
+        }
+        let spec = crate::shard_cmd::spec(shard)?;
+        return crate::shard_cmd::form_factors(
+            scene,
+            out,
+            &args.options()?,
+            spec,
+            args.quiet,
+        );
+    }
     let start = Instant::now();
-    let baked = bake(&args.scene, &args.out, &args.options()?, args.quiet)?;
+    let baked = bake(scene, out, &args.options()?, args.quiet)?;
     if let Some(path) = &args.report_json {
         let report = BakeReport {
             wall_seconds: start.elapsed().as_secs_f64(),
             peak_rss_bytes: peak_rss_bytes(),
-            file_bytes: std::fs::metadata(&args.out).map(|m| m.len()).unwrap_or(0),
+            file_bytes: std::fs::metadata(out).map(|m| m.len()).unwrap_or(0),
             stats: baked.meta.stats.clone(),
             timings: baked.meta.timings.clone(),
         };
@@ -154,7 +210,7 @@ pub fn bake(scene: &Path, out: &Path, options: &BakeOptions, quiet: bool) -> Res
     Ok(baked)
 }
 
-fn print_summary(baked: &Baked, out: &Path, file_bytes: u64, total_s: f64) {
+pub fn print_summary(baked: &Baked, out: &Path, file_bytes: u64, total_s: f64) {
     let m = &baked.meta;
     let s = &m.stats;
     println!("baked {} ({})", out.display(), human_bytes(file_bytes));

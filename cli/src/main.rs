@@ -10,6 +10,8 @@ mod bench_engines;
 mod bench_serve;
 mod bench_tradeoff;
 mod demo;
+#[cfg(test)]
+mod deploy_check;
 mod inspect;
 mod memory;
 mod plot;
@@ -18,6 +20,7 @@ mod reference_cmd;
 mod relight_cmd;
 mod render_cmd;
 mod serve_cmd;
+mod shard_cmd;
 mod verify_cmd;
 mod view;
 
@@ -43,8 +46,9 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
-    /// Bake a glTF/GLB scene into a transport file.
-    Bake(bake_cmd::BakeArgs),
+    /// Bake a glTF/GLB scene into a transport file, in one process or in shards (`--shard`,
+    /// `bake transport`, `bake merge`).
+    Bake(bake_cmd::BakeCommand),
     /// Show the header, layout, settings, timings and checks of a baked file.
     Inspect(inspect::InspectArgs),
     /// Bake the embedded Cornell box demo scene and inspect the result.

@@ -6,17 +6,20 @@
 use std::path::Path;
 use std::time::Instant;
 
+use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
 use crate::codec::error::{irradiance_errors, probe_light_sets};
 use crate::codec::{self, CodecError};
 use crate::format::Baked;
-use crate::formfactor::{self, FormFactorError, RayScene};
+use crate::formfactor::{self, FormFactorError, FormFactorStats, RayScene};
 use crate::import::{self, ImportError};
-use crate::matrix::{DENSE_F32, EncodedMatrix};
+use crate::light::Light;
+use crate::matrix::{DENSE_F32, DenseMatrix, EncodedMatrix};
 use crate::meta::{BakeMeta, BakeSettings, BakeStats, Bounces, StageTiming};
+use crate::patch::PatchLayout;
 use crate::rays::Tracer;
-use crate::scene::Scene;
+use crate::scene::{ImportReport, Scene};
 use crate::transport::{self, TransportError};
 use crate::voxel::{self, Resolution, VoxelError};
 
@@ -81,6 +84,8 @@ pub enum Stage {
     FormFactors,
     Transport,
     Encode,
+    /// A sharded bake's step reading (and checking) the shards it continues from.
+    ReadShards,
 }
 
 impl Stage {
@@ -92,6 +97,7 @@ impl Stage {
             Stage::FormFactors => "form factors",
             Stage::Transport => "transport",
             Stage::Encode => "encode",
+            Stage::ReadShards => "read shards",
         }
     }
 }
@@ -137,13 +143,21 @@ pub enum BakeError {
     NoInterreflection { patches: usize, voxel_size: f32 },
 }
 
-struct Timer<'a> {
-    progress: &'a dyn Progress,
-    timings: Vec<StageTiming>,
+/// Runs stages, reporting them to a [`Progress`] and recording their wall times.
+pub(crate) struct Timer<'a> {
+    pub progress: &'a dyn Progress,
+    pub timings: Vec<StageTiming>,
 }
 
-impl Timer<'_> {
-    fn run<T>(&mut self, stage: Stage, total: u64, f: impl FnOnce() -> T) -> T {
+impl<'a> Timer<'a> {
+    pub fn new(progress: &'a dyn Progress) -> Self {
+        Timer {
+            progress,
+            timings: Vec::new(),
+        }
+    }
+
+    pub fn run<T>(&mut self, stage: Stage, total: u64, f: impl FnOnce() -> T) -> T {
         self.progress.begin(stage, total);
         let start = Instant::now();
         let out = f();
@@ -157,6 +171,43 @@ impl Timer<'_> {
     }
 }
 
+/// Where a bake's scene came from: recorded in the baked file, and in every shard of a sharded
+/// bake so that the merge can refuse shards of different scenes.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SourceInfo {
+    /// The scene file's name (no directories).
+    pub source_name: String,
+    pub source_bytes: u64,
+    pub import_report: ImportReport,
+    pub lights: Vec<Light>,
+}
+
+impl SourceInfo {
+    fn of(scene: &Scene, source_name: &str, source_bytes: u64) -> Self {
+        SourceInfo {
+            source_name: source_name.to_string(),
+            source_bytes,
+            import_report: scene.report.clone(),
+            lights: scene.lights.clone(),
+        }
+    }
+}
+
+/// Import `path` as a stage of `timer`; also says where it came from.
+pub(crate) fn import_timed(
+    path: &Path,
+    timer: &mut Timer<'_>,
+) -> Result<(Scene, SourceInfo), BakeError> {
+    let scene = timer.run(Stage::Import, 0, || import::import_path(path))?;
+    let source_bytes = std::fs::metadata(path).map(|m| m.len()).unwrap_or(0);
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let source = SourceInfo::of(&scene, &name, source_bytes);
+    Ok((scene, source))
+}
+
 /// Import a glTF/GLB file and bake it.
 pub fn bake_file(
     path: &Path,
@@ -164,17 +215,9 @@ pub fn bake_file(
     progress: &dyn Progress,
 ) -> Result<Baked, BakeError> {
     check_codec_options(options)?;
-    let mut timer = Timer {
-        progress,
-        timings: Vec::new(),
-    };
-    let scene = timer.run(Stage::Import, 0, || import::import_path(path))?;
-    let source_bytes = std::fs::metadata(path).map(|m| m.len()).unwrap_or(0);
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    bake_with(&scene, &name, source_bytes, options, timer)
+    let mut timer = Timer::new(progress);
+    let (scene, source) = import_timed(path, &mut timer)?;
+    bake_with(&scene, source, options, timer)
 }
 
 /// Bake an already imported scene.
@@ -185,11 +228,8 @@ pub fn bake_scene(
     progress: &dyn Progress,
 ) -> Result<Baked, BakeError> {
     check_codec_options(options)?;
-    let timer = Timer {
-        progress,
-        timings: Vec::new(),
-    };
-    bake_with(scene, source_name, 0, options, timer)
+    let source = SourceInfo::of(scene, source_name, 0);
+    bake_with(scene, source, options, Timer::new(progress))
 }
 
 /// Voxelise `scene` into the patches a bake uses. Patches that see no other patch get no
@@ -216,7 +256,7 @@ pub fn simplify(scene: &Scene, options: &BakeOptions) -> Result<voxel::Voxelizat
 }
 
 /// Refuse bad codec options before any expensive work.
-fn check_codec_options(options: &BakeOptions) -> Result<(), BakeError> {
+pub(crate) fn check_codec_options(options: &BakeOptions) -> Result<(), BakeError> {
     if let Some(share) = options.sparse_share
         && !(0.0..=1.0).contains(&share)
     {
@@ -241,7 +281,7 @@ fn check_codec_options(options: &BakeOptions) -> Result<(), BakeError> {
 
 /// Store `t` with the requested codec; also returns its `E_ind` error against `t` over `probe`.
 fn encode_transport(
-    t: &crate::matrix::DenseMatrix,
+    t: &DenseMatrix,
     probe: &[[f32; 3]],
     options: &BakeOptions,
 ) -> Result<(EncodedMatrix, f64), BakeError> {
@@ -262,34 +302,164 @@ fn encode_transport(
     }
 }
 
-fn bake_with(
-    scene: &Scene,
-    source_name: &str,
-    source_bytes: u64,
-    options: &BakeOptions,
-    mut timer: Timer<'_>,
-) -> Result<Baked, BakeError> {
-    let progress = timer.progress;
-    let advance = |n: u64| progress.advance(n);
+/// The scene voxelised and ready to trace. Voxelisation and the isolated-patch probe are
+/// deterministic, so every shard of a sharded bake redoes this and gets the same bits.
+pub(crate) struct Prepared {
+    pub vox: voxel::Voxelization,
+    pub rays: RayScene,
+}
 
+pub(crate) fn prepare(
+    scene: &Scene,
+    options: &BakeOptions,
+    timer: &mut Timer<'_>,
+) -> Result<Prepared, BakeError> {
     let vox = timer.run(Stage::Voxelize, 0, || simplify(scene, options))?;
-    let layout = vox.layout;
-    let n = layout.len();
     let rays = timer.run(Stage::RayScene, 0, || {
-        RayScene::voxels(&layout, &vox.occupied, &vox.occluders, options.tracer)
+        RayScene::voxels(&vox.layout, &vox.occupied, &vox.occluders, options.tracer)
     });
-    let tracer = rays.tracer();
-    let (f, tally) = timer.run(Stage::FormFactors, n as u64, || {
-        formfactor::form_factors(&rays, options.rays, options.seed, &advance)
-    })?;
-    drop(rays);
-    let ff = formfactor::stats(&f, &vec![layout.patch_area(); n]);
+    Ok(Prepared { vox, rays })
+}
+
+/// The form-factor checks a bake records; refuses a scene where no patch sees another.
+pub(crate) fn check_form_factors(
+    f: &DenseMatrix,
+    layout: &PatchLayout,
+) -> Result<FormFactorStats, BakeError> {
+    let n = layout.len();
+    let ff = formfactor::stats(f, &vec![layout.patch_area(); n]);
     if ff.isolated == n {
         return Err(BakeError::NoInterreflection {
             patches: n,
             voxel_size: layout.voxel_size,
         });
     }
+    Ok(ff)
+}
+
+/// Store `t` with the requested codec, as the encode stage of `timer`; also its `E_ind` error.
+pub(crate) fn encode_timed(
+    t: &DenseMatrix,
+    layout: &PatchLayout,
+    options: &BakeOptions,
+    timer: &mut Timer<'_>,
+) -> Result<(EncodedMatrix, f64), BakeError> {
+    let probe = probe_light_sets(layout, PROBE_LIGHT_SETS);
+    timer.run(Stage::Encode, 0, || encode_transport(t, &probe, options))
+}
+
+/// The settings a bake records (and shards of one bake must share).
+pub(crate) fn settings(options: &BakeOptions, tracer: Tracer) -> BakeSettings {
+    let (target_patches, requested_voxel_size) = match options.resolution {
+        Resolution::TargetPatches(p) => (Some(p), None),
+        Resolution::VoxelSize(s) => (None, Some(s)),
+    };
+    BakeSettings {
+        target_patches,
+        requested_voxel_size,
+        rays_per_patch: options.rays,
+        seed: options.seed,
+        bounces: options.bounces,
+        tracer,
+        codec: match &options.codec {
+            CodecRequest::Named(name) => name.clone(),
+            CodecRequest::Auto { .. } => "auto".to_string(),
+        },
+        sparse_share: options.sparse_share,
+        patch_order: options.patch_order,
+        max_error: match options.codec {
+            CodecRequest::Auto { max_error } => Some(max_error),
+            CodecRequest::Named(_) => None,
+        },
+    }
+}
+
+/// The options that gave `settings` (the inverse of [`settings`]), for the steps of a sharded
+/// bake that start from shards rather than from a command line.
+pub(crate) fn options_of(settings: &BakeSettings, keep_form_factors: bool) -> BakeOptions {
+    BakeOptions {
+        resolution: match (settings.target_patches, settings.requested_voxel_size) {
+            (_, Some(s)) => Resolution::VoxelSize(s),
+            (Some(p), None) => Resolution::TargetPatches(p),
+            (None, None) => BakeOptions::default().resolution,
+        },
+        rays: settings.rays_per_patch,
+        seed: settings.seed,
+        bounces: settings.bounces,
+        keep_form_factors,
+        tracer: settings.tracer,
+        codec: match (settings.codec.as_str(), settings.max_error) {
+            ("auto", Some(max_error)) => CodecRequest::Auto { max_error },
+            (name, _) => CodecRequest::Named(name.to_string()),
+        },
+        sparse_share: settings.sparse_share,
+        patch_order: settings.patch_order,
+    }
+}
+
+/// What a baked file's metadata is made of, whether the bake ran in one process or in shards.
+pub(crate) struct MetaParts {
+    pub settings: BakeSettings,
+    pub source: SourceInfo,
+    pub voxel_size: f32,
+    pub occupied_voxels: usize,
+    pub dropped_patches: usize,
+    pub patches: usize,
+    pub rays: crate::rays::RayTally,
+    pub form_factors: FormFactorStats,
+    pub channels: usize,
+    pub matrix_bytes: u64,
+    pub codec_eind_rel_l2: f64,
+    pub timings: Vec<StageTiming>,
+}
+
+pub(crate) fn build_meta(p: MetaParts) -> BakeMeta {
+    let ff = p.form_factors;
+    BakeMeta {
+        tool_version: env!("CARGO_PKG_VERSION").to_string(),
+        source_name: p.source.source_name,
+        source_bytes: p.source.source_bytes,
+        stats: BakeStats {
+            patches: p.patches,
+            voxel_size: p.voxel_size,
+            occupied_voxels: p.occupied_voxels,
+            dropped_patches: p.dropped_patches,
+            rays_total: p.patches as u64 * u64::from(p.settings.rays_per_patch),
+            rays: p.rays,
+            row_sum_min: ff.row_sum_min,
+            row_sum_max: ff.row_sum_max,
+            row_sum_mean: ff.row_sum_mean,
+            reciprocity_error: ff.reciprocity_error,
+            isolated_patches: ff.isolated,
+            channels: p.channels,
+            matrix_bytes: p.matrix_bytes,
+            codec_eind_rel_l2: p.codec_eind_rel_l2,
+        },
+        settings: p.settings,
+        timings: p.timings,
+        import_report: p.source.import_report,
+        lights: p.source.lights,
+    }
+}
+
+fn bake_with(
+    scene: &Scene,
+    source: SourceInfo,
+    options: &BakeOptions,
+    mut timer: Timer<'_>,
+) -> Result<Baked, BakeError> {
+    let progress = timer.progress;
+    let advance = |n: u64| progress.advance(n);
+
+    let Prepared { vox, rays } = prepare(scene, options, &mut timer)?;
+    let layout = vox.layout;
+    let n = layout.len();
+    let tracer = rays.tracer();
+    let (f, tally) = timer.run(Stage::FormFactors, n as u64, || {
+        formfactor::form_factors(&rays, options.rays, options.seed, &advance)
+    })?;
+    drop(rays);
+    let ff = check_form_factors(&f, &layout)?;
 
     let albedo: Vec<[f32; 3]> = layout.patches.iter().map(|p| p.albedo).collect();
     let channels = transport::channels_needed(&albedo, options.bounces);
@@ -297,59 +467,26 @@ fn bake_with(
         transport::transport(&f, &albedo, options.bounces, &advance)
     })?;
 
-    let probe = probe_light_sets(&layout, PROBE_LIGHT_SETS);
-    let (transport, codec_err) =
-        timer.run(Stage::Encode, 0, || encode_transport(&t, &probe, options))?;
+    let (transport, codec_err) = encode_timed(&t, &layout, options, &mut timer)?;
+    drop(t);
     let form_factors = options
         .keep_form_factors
         .then(|| EncodedMatrix::encode_dense_f32(&f));
 
-    let (target_patches, requested_voxel_size) = match options.resolution {
-        Resolution::TargetPatches(p) => (Some(p), None),
-        Resolution::VoxelSize(s) => (None, Some(s)),
-    };
-    let meta = BakeMeta {
-        tool_version: env!("CARGO_PKG_VERSION").to_string(),
-        source_name: source_name.to_string(),
-        source_bytes,
-        settings: BakeSettings {
-            target_patches,
-            requested_voxel_size,
-            rays_per_patch: options.rays,
-            seed: options.seed,
-            bounces: options.bounces,
-            tracer,
-            codec: match &options.codec {
-                CodecRequest::Named(name) => name.clone(),
-                CodecRequest::Auto { .. } => "auto".to_string(),
-            },
-            sparse_share: options.sparse_share,
-            patch_order: options.patch_order,
-            max_error: match options.codec {
-                CodecRequest::Auto { max_error } => Some(max_error),
-                CodecRequest::Named(_) => None,
-            },
-        },
-        stats: BakeStats {
-            patches: n,
-            voxel_size: layout.voxel_size,
-            occupied_voxels: vox.occupied_voxels,
-            dropped_patches: vox.dropped_patches,
-            rays_total: n as u64 * options.rays as u64,
-            rays: tally,
-            row_sum_min: ff.row_sum_min,
-            row_sum_max: ff.row_sum_max,
-            row_sum_mean: ff.row_sum_mean,
-            reciprocity_error: ff.reciprocity_error,
-            isolated_patches: ff.isolated,
-            channels,
-            matrix_bytes: transport.payload.len() as u64,
-            codec_eind_rel_l2: codec_err,
-        },
+    let meta = build_meta(MetaParts {
+        settings: settings(options, tracer),
+        source,
+        voxel_size: layout.voxel_size,
+        occupied_voxels: vox.occupied_voxels,
+        dropped_patches: vox.dropped_patches,
+        patches: n,
+        rays: tally,
+        form_factors: ff,
+        channels,
+        matrix_bytes: transport.payload.len() as u64,
+        codec_eind_rel_l2: codec_err,
         timings: timer.timings,
-        import_report: scene.report.clone(),
-        lights: scene.lights.clone(),
-    };
+    });
     Ok(Baked {
         meta,
         layout,

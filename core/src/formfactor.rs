@@ -174,7 +174,7 @@ pub fn form_factors(
 }
 
 /// Checks of the form-factor invariants, reported by the bake and `bounce inspect`.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct FormFactorStats {
     pub row_sum_min: f32,
     pub row_sum_max: f32,
@@ -185,16 +185,16 @@ pub struct FormFactorStats {
     pub isolated: usize,
 }
 
+/// The sums are taken per row, then over rows in order, so the result does not depend on the
+/// thread count: a sharded bake computes it in another process and must get the same bits.
 pub fn stats(f: &DenseMatrix, areas: &[f32]) -> FormFactorStats {
     let n = f.n;
     let m = f.channel(0);
-    let sums: Vec<f64> = m
-        .par_chunks(n.max(1))
-        .map(|r| r.iter().map(|&v| v as f64).sum())
-        .collect();
-    let (num, den) = (0..n)
+    // Per row: its sum, and the reciprocity terms of the pairs (i, j > i).
+    let rows: Vec<(f64, f64, f64)> = (0..n)
         .into_par_iter()
         .map(|i| {
+            let sum = m[i * n..(i + 1) * n].iter().map(|&v| v as f64).sum();
             let (mut num, mut den) = (0.0f64, 0.0f64);
             for j in i + 1..n {
                 let a = areas[i] as f64 * m[i * n + j] as f64;
@@ -202,14 +202,17 @@ pub fn stats(f: &DenseMatrix, areas: &[f32]) -> FormFactorStats {
                 num += (a - b).abs();
                 den += a + b;
             }
-            (num, den)
+            (sum, num, den)
         })
-        .reduce(|| (0.0, 0.0), |x, y| (x.0 + y.0, x.1 + y.1));
+        .collect();
     let (mut lo, mut hi, mut total) = (f64::INFINITY, 0.0f64, 0.0);
-    for &s in &sums {
+    let (mut num, mut den) = (0.0f64, 0.0f64);
+    for &(s, a, b) in &rows {
         lo = lo.min(s);
         hi = hi.max(s);
         total += s;
+        num += a;
+        den += b;
     }
     FormFactorStats {
         row_sum_min: if n == 0 { 0.0 } else { lo as f32 },
@@ -220,6 +223,6 @@ pub fn stats(f: &DenseMatrix, areas: &[f32]) -> FormFactorStats {
             (total / n as f64) as f32
         },
         reciprocity_error: if den > 0.0 { (num / den) as f32 } else { 0.0 },
-        isolated: sums.iter().filter(|&&s| s == 0.0).count(),
+        isolated: rows.iter().filter(|r| r.0 == 0.0).count(),
     }
 }

@@ -22,5 +22,6 @@ pub mod meta;
 pub mod patch;
 pub mod rays;
 pub mod scene;
+pub mod shard;
 pub mod transport;
 pub mod voxel;

@@ -222,7 +222,7 @@ fn validate_layout(layout: &PatchLayout) -> Result<(), FormatError> {
     Ok(())
 }
 
-fn encode_layout(layout: &PatchLayout) -> Result<Vec<u8>, FormatError> {
+pub(super) fn encode_layout(layout: &PatchLayout) -> Result<Vec<u8>, FormatError> {
     validate_layout(layout)?;
     let count = u32::try_from(layout.len()).map_err(|_| FormatError::TooLarge {
         what: "patch count",
@@ -261,7 +261,7 @@ fn encode_layout(layout: &PatchLayout) -> Result<Vec<u8>, FormatError> {
     Ok(out)
 }
 
-fn decode_layout(bytes: &[u8]) -> Result<PatchLayout, FormatError> {
+pub(super) fn decode_layout(bytes: &[u8]) -> Result<PatchLayout, FormatError> {
     let mut r = FieldReader::new(bytes, Some(SectionKind::LAYT));
     let origin = r.f32x3("grid origin")?;
     let voxel_size = r.f32("voxel size")?;
@@ -359,7 +359,7 @@ fn validate_occupancy(occ: &[u64], layout: &PatchLayout) -> Result<(), FormatErr
     Ok(())
 }
 
-fn encode_occupancy(occ: &[u64], layout: &PatchLayout) -> Result<Vec<u8>, FormatError> {
+pub(super) fn encode_occupancy(occ: &[u64], layout: &PatchLayout) -> Result<Vec<u8>, FormatError> {
     validate_occupancy(occ, layout)?;
     let width = occupancy_width(layout);
     let mut out = Vec::with_capacity(OCCUPANCY_HEADER_LEN as usize + occ.len() * width as usize);
@@ -377,7 +377,7 @@ fn encode_occupancy(occ: &[u64], layout: &PatchLayout) -> Result<Vec<u8>, Format
     Ok(out)
 }
 
-fn decode_occupancy(bytes: &[u8], layout: &PatchLayout) -> Result<Vec<u64>, FormatError> {
+pub(super) fn decode_occupancy(bytes: &[u8], layout: &PatchLayout) -> Result<Vec<u64>, FormatError> {
     let kind = SectionKind::OCCU;
     let mut r = FieldReader::new(bytes, Some(kind));
     let count = r.u64("occupied voxel count")?;

@@ -13,10 +13,52 @@ use std::io::{BufWriter, Write};
 use std::ops::Deref;
 use std::path::Path;
 
-use super::{FORMAT_VERSION, FormatError};
+use super::{FORMAT_VERSION, FormatError, SHARD_FORMAT_VERSION};
 
 /// First 8 bytes of every baked file.
 pub const MAGIC: [u8; 8] = *b"BOUNCE\0B";
+/// First 8 bytes of every bake shard (a sharded bake's partial result, see [`crate::shard`]).
+pub const SHARD_MAGIC: [u8; 8] = *b"BOUNCE\0S";
+
+/// Which kind of file a container holds: the same header, table and checksums serve baked files
+/// and bake shards, told apart by their magic and versioned separately.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Flavour {
+    Baked,
+    Shard,
+}
+
+impl Flavour {
+    fn magic(self) -> [u8; 8] {
+        match self {
+            Flavour::Baked => MAGIC,
+            Flavour::Shard => SHARD_MAGIC,
+        }
+    }
+
+    fn version(self) -> u32 {
+        match self {
+            Flavour::Baked => FORMAT_VERSION,
+            Flavour::Shard => SHARD_FORMAT_VERSION,
+        }
+    }
+
+    /// The error for bytes that do not start with this flavour's magic: naming the other
+    /// flavour when it is that, since handing a shard to `serve` (or a baked file to `merge`) is
+    /// an easy mistake.
+    fn wrong_magic(self, prefix: &[u8]) -> FormatError {
+        match self {
+            Flavour::Baked if SHARD_MAGIC.starts_with(prefix) && !prefix.is_empty() => {
+                FormatError::ShardNotBaked
+            }
+            Flavour::Shard if MAGIC.starts_with(prefix) && !prefix.is_empty() => {
+                FormatError::BakedNotShard
+            }
+            Flavour::Baked => FormatError::BadMagic,
+            Flavour::Shard => FormatError::ShardBadMagic,
+        }
+    }
+}
 /// Bytes of the fixed header.
 pub const HEADER_LEN: u64 = 32;
 /// Bytes of one section-table entry.
@@ -115,6 +157,10 @@ pub(crate) struct Container<'a> {
 
 impl<'a> Container<'a> {
     pub fn parse(bytes: &'a [u8]) -> Result<Self, FormatError> {
+        Container::parse_as(bytes, Flavour::Baked)
+    }
+
+    pub fn parse_as(bytes: &'a [u8], flavour: Flavour) -> Result<Self, FormatError> {
         let actual = bytes.len() as u64;
         let truncated = |what: &str, end: u64| FormatError::Truncated {
             what: what.to_string(),
@@ -123,9 +169,14 @@ impl<'a> Container<'a> {
         };
 
         // An empty or cut-short file that starts like ours is truncated; anything else is foreign.
-        let prefix_len = bytes.len().min(MAGIC.len());
-        if bytes.get(..prefix_len) != MAGIC.get(..prefix_len) {
-            return Err(FormatError::BadMagic);
+        let magic = flavour.magic();
+        let prefix_len = bytes.len().min(magic.len());
+        let prefix = bytes.get(..prefix_len).unwrap_or_default();
+        if magic.get(..prefix_len) != Some(prefix) {
+            // An 8-byte prefix that is the other flavour's whole magic names it; a shorter one
+            // is only foreign.
+            let whole = if prefix_len == magic.len() { prefix } else { &[] };
+            return Err(flavour.wrong_magic(whole));
         }
         let mut r = FieldReader::new(bytes, None);
         let header_bytes = r
@@ -139,10 +190,10 @@ impl<'a> Container<'a> {
         let reserved = h.u32("reserved")?;
         let crc = h.u32("header checksum")?;
 
-        if format_version != FORMAT_VERSION {
+        if format_version != flavour.version() {
             return Err(FormatError::UnsupportedVersion {
                 found: format_version,
-                supported: FORMAT_VERSION,
+                supported: flavour.version(),
             });
         }
         if file_len > actual {
@@ -372,6 +423,10 @@ impl<'a> Assembled<'a> {
     /// [`SECTION_ALIGN`], in the order given. The same input always gives the same bytes.
     /// Checksums every section here, so nothing is left to fail once writing starts but I/O.
     pub fn new(sections: Vec<Section<'a>>) -> Result<Self, FormatError> {
+        Assembled::new_as(sections, Flavour::Baked)
+    }
+
+    pub fn new_as(sections: Vec<Section<'a>>, flavour: Flavour) -> Result<Self, FormatError> {
         let count = u32::try_from(sections.len()).map_err(|_| FormatError::TooLarge {
             what: "section count",
             value: sections.len() as u64,
@@ -379,8 +434,8 @@ impl<'a> Assembled<'a> {
         })?;
         let table_end = HEADER_LEN + u64::from(count) * ENTRY_LEN;
         let mut head = Vec::with_capacity(table_end as usize);
-        head.extend_from_slice(&MAGIC);
-        head.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
+        head.extend_from_slice(&flavour.magic());
+        head.extend_from_slice(&flavour.version().to_le_bytes());
         head.extend_from_slice(&count.to_le_bytes());
         head.extend_from_slice(&0u64.to_le_bytes()); // file length, filled in below
         head.extend_from_slice(&0u32.to_le_bytes());

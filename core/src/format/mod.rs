@@ -17,11 +17,13 @@
 //! Sections of version 1: `META` (the [`crate::meta::BakeMeta`] as JSON), `LAYT` (the patch layout,
 //! binary), `MTRX` (the transport matrix) and optionally `FFAC` (the single-bounce form factors, same
 //! encoding as `MTRX`) and `OCCU` (the occupied voxels, flagged optional so that a reader
-//! predating it skips it). A reader skips sections of unknown kind whose [`SECTION_OPTIONAL`] flag is set
+//! predating it skips it). Bake shards (partial results of a sharded bake, [`crate::shard`]) use the
+//! same container under the magic `BOUNCE\0S` with sections of their own ([`ShardFile`]). A reader skips sections of unknown kind whose [`SECTION_OPTIONAL`] flag is set
 //! and refuses the file otherwise, so later versions can add sections that old readers may ignore.
 
 mod baked;
 mod container;
+mod shard;
 
 use std::path::PathBuf;
 
@@ -33,11 +35,17 @@ pub use baked::{
 };
 pub use container::{
     ENTRY_LEN, FileSummary, HEADER_LEN, Header, MAGIC, SECTION_ALIGN, SECTION_OPTIONAL,
-    SectionEntry, SectionKind, SectionSummary,
+    SHARD_MAGIC, SectionEntry, SectionKind, SectionSummary,
 };
+pub use shard::{ROWS_HEADER_LEN, ShardFile, ShardHeader};
+pub(crate) use shard::le_bytes as f32_le_bytes;
 
 /// The version this build writes, and the only one it reads.
 pub const FORMAT_VERSION: u32 = 1;
+/// The bake-shard version this build writes, and the only one it reads. Shards are
+/// intermediate files of one bake, written and read by the same release, so there is no reason
+/// to read older ones.
+pub const SHARD_FORMAT_VERSION: u32 = 1;
 
 /// Everything that can go wrong reading or writing a baked file.
 ///
@@ -54,6 +62,18 @@ pub enum FormatError {
     },
     #[error("not a bounce baked file (bad magic)")]
     BadMagic,
+    #[error("not a bounce bake shard (bad magic)")]
+    ShardBadMagic,
+    #[error(
+        "this is a bake shard, not a baked file: merge a sharded bake's shards with `bounce bake merge`"
+    )]
+    ShardNotBaked,
+    #[error("this is a baked file, not a bake shard (`bounce bake merge` reads the shards of one bake)")]
+    BakedNotShard,
+    #[error("section '{kind}': {message}")]
+    Rows { kind: SectionKind, message: String },
+    #[error("inconsistent shard: {0}")]
+    BadShard(String),
     #[error("unsupported format version {found} (this build reads {supported})")]
     UnsupportedVersion { found: u32, supported: u32 },
     #[error("file truncated: {what} ends at byte {end} but the file has {len} bytes")]

@@ -10,5 +10,6 @@ mod direct;
 mod formfactor;
 mod furnace;
 mod import;
+mod shard;
 mod stress;
 mod tracers;

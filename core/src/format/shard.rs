@@ -1,0 +1,364 @@
+//! The bake-shard file: one process's share of a sharded bake (see [`crate::shard`]), in the same
+//! container as a baked file (header, section table, CRC-32 per section, 64-byte alignment) under
+//! its own magic `BOUNCE\0S` and its own version ([`super::SHARD_FORMAT_VERSION`]).
+//!
+//! Sections:
+//!
+//! - `SHRD`: the [`ShardMeta`] as JSON: phase, shard index and count, its rows, the bake's
+//!   settings, the source scene, ray tallies, timings.
+//! - `LAYT`, `OCCU`: the patch layout and occupied voxels, encoded as in a baked file. Every shard
+//!   carries them, so later steps need no scene file and can refuse shards of another layout.
+//! - `ROWS`: the shard's rows: patches u32, first row u32, end row u32, channels u32 (16 bytes),
+//!   zeros up to byte 64, then `channels × rows × patches` f32, channel-major then row-major.
+//!   Form-factor rows in phase 1, transport rows in phase 2.
+//! - `FROW` (phase 2, only when the bake keeps its form factors): the same rows of `F`, same
+//!   encoding, one channel.
+//!
+//! Reading checks, beyond the container, that the metadata, layout and rows agree with each other
+//! (row range of the shard index, channel count of the phase, lengths) and that every entry is
+//! finite and non-negative; whether shards belong together is [`crate::shard`]'s check.
+
+use std::borrow::Cow;
+use std::path::Path;
+
+use crate::patch::PatchLayout;
+use crate::shard::{Phase, ShardMeta, shard_rows};
+
+use super::FormatError;
+use super::baked::{decode_layout, decode_occupancy, encode_layout, encode_occupancy};
+use super::container::{
+    self, Assembled, Container, FieldReader, FileBytes, Flavour, SECTION_ALIGN, Section,
+    SectionKind,
+};
+
+/// Bytes of the `ROWS`/`FROW` fields before the (64-byte aligned) values.
+pub const ROWS_HEADER_LEN: u64 = 16;
+
+const SHRD: SectionKind = SectionKind(*b"SHRD");
+const ROWS: SectionKind = SectionKind(*b"ROWS");
+const FROW: SectionKind = SectionKind(*b"FROW");
+
+/// What a shard says about itself, without its rows: enough to check a set of shards before
+/// any row is read.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ShardHeader {
+    pub meta: ShardMeta,
+    pub layout: PatchLayout,
+    pub occupancy: Vec<u64>,
+}
+
+/// A whole shard.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ShardFile {
+    pub header: ShardHeader,
+    /// `channels × rows × patches`, channel-major then row-major.
+    pub rows: Vec<f32>,
+    /// Phase 2 of a bake that keeps its form factors: the same rows of `F`.
+    pub form_factor_rows: Option<Vec<f32>>,
+}
+
+impl ShardFile {
+    /// The file laid out and checked (everything the reader checks), rows borrowed.
+    fn assemble(&self) -> Result<Assembled<'_>, FormatError> {
+        let h = &self.header;
+        check_meta(&h.meta, &h.layout)?;
+        check_rows_len(ROWS, &h.meta, h.meta.channels, self.rows.len())?;
+        check_values(ROWS, &self.rows)?;
+        let wants_frow = wants_form_factor_rows(&h.meta);
+        match (&self.form_factor_rows, wants_frow) {
+            (Some(f), true) => {
+                check_rows_len(FROW, &h.meta, 1, f.len())?;
+                check_values(FROW, f)?;
+            }
+            (None, false) => {}
+            (Some(_), false) => return Err(bad("form-factor rows in a shard that has none")),
+            (None, true) => return Err(bad("a phase-2 shard that keeps F lacks its rows of F")),
+        }
+        let meta = serde_json::to_vec(&h.meta).map_err(|error| FormatError::Json {
+            kind: SHRD,
+            error,
+        })?;
+        // A non-finite float becomes `null`, which the reader refuses: find that now.
+        decode_meta(&meta)?;
+        let owned = |kind, bytes| Section {
+            kind,
+            flags: 0,
+            pieces: vec![Cow::Owned(bytes)],
+        };
+        let mut sections = vec![
+            owned(SHRD, meta),
+            owned(SectionKind::LAYT, encode_layout(&h.layout)?),
+            owned(
+                SectionKind::OCCU,
+                encode_occupancy(&h.occupancy, &h.layout)?,
+            ),
+            rows_section(ROWS, &h.meta, h.meta.channels, &self.rows),
+        ];
+        if let Some(f) = &self.form_factor_rows {
+            sections.push(rows_section(FROW, &h.meta, 1, f));
+        }
+        Assembled::new_as(sections, Flavour::Shard)
+    }
+
+    pub fn to_bytes(&self) -> Result<Vec<u8>, FormatError> {
+        self.assemble()?.to_vec()
+    }
+
+    /// Written to a temporary file beside `path`, synced and renamed over it: a failed or killed
+    /// shard job leaves no partial shard for a later step to trip on.
+    pub fn write_atomic(&self, path: &Path) -> Result<(), FormatError> {
+        let file = self.assemble()?;
+        container::write_atomic(path, &file)
+    }
+
+    pub fn from_bytes(bytes: &[u8]) -> Result<ShardFile, FormatError> {
+        let c = Container::parse_as(bytes, Flavour::Shard)?;
+        c.verify_checksums()?;
+        let header = header_from(&c)?;
+        let m = &header.meta;
+        let rows = decode_rows(ROWS, section(&c, ROWS)?, m, m.channels)?;
+        let form_factor_rows = match (c.entry(FROW), wants_form_factor_rows(m)) {
+            (Some(e), true) => Some(decode_rows(FROW, c.section(e)?, m, 1)?),
+            (None, false) => None,
+            (Some(_), false) => return Err(bad("form-factor rows in a shard that has none")),
+            (None, true) => return Err(FormatError::MissingSection { kind: FROW }),
+        };
+        Ok(ShardFile {
+            header,
+            rows,
+            form_factor_rows,
+        })
+    }
+
+    /// Memory-maps `path` and parses all of it, every checksum verified.
+    pub fn read(path: &Path) -> Result<ShardFile, FormatError> {
+        ShardFile::from_bytes(&FileBytes::open(path)?)
+    }
+}
+
+impl ShardHeader {
+    /// The metadata, layout and occupancy of a shard, their checksums verified, without reading
+    /// its rows (whose checksum [`ShardFile::read`] verifies).
+    pub fn from_bytes(bytes: &[u8]) -> Result<ShardHeader, FormatError> {
+        let c = Container::parse_as(bytes, Flavour::Shard)?;
+        for kind in [SHRD, SectionKind::LAYT, SectionKind::OCCU] {
+            if let Some(e) = c.entry(kind)
+                && !c.section_crc_ok(e)?
+            {
+                return Err(FormatError::SectionChecksum { kind });
+            }
+        }
+        header_from(&c)
+    }
+
+    pub fn read(path: &Path) -> Result<ShardHeader, FormatError> {
+        ShardHeader::from_bytes(&FileBytes::open(path)?)
+    }
+}
+
+fn bad(message: impl Into<String>) -> FormatError {
+    FormatError::BadShard(message.into())
+}
+
+fn section<'a>(c: &Container<'a>, kind: SectionKind) -> Result<&'a [u8], FormatError> {
+    c.entry(kind)
+        .ok_or(FormatError::MissingSection { kind })
+        .and_then(|e| c.section(e))
+}
+
+fn header_from(c: &Container<'_>) -> Result<ShardHeader, FormatError> {
+    for e in &c.entries {
+        let known = [SHRD, SectionKind::LAYT, SectionKind::OCCU, ROWS, FROW].contains(&e.kind);
+        if !known && !e.is_optional() {
+            return Err(FormatError::UnknownSection { kind: e.kind });
+        }
+        if known && e.flags != 0 {
+            return Err(FormatError::UnknownFlags {
+                kind: e.kind,
+                flags: e.flags,
+            });
+        }
+    }
+    let meta = decode_meta(section(c, SHRD)?)?;
+    let layout = decode_layout(section(c, SectionKind::LAYT)?)?;
+    check_meta(&meta, &layout)?;
+    let occupancy = decode_occupancy(section(c, SectionKind::OCCU)?, &layout)?;
+    Ok(ShardHeader {
+        meta,
+        layout,
+        occupancy,
+    })
+}
+
+fn decode_meta(bytes: &[u8]) -> Result<ShardMeta, FormatError> {
+    serde_json::from_slice(bytes).map_err(|error| FormatError::Json { kind: SHRD, error })
+}
+
+fn wants_form_factor_rows(m: &ShardMeta) -> bool {
+    m.phase == Phase::Transport && m.keep_form_factors
+}
+
+/// The metadata agrees with itself and with the layout.
+fn check_meta(m: &ShardMeta, layout: &PatchLayout) -> Result<(), FormatError> {
+    if m.count == 0 || m.index >= m.count {
+        return Err(bad(format!(
+            "shard index {} of {} is out of range",
+            m.index, m.count
+        )));
+    }
+    if m.patches != layout.len() {
+        return Err(bad(format!(
+            "the metadata says {} patches but the layout has {}",
+            m.patches,
+            layout.len()
+        )));
+    }
+    let want = shard_rows(m.patches, m.index, m.count);
+    if (m.first_row, m.end_row) != (want.start, want.end) {
+        return Err(bad(format!(
+            "holds rows {}..{}, but shard {}/{} of {} patches owns rows {}..{}",
+            m.first_row,
+            m.end_row,
+            m.index,
+            m.count,
+            m.patches,
+            want.start,
+            want.end
+        )));
+    }
+    let channels_ok = match m.phase {
+        Phase::FormFactors => m.channels == 1,
+        Phase::Transport => m.channels == 1 || m.channels == 3,
+    };
+    if !channels_ok {
+        return Err(bad(format!(
+            "{} channel(s) in a {} shard",
+            m.channels,
+            m.phase.name()
+        )));
+    }
+    match (m.phase, &m.form_factors) {
+        (Phase::FormFactors, Some(_)) => Err(bad("a phase-1 shard with form-factor statistics")),
+        (Phase::Transport, None) => Err(bad("a phase-2 shard without form-factor statistics")),
+        _ => Ok(()),
+    }
+}
+
+/// Values a shard's rows must hold: `channels × rows × patches`, computed with checked
+/// arithmetic so that no header can overflow it.
+fn rows_values(m: &ShardMeta, channels: usize) -> Option<usize> {
+    (m.end_row - m.first_row)
+        .checked_mul(m.patches)?
+        .checked_mul(channels)
+}
+
+fn check_rows_len(
+    kind: SectionKind,
+    m: &ShardMeta,
+    channels: usize,
+    len: usize,
+) -> Result<(), FormatError> {
+    if rows_values(m, channels) == Some(len) {
+        Ok(())
+    } else {
+        Err(FormatError::Rows {
+            kind,
+            message: format!(
+                "{len} values for {channels} channel(s) of rows {}..{} of {} patches",
+                m.first_row, m.end_row, m.patches
+            ),
+        })
+    }
+}
+
+fn check_values(kind: SectionKind, values: &[f32]) -> Result<(), FormatError> {
+    match values.iter().position(|v| !(v.is_finite() && *v >= 0.0)) {
+        None => Ok(()),
+        Some(i) => Err(FormatError::Rows {
+            kind,
+            message: format!("value {i} is {}, not finite and non-negative", values[i]),
+        }),
+    }
+}
+
+/// The rows as little-endian bytes: borrowed where the machine is little-endian already.
+pub(crate) fn le_bytes(values: &[f32]) -> Cow<'_, [u8]> {
+    #[cfg(target_endian = "little")]
+    {
+        Cow::Borrowed(bytemuck::cast_slice(values))
+    }
+    #[cfg(not(target_endian = "little"))]
+    {
+        Cow::Owned(values.iter().flat_map(|v| v.to_le_bytes()).collect())
+    }
+}
+
+fn rows_section<'a>(
+    kind: SectionKind,
+    m: &ShardMeta,
+    channels: usize,
+    values: &'a [f32],
+) -> Section<'a> {
+    let mut head = Vec::with_capacity(SECTION_ALIGN as usize);
+    // check_meta has bounded these by the layout's u32 patch count.
+    for v in [m.patches, m.first_row, m.end_row, channels] {
+        head.extend_from_slice(&(v as u32).to_le_bytes());
+    }
+    head.extend_from_slice(container::padding_to_align(head.len() as u64));
+    Section {
+        kind,
+        flags: 0,
+        pieces: vec![Cow::Owned(head), le_bytes(values)],
+    }
+}
+
+fn decode_rows(
+    kind: SectionKind,
+    bytes: &[u8],
+    m: &ShardMeta,
+    channels: usize,
+) -> Result<Vec<f32>, FormatError> {
+    let mut r = FieldReader::new(bytes, Some(kind));
+    let fields = [
+        r.u32("patch count")?,
+        r.u32("first row")?,
+        r.u32("end row")?,
+        r.u32("channels")?,
+    ];
+    let want = [m.patches, m.first_row, m.end_row, channels];
+    if fields.iter().zip(want).any(|(&a, b)| a as usize != b) {
+        return Err(FormatError::Rows {
+            kind,
+            message: format!(
+                "header says patches, rows and channels {fields:?}, the metadata {want:?}"
+            ),
+        });
+    }
+    let padding = r.take(SECTION_ALIGN - ROWS_HEADER_LEN, "alignment")?;
+    if padding.iter().any(|&b| b != 0) {
+        return Err(FormatError::NonZeroPadding {
+            what: format!("section '{kind}' before the rows"),
+        });
+    }
+    let data = r.remaining();
+    // Only a count the metadata and the section's length both account for sizes an allocation.
+    let count = rows_values(m, channels)
+        .filter(|c| c.checked_mul(4) == Some(data.len()))
+        .ok_or_else(|| FormatError::Rows {
+            kind,
+            message: format!(
+                "{} bytes of values for {channels} channel(s) of rows {}..{} of {} patches",
+                data.len(),
+                m.first_row,
+                m.end_row,
+                m.patches
+            ),
+        })?;
+    let mut values = Vec::with_capacity(count);
+    values.extend(
+        data.chunks_exact(4)
+            .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])),
+    );
+    check_values(kind, &values)?;
+    Ok(values)
+}
