@@ -1,6 +1,7 @@
 //! `bounce bench tradeoff`: run time against error across patch counts, ray counts and codecs,
-//! each error measured against the path-traced reference, so a setting can be chosen by what it
-//! costs and what it gets wrong.
+//! each error measured against the path-traced reference (averaged over each patch's footprint,
+//! as `bounce verify` does by default), so a setting can be chosen by what it costs and what it
+//! gets wrong.
 
 use std::fmt::Write as _;
 use std::path::PathBuf;
@@ -19,7 +20,7 @@ use bounce_reference::{Options, Reference};
 use clap::Args;
 
 use crate::plot::{Point, plot_error};
-use crate::reference_cmd::{lights_or_scene, trace};
+use crate::reference_cmd::{lights_or_scene, trace_footprints};
 
 #[derive(Args, Debug)]
 pub struct BenchTradeoffArgs {
@@ -103,13 +104,12 @@ pub fn run(args: &BenchTradeoffArgs) -> Result<()> {
             let exact = bake_scene(&scene, &name, &options, &NoProgress)?;
             let bake_s = start.elapsed().as_secs_f64();
             if !matches!(&traced, Some((layout, ..)) if *layout == exact.layout) {
-                let (points, snap) = reference.snap_patches(&exact.layout);
                 let options = Options {
                     spp: args.spp,
                     bounces: args.bounces,
                     seed: 1,
                 };
-                let t = trace(&reference, &lights, points, Some(snap), &options, false)?;
+                let t = trace_footprints(&reference, &lights, &exact.layout, 16, &options, false)?;
                 let values = t.estimates.iter().map(|e| e.mean).collect();
                 traced = Some((exact.layout.clone(), values, t.rel_stderr()));
             }

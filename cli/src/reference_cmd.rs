@@ -9,6 +9,7 @@ use bounce_core::format::Baked;
 use bounce_core::import::import_path;
 use bounce_core::light::LightSet;
 use bounce_core::meta::Bounces;
+use bounce_core::patch::PatchLayout;
 use bounce_core::scene::Scene;
 use bounce_reference::{Estimate, Options, Point, Reference, SnapReport};
 use clap::Args;
@@ -22,10 +23,21 @@ pub struct ReferenceArgs {
     /// Light configuration, `{"lights": [...]}`; without it, the scene's own glTF lights.
     #[arg(long, value_name = "L.json")]
     pub lights: Option<PathBuf>,
-    /// Where to estimate: `patches` (the surface points the patches of --baked stand for) or a
-    /// JSON file `[{"position": [x,y,z], "normal": [x,y,z]}, ...]`.
-    #[arg(long, value_name = "patches|FILE", default_value = "patches")]
+    /// Where to estimate: `footprints` (per patch of --baked, the average over the pieces of
+    /// original triangles it stands for), `patches` (one point a patch: its recorded centroid
+    /// moved along its normal onto the nearest surface),
+    /// `centroids` (the recorded centroids as they are, which can lie off the surfaces where a
+    /// patch's triangles meet at an angle) or a JSON file
+    /// `[{"position": [x,y,z], "normal": [x,y,z]}, ...]`.
+    #[arg(
+        long,
+        value_name = "footprints|patches|centroids|FILE",
+        default_value = "footprints"
+    )]
     pub points: String,
+    /// For --points footprints: points drawn on each patch's footprint (they share --spp).
+    #[arg(long, value_name = "M", default_value_t = 16)]
+    pub footprint_points: usize,
     /// The baked file whose patches give the points (and, unless --bounces, the bounce count).
     #[arg(long, value_name = "FILE")]
     pub baked: Option<PathBuf>,
@@ -93,12 +105,27 @@ pub fn run(args: &ReferenceArgs) -> Result<()> {
             let (points, report) = reference.snap_patches(&baked.layout);
             (points, Some(report))
         }
-        ("patches", None) => {
-            bail!("--points patches needs --baked FILE: the patches are in the baked file")
+        ("centroids", Some(baked)) => (Reference::patch_centroids(&baked.layout), None),
+        ("footprints", Some(_)) => (Vec::new(), None),
+        ("footprints" | "patches" | "centroids", None) => {
+            bail!(
+                "--points {} needs --baked FILE: the patches are in the baked file",
+                args.points
+            )
         }
         (file, _) => (read_points(Path::new(file))?, None),
     };
-    let traced = trace(&reference, &lights, points, snap, &options, args.quiet)?;
+    let traced = match (&baked, args.points.as_str()) {
+        (Some(baked), "footprints") => trace_footprints(
+            &reference,
+            &lights,
+            &baked.layout,
+            args.footprint_points,
+            &options,
+            args.quiet,
+        )?,
+        _ => trace(&reference, &lights, points, snap, &options, args.quiet)?,
+    };
     let n = traced.points.len();
     eprintln!(
         "{n} points, {} triangles, {} spp, {} bounces: {:.2} s; mean E_ind {}, relative standard error {:.3}%",
@@ -110,10 +137,17 @@ pub fn run(args: &ReferenceArgs) -> Result<()> {
         traced.rel_stderr() * 100.0
     );
     if let Some(s) = traced.snap {
-        eprintln!(
-            "points: {} patch centroids moved onto their surface, {} left where they were",
-            s.snapped, s.kept
-        );
+        if args.points == "footprints" {
+            eprintln!(
+                "points: {} footprint points a patch; {} patches had none and used their snapped centroid",
+                args.footprint_points, s.kept
+            );
+        } else {
+            eprintln!(
+                "points: {} patch centroids moved onto their surface, {} left where they were",
+                s.snapped, s.kept
+            );
+        }
     }
     if let Some(out) = &args.out {
         write_out(out, &traced)?;
@@ -150,18 +184,7 @@ pub(crate) fn trace(
     options: &Options,
     quiet: bool,
 ) -> Result<Traced> {
-    let bar = if quiet {
-        ProgressBar::hidden()
-    } else {
-        ProgressBar::new(points.len() as u64).with_style(
-            ProgressStyle::with_template(
-                "{prefix:>14} [{bar:40}] {pos}/{len} points  {elapsed_precise} eta {eta}",
-            )
-            .unwrap_or_else(|_| ProgressStyle::default_bar())
-            .progress_chars("=> "),
-        )
-    };
-    bar.set_prefix("reference");
+    let bar = bar(points.len() as u64, quiet);
     let start = Instant::now();
     let estimates = reference.estimate(lights, &points, options, &|n| bar.inc(n))?;
     bar.finish_and_clear();
@@ -171,6 +194,49 @@ pub(crate) fn trace(
         snap,
         seconds: start.elapsed().as_secs_f64(),
     })
+}
+
+/// Footprint-averaged estimates for every patch of `layout`, with a progress bar. `snap.kept`
+/// counts the patches whose footprint was empty (they used their snapped centroid).
+pub(crate) fn trace_footprints(
+    reference: &Reference,
+    lights: &LightSet,
+    layout: &PatchLayout,
+    points_per_patch: usize,
+    options: &Options,
+    quiet: bool,
+) -> Result<Traced> {
+    let bar = bar(layout.len() as u64, quiet);
+    let start = Instant::now();
+    let (estimates, points, fallbacks) =
+        reference
+            .estimate_footprints(lights, layout, points_per_patch, options, &|n| bar.inc(n))?;
+    bar.finish_and_clear();
+    Ok(Traced {
+        points,
+        estimates,
+        snap: Some(SnapReport {
+            snapped: layout.len() - fallbacks,
+            kept: fallbacks,
+        }),
+        seconds: start.elapsed().as_secs_f64(),
+    })
+}
+
+fn bar(len: u64, quiet: bool) -> ProgressBar {
+    let bar = if quiet {
+        ProgressBar::hidden()
+    } else {
+        ProgressBar::new(len).with_style(
+            ProgressStyle::with_template(
+                "{prefix:>14} [{bar:40}] {pos}/{len} points  {elapsed_precise} eta {eta}",
+            )
+            .unwrap_or_else(|_| ProgressStyle::default_bar())
+            .progress_chars("=> "),
+        )
+    };
+    bar.set_prefix("reference");
+    bar
 }
 
 fn read_points(path: &Path) -> Result<Vec<Point>> {

@@ -17,7 +17,7 @@ use clap::Args;
 use serde::Serialize;
 
 use crate::progress::TermProgress;
-use crate::reference_cmd::{lights_or_scene, trace};
+use crate::reference_cmd::{lights_or_scene, trace, trace_footprints};
 
 #[derive(Args, Debug)]
 pub struct VerifyArgs {
@@ -34,6 +34,14 @@ pub struct VerifyArgs {
     /// Reference seed.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// What a patch's reference value is: `footprints` (the average over the pieces of original
+    /// triangles the patch stands for: what its value means) or `patches` (one point: its
+    /// centroid moved onto the nearest surface).
+    #[arg(long, value_name = "footprints|patches", default_value = "footprints")]
+    pub points: String,
+    /// Points drawn on each patch's footprint (they share --spp).
+    #[arg(long, value_name = "M", default_value_t = 16)]
+    pub footprint_points: usize,
     /// The relight engine computing the pipeline's values: auto, gpu or cpu.
     #[arg(long, default_value = "cpu")]
     pub engine: String,
@@ -89,8 +97,8 @@ pub(crate) struct Report {
     /// Patches per error bin: upper edges `bin_edges`, then one bin above the last.
     pub histogram: Vec<usize>,
     pub bin_edges: Vec<f64>,
-    pub snapped_points: usize,
-    pub centroid_points: usize,
+    /// How the reference placed its points.
+    pub reference_points: String,
     pub reference_seconds: f64,
     pub exact_from: String,
 }
@@ -116,20 +124,46 @@ pub fn run(args: &VerifyArgs) -> Result<()> {
     };
 
     let reference = Reference::new(&scene)?;
-    let (points, snap) = reference.snap_patches(&baked.layout);
     let options = Options {
         spp: args.spp,
         bounces: baked.meta.settings.bounces,
         seed: args.seed,
     };
-    let traced = trace(
-        &reference,
-        &lights,
-        points,
-        Some(snap),
-        &options,
-        args.quiet,
-    )?;
+    let (traced, placement) = match args.points.as_str() {
+        "patches" => {
+            let (points, snap) = reference.snap_patches(&baked.layout);
+            let traced = trace(
+                &reference,
+                &lights,
+                points,
+                Some(snap),
+                &options,
+                args.quiet,
+            )?;
+            let placement = format!(
+                "one point a patch: {} centroids moved onto their surface, {} left",
+                snap.snapped, snap.kept
+            );
+            (traced, placement)
+        }
+        "footprints" => {
+            let traced = trace_footprints(
+                &reference,
+                &lights,
+                &baked.layout,
+                args.footprint_points,
+                &options,
+                args.quiet,
+            )?;
+            let placement = format!(
+                "{} footprint points a patch ({} patches with none found used their snapped centroid)",
+                args.footprint_points,
+                traced.snap.map_or(0, |s| s.kept)
+            );
+            (traced, placement)
+        }
+        other => bail!("--points {other}: give footprints or patches"),
+    };
     let reference_e: Vec<[f64; 3]> = traced.estimates.iter().map(|e| e.mean).collect();
     // The exact transport applied to direct light evaluated on the original surfaces (at the
     // reference points) instead of on the voxel patches: what is left against the reference is
@@ -156,8 +190,7 @@ pub fn run(args: &VerifyArgs) -> Result<()> {
             codec: baked.transport.codec.clone(),
             spp: args.spp,
             bounces: baked.meta.settings.bounces.to_string(),
-            snapped: snap.snapped,
-            kept: snap.kept,
+            placement,
             seconds: traced.seconds,
             exact_from,
         },
@@ -254,8 +287,7 @@ pub(crate) struct Meta {
     pub codec: String,
     pub spp: u32,
     pub bounces: String,
-    pub snapped: usize,
-    pub kept: usize,
+    pub placement: String,
     pub seconds: f64,
     pub exact_from: String,
 }
@@ -338,8 +370,7 @@ pub(crate) fn compare(
         patch_rel_p99: q(0.99),
         histogram,
         bin_edges: BINS.to_vec(),
-        snapped_points: meta.snapped,
-        centroid_points: meta.kept,
+        reference_points: meta.placement,
         reference_seconds: meta.seconds,
         exact_from: meta.exact_from,
     }
@@ -348,15 +379,8 @@ pub(crate) fn compare(
 fn print_table(r: &Report) {
     let pct = |v: f64| format!("{:.2}%", v * 100.0);
     println!(
-        "{} patches, codec {}, {} bounces; reference {} spp in {:.1} s ({} points on their surface, {} at the centroid); exact T: {}",
-        r.patches,
-        r.codec,
-        r.bounces,
-        r.spp,
-        r.reference_seconds,
-        r.snapped_points,
-        r.centroid_points,
-        r.exact_from
+        "{} patches, codec {}, {} bounces; reference {} spp in {:.1} s ({}); exact T: {}",
+        r.patches, r.codec, r.bounces, r.spp, r.reference_seconds, r.reference_points, r.exact_from
     );
     println!("| error (relative L2 of E_ind) | value |");
     println!("|---|---:|");
@@ -417,8 +441,7 @@ mod tests {
             codec: "bc1".into(),
             spp: 4,
             bounces: "3".into(),
-            snapped: 3,
-            kept: 0,
+            placement: "test".into(),
             seconds: 0.0,
             exact_from: "test".into(),
         }

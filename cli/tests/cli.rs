@@ -1099,7 +1099,7 @@ fn verify_and_reference_on_the_cornell_box() {
         .arg(&lights));
     assert!(!out.status.success());
     assert!(
-        stderr(&out).contains("--points patches needs --baked"),
+        stderr(&out).contains("--points footprints needs --baked"),
         "{}",
         stderr(&out)
     );

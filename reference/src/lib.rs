@@ -12,6 +12,7 @@
 //! index and the sample count, not on the thread count.
 
 mod estimate;
+mod footprint;
 mod lights;
 mod mesh;
 mod rng;
@@ -154,6 +155,21 @@ impl Reference {
         (points, report)
     }
 
+    /// The patches' recorded centroids and normals as they are, not moved onto a surface.
+    pub fn patch_centroids(layout: &PatchLayout) -> Vec<Point> {
+        layout
+            .patches
+            .iter()
+            .map(|p| Point {
+                position: p.centroid,
+                normal: Vec3::from(p.normal)
+                    .try_normalize()
+                    .unwrap_or(p.face.normal())
+                    .to_array(),
+            })
+            .collect()
+    }
+
     /// Indirect irradiance at every point under `lights`, in parallel; `progress` is called with
     /// the number of points finished since its last call.
     pub fn estimate(
@@ -207,14 +223,65 @@ impl Reference {
             .collect()
     }
 
+    /// Indirect irradiance averaged over each patch's footprint on the original surfaces (the
+    /// pieces of triangles in its voxel that face its way, weighted by projected area): what a
+    /// patch's value stands for. `points_per_patch` footprint points share the `spp` samples; a
+    /// patch with no footprint found falls back to its snapped point ([`Self::snap_patches`]).
+    /// Also returns the first footprint point of each patch (or the fallback), for reports.
+    pub fn estimate_footprints(
+        &self,
+        lights: &LightSet,
+        layout: &PatchLayout,
+        points_per_patch: usize,
+        options: &Options,
+        progress: &(dyn Fn(u64) + Sync),
+    ) -> Result<(Vec<Estimate>, Vec<Point>, usize), ReferenceError> {
+        if options.spp < 2 {
+            return Err(ReferenceError::TooFewSamples);
+        }
+        let mut sets =
+            footprint::footprints(&self.mesh, layout, points_per_patch.max(1), options.seed);
+        let (snapped, _) = self.snap_patches(layout);
+        let mut fallbacks = 0;
+        for (set, point) in sets.iter_mut().zip(&snapped) {
+            if set.is_empty() {
+                set.push(*point);
+                fallbacks += 1;
+            }
+        }
+        let sources: Vec<Source> = lights.lights.iter().filter_map(Source::new).collect();
+        let estimates = sets
+            .par_iter()
+            .enumerate()
+            .map(|(i, set)| {
+                let e = self.average(&sources, set, i as u64, options);
+                progress(1);
+                e
+            })
+            .collect();
+        Ok((estimates, sets.iter().map(|s| s[0]).collect(), fallbacks))
+    }
+
     fn point(&self, sources: &[Source], p: &Point, index: u64, options: &Options) -> Estimate {
-        let x = Vec3::from(p.position);
-        let n = Vec3::from(p.normal).normalize();
+        self.average(sources, std::slice::from_ref(p), index, options)
+    }
+
+    /// `options.spp` samples spread round-robin over `points` (non-empty).
+    fn average(
+        &self,
+        sources: &[Source],
+        points: &[Point],
+        index: u64,
+        options: &Options,
+    ) -> Estimate {
         let mut rng = Pcg32::new(mix(options.seed), mix(index ^ mix(options.seed)));
         // Welford: a mean and variance that stay accurate over many samples.
         let mut mean = [0.0f64; 3];
         let mut m2 = [0.0f64; 3];
         for k in 0..options.spp {
+            let p = &points[k as usize % points.len()];
+            let x = Vec3::from(p.position);
+            let n = Vec3::from(p.normal).normalize_or_zero();
             let s = estimate::sample(&self.mesh, sources, x, n, options.bounces, &mut rng);
             let count = f64::from(k + 1);
             for c in 0..3 {

@@ -1,0 +1,202 @@
+//! What a patch stands for, as points: its footprint on the original surfaces.
+//!
+//! A patch's value is an average over the pieces of original triangles inside its voxel that
+//! face its direction (two-sided triangles on either side), each weighted by its area projected
+//! onto the face (`bounce_core::voxel`'s rule, restated here from its documentation, not called).
+//! One point cannot stand for that where the pieces lie at several depths (a ceiling and a
+//! panel a unit below it, in one 15-unit voxel): the pieces in a gap are dark, the others lit.
+//! So the reference samples the footprint: points drawn with probability ∝ area × cos inside the
+//! voxel box, by rejection from whole triangles.
+
+use std::collections::{HashMap, HashSet};
+
+use bounce_core::patch::PatchLayout;
+use glam::Vec3;
+
+use crate::Point;
+use crate::mesh::Mesh;
+use crate::rng::{Pcg32, mix};
+
+/// Draws per accepted point before a patch gives up (its pieces are slivers of big triangles).
+const TRIES_PER_POINT: usize = 256;
+
+/// `count` points on each patch's footprint; an empty list for a patch none could be drawn for.
+pub(crate) fn footprints(
+    mesh: &Mesh,
+    layout: &PatchLayout,
+    count: usize,
+    seed: u64,
+) -> Vec<Vec<Point>> {
+    let size = layout.voxel_size;
+    let origin = Vec3::from(layout.origin);
+    let wanted: HashSet<[u32; 3]> = layout.patches.iter().map(|p| p.voxel).collect();
+    // Triangles by the voxels their bounds touch, for the voxels that hold patches only.
+    let mut by_voxel: HashMap<[u32; 3], Vec<u32>> = HashMap::new();
+    let dims = layout.dims;
+    for (i, t) in mesh.tris.iter().enumerate() {
+        let (a, b, c) = (t.p0, t.p0 + t.e1, t.p0 + t.e2);
+        let cell = |p: Vec3| ((p - origin) / size).floor();
+        let (lo, hi) = (cell(a.min(b).min(c)), cell(a.max(b).max(c)));
+        let clamp = |v: f32, d: u32| v.clamp(0.0, d.saturating_sub(1) as f32) as u32;
+        let lo = [0, 1, 2].map(|k| clamp(lo[k], dims[k]));
+        let hi = [0, 1, 2].map(|k| clamp(hi[k], dims[k]));
+        for z in lo[2]..=hi[2] {
+            for y in lo[1]..=hi[1] {
+                for x in lo[0]..=hi[0] {
+                    if wanted.contains(&[x, y, z]) {
+                        by_voxel.entry([x, y, z]).or_default().push(i as u32);
+                    }
+                }
+            }
+        }
+    }
+    layout
+        .patches
+        .iter()
+        .enumerate()
+        .map(|(index, patch)| {
+            let dir = patch.face.normal();
+            let lo = origin + Vec3::from(patch.voxel.map(|v| v as f32)) * size;
+            let hi = lo + Vec3::splat(size);
+            // Facing triangles with their weight (area × cos) and the side that faces.
+            let mut candidates: Vec<(u32, f32, Vec3)> = Vec::new();
+            for &i in by_voxel.get(&patch.voxel).into_iter().flatten() {
+                let t = &mesh.tris[i as usize];
+                let area = 0.5 * t.e1.cross(t.e2).length();
+                let c = t.normal.dot(dir);
+                let side = if c > 0.0 {
+                    Some((c, t.normal))
+                } else if t.double_sided && c < 0.0 {
+                    Some((-c, -t.normal))
+                } else {
+                    None
+                };
+                if let Some((c, n)) = side {
+                    candidates.push((i, area * c, n));
+                }
+            }
+            let total: f32 = candidates.iter().map(|c| c.1).sum();
+            let mut points = Vec::with_capacity(count);
+            if total <= 0.0 {
+                return points;
+            }
+            let mut rng = Pcg32::new(mix(seed ^ 0x5EED_F007), mix(index as u64));
+            let mut tries = 0;
+            while points.len() < count && tries < count * TRIES_PER_POINT {
+                tries += 1;
+                let mut pick = rng.next_f32() * total;
+                let &(i, _, n) = candidates
+                    .iter()
+                    .find(|c| {
+                        pick -= c.1;
+                        pick < 0.0
+                    })
+                    .unwrap_or(&candidates[candidates.len() - 1]);
+                let t = &mesh.tris[i as usize];
+                let (mut u, mut v) = (rng.next_f32(), rng.next_f32());
+                if u + v > 1.0 {
+                    (u, v) = (1.0 - u, 1.0 - v);
+                }
+                let p = t.p0 + t.e1 * u + t.e2 * v;
+                if p.cmpge(lo).all() && p.cmplt(hi).all() {
+                    points.push(Point {
+                        position: p.to_array(),
+                        normal: n.to_array(),
+                    });
+                }
+            }
+            points
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use bounce_core::patch::{Face, Patch};
+    use bounce_core::scene::{Scene, Triangle};
+
+    fn tri(positions: [Vec3; 3], double_sided: bool) -> Triangle {
+        Triangle {
+            positions,
+            albedo: Vec3::splat(0.5),
+            emission: Vec3::ZERO,
+            double_sided,
+            material: 0,
+        }
+    }
+
+    fn patch(voxel: [u32; 3], face: Face) -> Patch {
+        Patch {
+            voxel,
+            face,
+            albedo: [0.5; 3],
+            centroid: [0.0; 3],
+            normal: face.normal().to_array(),
+            source_area: 1.0,
+            emission: [0.0; 3],
+        }
+    }
+
+    #[test]
+    fn footprints_keep_to_the_voxel_and_the_facing_side() {
+        // A big floor facing +Y at y = 0.25 (wound counter-clockwise from above), a one-sided
+        // ceiling facing down at y = 0.75 and a two-sided panel facing down at y = 0.5, all
+        // crossing the voxel [0, 1)³ and its neighbours.
+        let v = Vec3::new;
+        let floor = [
+            tri(
+                [v(-5., 0.25, -5.), v(-5., 0.25, 5.), v(5., 0.25, 5.)],
+                false,
+            ),
+            tri(
+                [v(-5., 0.25, -5.), v(5., 0.25, 5.), v(5., 0.25, -5.)],
+                false,
+            ),
+        ];
+        let ceiling = tri(
+            [v(-5., 0.75, -5.), v(5., 0.75, 5.), v(-5., 0.75, 5.)],
+            false,
+        );
+        let panel = tri([v(-5., 0.5, -5.), v(5., 0.5, 5.), v(-5., 0.5, 5.)], true);
+        assert!(floor[0].cross().y > 0.0 && ceiling.cross().y < 0.0);
+        let scene = Scene {
+            triangles: vec![floor[0], floor[1], ceiling, panel],
+            ..Scene::default()
+        };
+        let mesh = Mesh::new(&scene).unwrap();
+        let layout = PatchLayout {
+            origin: [-2.0, -2.0, -2.0],
+            voxel_size: 1.0,
+            dims: [4, 4, 4],
+            patches: vec![patch([2, 2, 2], Face::PosY), patch([2, 2, 2], Face::NegY)],
+        };
+        let sets = footprints(&mesh, &layout, 64, 1);
+        let (up, down) = (&sets[0], &sets[1]);
+        assert_eq!((up.len(), down.len()), (64, 64));
+        let inside = |p: &Point| p.position.iter().all(|&c| (0.0..1.0).contains(&c));
+        // Facing up: the floor, and the two-sided panel's upper side; never the ceiling.
+        assert!(up.iter().all(inside));
+        assert!(up.iter().all(|p| p.normal == [0.0, 1.0, 0.0]));
+        assert!(
+            up.iter()
+                .all(|p| p.position[1] == 0.25 || p.position[1] == 0.5)
+        );
+        assert!(
+            up.iter().any(|p| p.position[1] == 0.25) && up.iter().any(|p| p.position[1] == 0.5)
+        );
+        // Facing down: the ceiling and the panel's own side; never the floor.
+        assert!(down.iter().all(inside));
+        assert!(down.iter().all(|p| p.normal == [0.0, -1.0, 0.0]));
+        assert!(
+            down.iter()
+                .all(|p| p.position[1] == 0.75 || p.position[1] == 0.5)
+        );
+        // A voxel no triangle crosses has no footprint.
+        let empty = PatchLayout {
+            patches: vec![patch([0, 0, 0], Face::PosX)],
+            ..layout
+        };
+        assert!(footprints(&mesh, &empty, 8, 1)[0].is_empty());
+    }
+}
