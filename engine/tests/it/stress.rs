@@ -53,7 +53,7 @@ fn random_light_sets(count: usize, lo: Vec3, hi: Vec3, seed: u64) -> Vec<LightSe
             let lights = (0..1 + rng.next_u64() % 4)
                 .map(|_| {
                     // Half inside the grid, half anywhere up to two scene sizes beyond it.
-                    let (a, b) = if rng.next_u64() % 2 == 0 {
+                    let (a, b) = if rng.next_u64().is_multiple_of(2) {
                         (0.05, 0.95)
                     } else {
                         (-2.0, 3.0)
@@ -82,12 +82,14 @@ fn random_light_sets(count: usize, lo: Vec3, hi: Vec3, seed: u64) -> Vec<LightSe
                             rng.range(0.0, 10.0),
                         ],
                     };
-                    let intensity = if rng.next_u64() % 16 == 0 {
+                    let intensity = if rng.next_u64().is_multiple_of(16) {
                         0.0
                     } else {
                         rng.log10_uniform(-6.0, MAX_LOG10_INTENSITY)
                     };
-                    let range = (rng.next_u64() % 3 == 0)
+                    let range = rng
+                        .next_u64()
+                        .is_multiple_of(3)
                         .then(|| rng.log10_uniform(-2.0, 2.0) * size.max_element());
                     match rng.next_u64() % 3 {
                         0 => Light::Point {
