@@ -33,7 +33,7 @@
 //! with fixed-point weights (8 fractional bits on most hardware), so the two agree to about
 //! 1/256 of the values involved, not bit for bit.
 
-use bounce_server::frame::{Frame, FrameHeader, decode_rgb9e5};
+use bounce_server::frame::{FLAG_CLAMPED, FLAG_NON_FINITE, Frame, FrameHeader, decode_rgb9e5};
 use glam::{IVec3, UVec3, Vec3, Vec4};
 use half::f16;
 use thiserror::Error;
@@ -65,6 +65,8 @@ pub struct Volume {
     /// Per patch, where its value goes: computed once, so applying a frame is one pass.
     targets: Vec<Target>,
     frame: Option<FrameHeader>,
+    /// What the last write had to change, as frame flags (see [`Volume::flags`]).
+    flags: u32,
 }
 
 #[derive(Debug, Clone, Copy)]
@@ -115,14 +117,17 @@ impl Volume {
             grids,
             targets,
             frame: None,
+            flags: 0,
         })
     }
 
     /// Writes a frame's irradiance into the grids.
     pub fn apply(&mut self, frame: &Frame) -> Result<(), VolumeError> {
         self.check_count(frame.header.patch_count as usize)?;
+        // RGB9E5 values always fit f16, so the header's flags say all there is.
         self.write(frame.words().map(decode_rgb9e5));
         self.frame = Some(frame.header);
+        self.flags = frame.header.flags;
         Ok(())
     }
 
@@ -130,7 +135,7 @@ impl Volume {
     /// clients that relight without a server.
     pub fn apply_irradiance(&mut self, irradiance: &[[f32; 3]]) -> Result<(), VolumeError> {
         self.check_count(irradiance.len())?;
-        self.write(irradiance.iter().copied());
+        self.flags = self.write(irradiance.iter().copied());
         self.frame = None;
         Ok(())
     }
@@ -146,12 +151,40 @@ impl Volume {
         }
     }
 
-    fn write(&mut self, values: impl Iterator<Item = [f32; 3]>) {
+    /// Writes the values as f16, saturating what f16 cannot hold: returns [`FLAG_CLAMPED`] when
+    /// a value was above f16's largest (65504, written as that) and [`FLAG_NON_FINITE`] when one
+    /// was NaN (written as 0) or infinite, as the frame encoder does. Values from a frame never
+    /// need it (RGB9E5's largest, 65408, is below f16's); in-process irradiance can.
+    fn write(&mut self, values: impl Iterator<Item = [f32; 3]>) -> u32 {
+        let mut flags = 0;
+        let mut half = |x: f32| {
+            if x.is_nan() {
+                flags |= FLAG_NON_FINITE;
+                f16::ZERO
+            } else if x == f32::INFINITY {
+                flags |= FLAG_NON_FINITE;
+                f16::MAX
+            } else if x > f16::MAX.to_f32() {
+                flags |= FLAG_CLAMPED;
+                f16::MAX
+            } else {
+                // Irradiance is never negative; a lossy codec's tiny negatives are not worth a
+                // flag (the frame encoder treats them the same).
+                f16::from_f32(x.max(0.0))
+            }
+        };
         for (rgb, t) in values.zip(&self.targets) {
-            // RGB9E5's largest value (65408) is below f16's (65504): no overflow to infinity.
-            let [r, g, b] = rgb.map(f16::from_f32);
+            let [r, g, b] = rgb.map(&mut half);
             self.grids[usize::from(t.grid)][t.texel as usize] = [r, g, b, f16::ONE];
         }
+        flags
+    }
+
+    /// What the last write had to change, as frame flags: for a frame, its header's
+    /// ([`FLAG_CLAMPED`]: the server clamped a value to RGB9E5's largest); for in-process
+    /// irradiance, the f16 conversion's. 0 when every value was written as it was.
+    pub fn flags(&self) -> u32 {
+        self.flags
     }
 
     /// The header of the last frame applied (`None` before the first, or after in-process
@@ -436,6 +469,41 @@ mod tests {
         let t = v.texels(Face::PosX)[0].map(f16::to_f32);
         assert!(t.iter().all(|x| x.is_finite()), "{t:?}");
         assert_eq!(t[2], 65408.0);
+        assert_eq!(v.flags(), FLAG_CLAMPED, "the server's clamp shows");
+    }
+
+    /// In-process irradiance (a viewer relighting without a server) meets f16's own limit:
+    /// clamped to f16's largest and flagged, never infinity or NaN in the texture.
+    #[test]
+    fn in_process_values_past_f16_are_clamped_and_flagged() {
+        let l = layout(vec![patch(0, 0, 0, Face::PosX), patch(1, 0, 0, Face::PosX)]);
+        let mut v = Volume::new(&l).unwrap();
+        let texels = |v: &Volume| -> Vec<[f32; 4]> {
+            [0, 1]
+                .map(|x| {
+                    v.texel(Face::PosX, UVec3::new(x, 0, 0))
+                        .unwrap()
+                        .map(f16::to_f32)
+                })
+                .to_vec()
+        };
+        v.apply_irradiance(&[[1e9, 65504.0, 1.5], [0.25, f32::MAX, 0.0]])
+            .unwrap();
+        assert_eq!(v.flags(), FLAG_CLAMPED);
+        assert_eq!(
+            texels(&v),
+            [[65504.0, 65504.0, 1.5, 1.0], [0.25, 65504.0, 0.0, 1.0]]
+        );
+        v.apply_irradiance(&[[f32::INFINITY, f32::NAN, -1e-7], [1e6, 2.0, 3.0]])
+            .unwrap();
+        assert_eq!(v.flags(), FLAG_NON_FINITE | FLAG_CLAMPED);
+        assert_eq!(
+            texels(&v),
+            [[65504.0, 0.0, 0.0, 1.0], [65504.0, 2.0, 3.0, 1.0]]
+        );
+        v.apply_irradiance(&[VALUE, VALUE]).unwrap();
+        assert_eq!(v.flags(), 0);
+        assert!(texels(&v).iter().flatten().all(|x| x.is_finite()));
     }
 
     #[test]

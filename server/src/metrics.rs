@@ -97,6 +97,31 @@ pub struct Metrics {
     pub update_to_frame_seconds: Histogram,
     /// Store commits (each may carry several sessions' writes).
     pub store_commit_seconds: Histogram,
+    /// Frames encoded with a value RGB9E5 cannot hold, by the frame flag set: `clamped` (above
+    /// its maximum, written as the maximum) or `non_finite` (NaN or infinite). A viewer sees
+    /// the same bits in the frame header; this makes them visible to an operator.
+    pub frames_flagged: Family<FlagLabel, Counter>,
+}
+
+#[derive(Debug, Clone, Copy, Hash, PartialEq, Eq)]
+pub enum FrameFlag {
+    Clamped,
+    NonFinite,
+}
+
+impl EncodeLabelValue for FrameFlag {
+    fn encode(&self, encoder: &mut LabelValueEncoder) -> Result<(), std::fmt::Error> {
+        let s = match self {
+            FrameFlag::Clamped => "clamped",
+            FrameFlag::NonFinite => "non_finite",
+        };
+        EncodeLabelValue::encode(&s, encoder)
+    }
+}
+
+#[derive(Debug, Clone, Hash, PartialEq, Eq, EncodeLabelSet)]
+pub struct FlagLabel {
+    pub flag: FrameFlag,
 }
 
 impl Metrics {
@@ -175,6 +200,12 @@ impl Metrics {
             "Durable session-store commits",
             store_commit_seconds.clone(),
         );
+        let frames_flagged = Family::<FlagLabel, Counter>::default();
+        registry.register(
+            "frames_flagged",
+            "Frames with a value past RGB9E5's range (clamped) or not finite, by frame flag",
+            frames_flagged.clone(),
+        );
         Metrics {
             registry,
             engine,
@@ -191,6 +222,19 @@ impl Metrics {
             connections_refused,
             update_to_frame_seconds,
             store_commit_seconds,
+            frames_flagged,
+        }
+    }
+
+    /// Counts a frame's header flags (see [`crate::frame::FLAG_CLAMPED`]).
+    pub fn count_frame_flags(&self, flags: u32) {
+        for (bit, flag) in [
+            (crate::frame::FLAG_CLAMPED, FrameFlag::Clamped),
+            (crate::frame::FLAG_NON_FINITE, FrameFlag::NonFinite),
+        ] {
+            if flags & bit != 0 {
+                self.frames_flagged.get_or_create(&FlagLabel { flag }).inc();
+            }
         }
     }
 

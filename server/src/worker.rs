@@ -342,6 +342,7 @@ fn deliver(target: Target, indirect: &[[f32; 3]], metrics: &Metrics) {
             resolve,
         } => match Frame::encode(session.next_sequence(), version, indirect) {
             Ok(frame) => {
+                metrics.count_frame_flags(frame.header.flags);
                 if session.publish(frame, resolve) && !resolve {
                     metrics
                         .update_to_frame_seconds
@@ -351,7 +352,11 @@ fn deliver(target: Target, indirect: &[[f32; 3]], metrics: &Metrics) {
             Err(e) => error!(session = %session.id, error = %e, "encoding a frame"),
         },
         Target::Once(reply) => {
-            let _ = reply.send(Frame::encode(0, 0, indirect).map_err(ServerError::from));
+            let frame = Frame::encode(0, 0, indirect).map_err(ServerError::from);
+            if let Ok(f) = &frame {
+                metrics.count_frame_flags(f.header.flags);
+            }
+            let _ = reply.send(frame);
         }
     }
 }
