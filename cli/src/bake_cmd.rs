@@ -151,13 +151,7 @@ fn run_bake(args: &BakeArgs) -> Result<()> {
             bail!("--report-json describes a whole bake; a shard prints its own summary");
         }
         let spec = crate::shard_cmd::spec(shard)?;
-        return crate::shard_cmd::form_factors(
-            scene,
-            out,
-            &args.options()?,
-            spec,
-            args.quiet,
-        );
+        return crate::shard_cmd::form_factors(scene, out, &args.options()?, spec, args.quiet);
     }
     let start = Instant::now();
     let baked = bake(scene, out, &args.options()?, args.quiet)?;

@@ -17,8 +17,8 @@ fn repo() -> PathBuf {
 }
 
 fn yaml_docs(path: &Path) -> Vec<Value> {
-    let text = std::fs::read_to_string(path)
-        .unwrap_or_else(|e| panic!("reading {}: {e}", path.display()));
+    let text =
+        std::fs::read_to_string(path).unwrap_or_else(|e| panic!("reading {}: {e}", path.display()));
     serde_yaml::Deserializer::from_str(&text)
         .map(|d| {
             serde::Deserialize::deserialize(d)
@@ -214,7 +214,11 @@ fn the_sharded_bake_jobs_run_commands_bounce_accepts_in_the_right_phases() {
     let Some(BakeStep::Merge(m_cmd)) = cmd.step else {
         panic!("bounce-bake-merge does not run `bounce bake merge`");
     };
-    assert_eq!(m_cmd.inputs, vec![t_cmd.out], "the merge reads phase 2's shards");
+    assert_eq!(
+        m_cmd.inputs,
+        vec![t_cmd.out],
+        "the merge reads phase 2's shards"
+    );
 
     // The merge writes where the server reads.
     let server = k8s.named("Deployment", "bounce-server");
@@ -436,7 +440,10 @@ fn the_probes_answer_on_a_real_server() {
     assert_eq!(status("/no-such-path"), "404", "the check can fail");
 
     // The healthcheck as the container runs it, `$$` being compose's escape for `$`.
-    let test = strings(&compose()["services"]["server"]["healthcheck"]["test"], "test");
+    let test = strings(
+        &compose()["services"]["server"]["healthcheck"]["test"],
+        "test",
+    );
     assert_eq!(test[..3], ["CMD", "bash", "-c"]);
     let script = test[3]
         .replace("$$", "$")
@@ -445,7 +452,10 @@ fn the_probes_answer_on_a_real_server() {
         .args(["-c", &script])
         .status()
         .expect("bash runs");
-    assert!(ok.success(), "the compose healthcheck fails on a ready server");
+    assert!(
+        ok.success(),
+        "the compose healthcheck fails on a ready server"
+    );
     let wrong = script.replace("/readyz", "/no-such-path");
     let refused = std::process::Command::new("bash")
         .args(["-c", &wrong])

@@ -56,7 +56,12 @@ fn a_sharded_bake_on_the_command_line_equals_the_one_process_bake() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     let one = d.join("one.bounce");
-    ok(bounce().arg("bake").arg(cornell()).args(BAKE).arg("-qo").arg(&one));
+    ok(bounce()
+        .arg("bake")
+        .arg(cornell())
+        .args(BAKE)
+        .arg("-qo")
+        .arg(&one));
 
     // Phase 1 as an Indexed Job of 3 runs it: the count on the command line, the index in the
     // environment, a directory as the output.
@@ -72,7 +77,14 @@ fn a_sharded_bake_on_the_command_line_equals_the_one_process_bake() {
     // Phase 2 in 2 shards with explicit indices, then the merge of the directory.
     for i in 0..2 {
         ok(bounce()
-            .args(["bake", "transport", "--shard", &format!("{i}/2"), "-q", "-o"])
+            .args([
+                "bake",
+                "transport",
+                "--shard",
+                &format!("{i}/2"),
+                "-q",
+                "-o",
+            ])
             .arg(d.join("t"))
             .arg(d.join("ff")));
     }
@@ -121,7 +133,10 @@ fn a_sharded_bake_on_the_command_line_equals_the_one_process_bake() {
         "1 of 3 shards missing: 1",
     );
     refused(
-        bounce().args(["bake", "merge", "-o"]).arg(d.join("m.bounce")).arg(&one),
+        bounce()
+            .args(["bake", "merge", "-o"])
+            .arg(d.join("m.bounce"))
+            .arg(&one),
         "baked file, not a bake shard",
     );
     refused(
@@ -164,7 +179,10 @@ fn the_bake_all_script_bakes_every_scene_once() {
     assert!(String::from_utf8_lossy(&out.stdout).contains("1 scene(s)"));
     let file = baked.join("box.bounce");
     let first = Baked::read(&file).expect("the script bakes box/scene.gltf into box.bounce");
-    assert!((100..300).contains(&first.layout.len()), "--patches 200 applied");
+    assert!(
+        (100..300).contains(&first.layout.len()),
+        "--patches 200 applied"
+    );
 
     // A second run keeps the newer baked file.
     let out = ok(&mut script());

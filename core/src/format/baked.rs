@@ -377,7 +377,10 @@ pub(super) fn encode_occupancy(occ: &[u64], layout: &PatchLayout) -> Result<Vec<
     Ok(out)
 }
 
-pub(super) fn decode_occupancy(bytes: &[u8], layout: &PatchLayout) -> Result<Vec<u64>, FormatError> {
+pub(super) fn decode_occupancy(
+    bytes: &[u8],
+    layout: &PatchLayout,
+) -> Result<Vec<u64>, FormatError> {
     let kind = SectionKind::OCCU;
     let mut r = FieldReader::new(bytes, Some(kind));
     let count = r.u64("occupied voxel count")?;

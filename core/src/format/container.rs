@@ -175,7 +175,11 @@ impl<'a> Container<'a> {
         if magic.get(..prefix_len) != Some(prefix) {
             // An 8-byte prefix that is the other flavour's whole magic names it; a shorter one
             // is only foreign.
-            let whole = if prefix_len == magic.len() { prefix } else { &[] };
+            let whole = if prefix_len == magic.len() {
+                prefix
+            } else {
+                &[]
+            };
             return Err(flavour.wrong_magic(whole));
         }
         let mut r = FieldReader::new(bytes, None);

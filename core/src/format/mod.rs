@@ -37,8 +37,8 @@ pub use container::{
     ENTRY_LEN, FileSummary, HEADER_LEN, Header, MAGIC, SECTION_ALIGN, SECTION_OPTIONAL,
     SHARD_MAGIC, SectionEntry, SectionKind, SectionSummary,
 };
-pub use shard::{ROWS_HEADER_LEN, ShardFile, ShardHeader};
 pub(crate) use shard::le_bytes as f32_le_bytes;
+pub use shard::{ROWS_HEADER_LEN, ShardFile, ShardHeader};
 
 /// The version this build writes, and the only one it reads.
 pub const FORMAT_VERSION: u32 = 1;
@@ -68,7 +68,9 @@ pub enum FormatError {
         "this is a bake shard, not a baked file: merge a sharded bake's shards with `bounce bake merge`"
     )]
     ShardNotBaked,
-    #[error("this is a baked file, not a bake shard (`bounce bake merge` reads the shards of one bake)")]
+    #[error(
+        "this is a baked file, not a bake shard (`bounce bake merge` reads the shards of one bake)"
+    )]
     BakedNotShard,
     #[error("section '{kind}': {message}")]
     Rows { kind: SectionKind, message: String },

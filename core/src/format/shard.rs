@@ -74,10 +74,8 @@ impl ShardFile {
             (Some(_), false) => return Err(bad("form-factor rows in a shard that has none")),
             (None, true) => return Err(bad("a phase-2 shard that keeps F lacks its rows of F")),
         }
-        let meta = serde_json::to_vec(&h.meta).map_err(|error| FormatError::Json {
-            kind: SHRD,
-            error,
-        })?;
+        let meta =
+            serde_json::to_vec(&h.meta).map_err(|error| FormatError::Json { kind: SHRD, error })?;
         // A non-finite float becomes `null`, which the reader refuses: find that now.
         decode_meta(&meta)?;
         let owned = |kind, bytes| Section {
@@ -217,13 +215,7 @@ fn check_meta(m: &ShardMeta, layout: &PatchLayout) -> Result<(), FormatError> {
     if (m.first_row, m.end_row) != (want.start, want.end) {
         return Err(bad(format!(
             "holds rows {}..{}, but shard {}/{} of {} patches owns rows {}..{}",
-            m.first_row,
-            m.end_row,
-            m.index,
-            m.count,
-            m.patches,
-            want.start,
-            want.end
+            m.first_row, m.end_row, m.index, m.count, m.patches, want.start, want.end
         )));
     }
     let channels_ok = match m.phase {

@@ -59,12 +59,17 @@ fn assert_same_bake(one: &Baked, merged: &Baked, what: &str) {
     assert_eq!(one.layout, merged.layout, "{what}: layout");
     assert_eq!(one.occupancy, merged.occupancy, "{what}: occupancy");
     assert_eq!(one.transport, merged.transport, "{what}: transport");
-    assert_eq!(one.form_factors, merged.form_factors, "{what}: form factors");
+    assert_eq!(
+        one.form_factors, merged.form_factors,
+        "{what}: form factors"
+    );
     assert_eq!(one.meta.stats, merged.meta.stats, "{what}: statistics");
-    let stages = |b: &Baked| -> Vec<String> {
-        b.meta.timings.iter().map(|t| t.stage.clone()).collect()
-    };
-    assert!(stages(merged).contains(&"form factors".to_string()), "{what}");
+    let stages =
+        |b: &Baked| -> Vec<String> { b.meta.timings.iter().map(|t| t.stage.clone()).collect() };
+    assert!(
+        stages(merged).contains(&"form factors".to_string()),
+        "{what}"
+    );
     let (mut a, mut b) = (one.clone(), merged.clone());
     a.meta.timings.clear();
     b.meta.timings.clear();
@@ -82,7 +87,11 @@ fn sharded_bakes_equal_the_one_process_bake() {
     let n = one.layout.len();
     assert_eq!(one.meta.stats.channels, 3, "coloured walls: three channels");
     // Three shards of a row count that 3 does not divide, so the split is uneven.
-    assert_ne!(n % 3, 0, "{n} patches: pick a target whose count 3 does not divide");
+    assert_ne!(
+        n % 3,
+        0,
+        "{n} patches: pick a target whose count 3 does not divide"
+    );
 
     for (ff_count, t_count) in [(1, 1), (2, 2), (3, 3), (3, 2)] {
         let what = format!("{ff_count} form-factor shards, {t_count} transport shards");
@@ -131,7 +140,8 @@ fn all_bounces_a_codec_and_kept_form_factors_shard_too() {
 }
 
 fn err(r: Result<impl std::fmt::Debug, ShardError>) -> String {
-    r.expect_err("the step must refuse these shards").to_string()
+    r.expect_err("the step must refuse these shards")
+        .to_string()
 }
 
 #[test]
@@ -160,7 +170,10 @@ fn wrong_sets_of_shards_are_refused_clearly() {
         &[ff[0].clone(), ff[1].clone(), stale[1].clone()],
         &NoProgress,
     ));
-    assert!(e.contains("one of 2 shards") && e.contains("one split"), "{e}");
+    assert!(
+        e.contains("one of 2 shards") && e.contains("one split"),
+        "{e}"
+    );
 
     // Phase 1 and phase 2 mixed; phase 2 handed phase-2 shards.
     let e = err(shard::merge(&[t[0].clone(), ff[1].clone()], &NoProgress));
@@ -181,7 +194,10 @@ fn wrong_sets_of_shards_are_refused_clearly() {
         &[ff[0].clone(), other[1].clone(), ff[2].clone()],
         &NoProgress,
     ));
-    assert!(e.contains("not shards of the same bake") && e.contains("settings"), "{e}");
+    assert!(
+        e.contains("not shards of the same bake") && e.contains("settings"),
+        "{e}"
+    );
 
     // Another scene (the same glTF under another name, with its buffer beside it).
     let copy = d.join("copy");
@@ -199,7 +215,10 @@ fn wrong_sets_of_shards_are_refused_clearly() {
 
     // Phase-2 shards computed from different phase-1 shards.
     let t_other = phase2(&other, 2, &d.join("t-seed"));
-    let e = err(shard::merge(&[t[0].clone(), t_other[1].clone()], &NoProgress));
+    let e = err(shard::merge(
+        &[t[0].clone(), t_other[1].clone()],
+        &NoProgress,
+    ));
     assert!(e.contains("differ"), "{e}");
 
     // A damaged shard: one flipped byte in its rows, or cut short.
@@ -212,7 +231,10 @@ fn wrong_sets_of_shards_are_refused_clearly() {
         &[ff[0].clone(), damaged.clone(), ff[2].clone()],
         &NoProgress,
     ));
-    assert!(e.contains("damaged.bshard") && e.contains("checksum mismatch in section 'ROWS'"), "{e}");
+    assert!(
+        e.contains("damaged.bshard") && e.contains("checksum mismatch in section 'ROWS'"),
+        "{e}"
+    );
     std::fs::write(&damaged, &bytes[..bytes.len() / 2]).unwrap();
     let e = err(shard::merge(
         &[ff[0].clone(), damaged.clone(), ff[2].clone()],
@@ -222,7 +244,10 @@ fn wrong_sets_of_shards_are_refused_clearly() {
 
     // A baked file is not a shard, and a shard is not a baked file.
     let baked = d.join("x.bounce");
-    shard::merge(&ff, &NoProgress).unwrap().write_atomic(&baked).unwrap();
+    shard::merge(&ff, &NoProgress)
+        .unwrap()
+        .write_atomic(&baked)
+        .unwrap();
     let e = err(shard::merge(&[baked.clone()], &NoProgress));
     assert!(e.contains("baked file, not a bake shard"), "{e}");
     match Baked::read(&ff[0]) {
