@@ -40,6 +40,9 @@ pub enum BenchWhat {
     /// changes at a fixed rate on one or more sessions; change-to-frame latency per viewer,
     /// frames per second, order checked on every frame.
     Serve(crate::bench_serve::BenchServeArgs),
+    /// Run time against error across patch counts, ray counts and codecs, every error measured
+    /// against the path-traced reference on the original triangles: a table, CSV and a plot.
+    Tradeoff(crate::bench_tradeoff::BenchTradeoffArgs),
 }
 
 #[derive(Args, Debug)]
@@ -82,6 +85,7 @@ pub fn run(args: &BenchArgs) -> Result<()> {
         BenchWhat::Codecs(a) => crate::bench_codecs::run(a),
         BenchWhat::Engines(a) => crate::bench_engines::run(a),
         BenchWhat::Serve(a) => crate::bench_serve::run(a),
+        BenchWhat::Tradeoff(a) => crate::bench_tradeoff::run(a),
     }
 }
 

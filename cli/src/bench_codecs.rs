@@ -150,9 +150,8 @@ pub fn run(args: &BenchCodecsArgs) -> Result<()> {
         ]);
         points.push(Point {
             label: v.label.clone(),
-            series: v.series,
-            bytes: bytes as f64,
-            matvec_s,
+            series: v.series.to_string(),
+            x: [bytes as f64, matvec_s],
             rel_l2: eind.rel_l2,
         });
     }

@@ -8,6 +8,7 @@ mod bench;
 mod bench_codecs;
 mod bench_engines;
 mod bench_serve;
+mod bench_tradeoff;
 mod demo;
 #[cfg(test)]
 mod deploy_check;
@@ -15,10 +16,12 @@ mod inspect;
 mod memory;
 mod plot;
 mod progress;
+mod reference_cmd;
 mod relight_cmd;
 mod render_cmd;
 mod serve_cmd;
 mod shard_cmd;
+mod verify_cmd;
 mod view;
 
 use std::process::ExitCode;
@@ -61,6 +64,12 @@ enum Command {
     View(view::ViewArgs),
     /// Benchmarks: tables (and CSV) comparing variants measured in one run.
     Bench(bench::BenchArgs),
+    /// Path-trace indirect irradiance on the original triangles at the patches of a baked file
+    /// (or at given points), with a standard error per value: the independent reference.
+    Reference(reference_cmd::ReferenceArgs),
+    /// Measure a baked file's indirect irradiance against the path-traced reference, split into
+    /// codec error and method error.
+    Verify(verify_cmd::VerifyArgs),
     /// Serve baked scenes over gRPC: sessions, light changes, frames streamed to every viewer.
     /// With no --scenes, the embedded Cornell box demo.
     Serve(serve_cmd::ServeArgs),
@@ -88,6 +97,8 @@ fn main() -> ExitCode {
         Command::View(args) => view::run(&args),
         Command::Bench(args) => bench::run(&args),
         Command::Serve(args) => serve_cmd::run(&args),
+        Command::Reference(args) => reference_cmd::run(&args),
+        Command::Verify(args) => verify_cmd::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

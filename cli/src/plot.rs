@@ -5,13 +5,13 @@ use std::path::Path;
 use anyhow::{Result, anyhow};
 use plotters::prelude::*;
 
-/// One measured codec variant.
+/// One measured variant: its cost on the two x axes and its error.
 pub struct Point {
     pub label: String,
     /// Points of one series share a colour; series named "... by share" are joined by a line.
-    pub series: &'static str,
-    pub bytes: f64,
-    pub matvec_s: f64,
+    pub series: String,
+    /// The left and right panels' x values (e.g. bytes and product time).
+    pub x: [f64; 2],
     pub rel_l2: f64,
 }
 
@@ -27,9 +27,19 @@ const COLOURS: [RGBColor; 6] = [
     RGBColor(23, 190, 207),
 ];
 
-/// Error against bytes (left) and against product time (right), both log-log. Exact variants
-/// (zero error) cannot sit on a log axis and are listed in the caption instead.
+/// Error against bytes (left) and against product time (right), both log-log.
 pub fn plot_codecs(path: &Path, title: &str, points: &[Point]) -> Result<()> {
+    plot_error(
+        path,
+        title,
+        points,
+        ["stored bytes", "CPU product time of the batch, s"],
+    )
+}
+
+/// Error against `x[0]` (left) and `x[1]` (right), named by `x_names`, both log-log. Exact
+/// variants (zero error) cannot sit on a log axis and are listed in the caption instead.
+pub fn plot_error(path: &Path, title: &str, points: &[Point], x_names: [&str; 2]) -> Result<()> {
     let shown: Vec<&Point> = points.iter().filter(|p| p.rel_l2 > 0.0).collect();
     if shown.is_empty() {
         return Err(anyhow!("nothing to plot: every variant is exact"));
@@ -49,10 +59,10 @@ pub fn plot_codecs(path: &Path, title: &str, points: &[Point]) -> Result<()> {
         (lo / 1.5)..(hi * 1.5)
     };
     let err = range(&|p| p.rel_l2);
-    let mut series: Vec<&'static str> = Vec::new();
+    let mut series: Vec<&str> = Vec::new();
     for p in &shown {
-        if !series.contains(&p.series) {
-            series.push(p.series);
+        if !series.contains(&p.series.as_str()) {
+            series.push(&p.series);
         }
     }
 
@@ -68,8 +78,8 @@ pub fn plot_codecs(path: &Path, title: &str, points: &[Point]) -> Result<()> {
         .map_err(plot_err)?;
     let panels = root.split_evenly((1, 2));
     let axes: [(&str, &Axis); 2] = [
-        ("stored bytes", &|p: &Point| p.bytes),
-        ("CPU product time of the batch, s", &|p: &Point| p.matvec_s),
+        (x_names[0], &|p: &Point| p.x[0]),
+        (x_names[1], &|p: &Point| p.x[1]),
     ];
     for (k_panel, (panel, (x_name, x_of))) in panels.iter().zip(axes).enumerate() {
         let mut chart = ChartBuilder::on(panel)

@@ -294,6 +294,10 @@ fn every_command_has_help() {
         vec!["bench", "engines", "--help"],
         vec!["bench", "serve", "--help"],
         vec!["serve", "--help"],
+        vec!["reference", "--help"],
+        vec!["verify", "--help"],
+        vec!["render", "--help"],
+        vec!["view", "--help"],
     ] {
         let out = run(bounce().args(&args));
         assert!(out.status.success(), "{args:?}");
@@ -956,5 +960,163 @@ fn the_window_moves_a_sessions_light_on_a_server() {
     assert!(
         (p[0] - 0.5).abs() > 0.05 && (p[1] - 1.5).abs() < 1e-4,
         "{p:?}"
+    );
+}
+
+/// `bounce verify` on a compressed Cornell box: every key of the report, an error split that adds
+/// up, a histogram over all patches; `bounce reference` at given points and at the patches, to
+/// JSON and CSV; clear errors for what a user gets wrong.
+#[test]
+fn verify_and_reference_on_the_cornell_box() {
+    let dir = tempfile::tempdir().unwrap();
+    let baked = dir.path().join("cornell-bc1.bounce");
+    let out = run(bounce()
+        .args([
+            "bake",
+            "--patches",
+            "300",
+            "--rays",
+            "256",
+            "--codec",
+            "bc1",
+            "--quiet",
+            "-o",
+        ])
+        .arg(&baked)
+        .arg(cornell()));
+    assert!(out.status.success(), "{}", stderr(&out));
+    let lights = dir.path().join("point.json");
+    std::fs::write(
+        &lights,
+        r#"{"lights":[{"type":"point","position":[0,1.5,0],"intensity":5}]}"#,
+    )
+    .unwrap();
+    let patches_csv = dir.path().join("patches.csv");
+    let out = run(bounce()
+        .arg("verify")
+        .arg(&baked)
+        .arg(cornell())
+        .arg("--lights")
+        .arg(&lights)
+        .args(["--spp", "64", "--json", "--quiet", "--patches-out"])
+        .arg(&patches_csv));
+    assert!(out.status.success(), "{}", stderr(&out));
+    let report: Value = serde_json::from_slice(&out.stdout).expect("verify --json prints JSON");
+    let get = |k: &str| {
+        report[k]
+            .as_f64()
+            .unwrap_or_else(|| panic!("{k} in {report}"))
+    };
+    for key in [
+        "codec_rel_l2",
+        "method_rel_l2",
+        "total_rel_l2",
+        "worst_patch_rel",
+        "reference_rel_stderr",
+        "direct_at_patches_rel_l2",
+        "transport_rel_l2",
+    ] {
+        let v = get(key);
+        assert!(v.is_finite() && v >= 0.0, "{key} = {v}");
+    }
+    let patches = report["patches"].as_u64().unwrap() as usize;
+    // bc1 is lossy; the method error of 300 voxel patches is far from zero.
+    assert!(get("codec_rel_l2") > 1e-4 && get("codec_rel_l2") < 0.2);
+    assert!(get("method_rel_l2") > 0.01);
+    // The triangle inequality on the three L2 errors (reference norms are the same).
+    assert!(get("total_rel_l2") <= get("method_rel_l2") + get("codec_rel_l2") * 1.5 + 1e-9);
+    let histogram: usize = report["histogram"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_u64().unwrap() as usize)
+        .sum();
+    assert_eq!(histogram, patches);
+    let csv = std::fs::read_to_string(&patches_csv).unwrap();
+    assert_eq!(csv.lines().count(), patches + 1);
+
+    // The same table for a person.
+    let out = run(bounce()
+        .arg("verify")
+        .arg(&baked)
+        .arg(cornell())
+        .arg("--lights")
+        .arg(&lights)
+        .args(["--spp", "16", "--quiet"]));
+    assert!(out.status.success(), "{}", stderr(&out));
+    let table = String::from_utf8_lossy(&out.stdout);
+    assert!(table.contains("codec: compressed T vs exact T"), "{table}");
+    assert!(table.contains("re-baked as dense-f32"), "{table}");
+
+    // Given points, to CSV; the patches, to JSON.
+    let points = dir.path().join("points.json");
+    std::fs::write(
+        &points,
+        r#"[{"position":[0,0.001,0.9],"normal":[0,1,0]},{"position":[0.6,1.989,0.5],"normal":[0,-1,0]}]"#,
+    )
+    .unwrap();
+    let csv_out = dir.path().join("ref.csv");
+    let out = run(bounce()
+        .arg("reference")
+        .arg(cornell())
+        .arg("--lights")
+        .arg(&lights)
+        .arg("--points")
+        .arg(&points)
+        .args(["--spp", "256", "--bounces", "2", "--quiet", "--out"])
+        .arg(&csv_out));
+    assert!(out.status.success(), "{}", stderr(&out));
+    let rows: Vec<Vec<f64>> = std::fs::read_to_string(&csv_out)
+        .unwrap()
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').map(|v| v.parse().unwrap()).collect())
+        .collect();
+    assert_eq!(rows.len(), 2);
+    for row in &rows {
+        // Both points see lit walls: positive indirect light with a smaller standard error.
+        assert!(row[7] > 0.0 && row[10] > 0.0 && row[10] < row[7], "{row:?}");
+    }
+    let json_out = dir.path().join("ref.json");
+    let out = run(bounce()
+        .arg("reference")
+        .arg(cornell())
+        .arg("--baked")
+        .arg(&baked)
+        .arg("--lights")
+        .arg(&lights)
+        .args(["--spp", "8", "--quiet", "--out"])
+        .arg(&json_out));
+    assert!(out.status.success(), "{}", stderr(&out));
+    let traced: Value = serde_json::from_slice(&std::fs::read(&json_out).unwrap()).unwrap();
+    assert_eq!(traced["points"].as_array().unwrap().len(), patches);
+
+    // What a user gets wrong reads clearly.
+    let out = run(bounce()
+        .arg("reference")
+        .arg(cornell())
+        .arg("--lights")
+        .arg(&lights));
+    assert!(!out.status.success());
+    assert!(
+        stderr(&out).contains("--points patches needs --baked"),
+        "{}",
+        stderr(&out)
+    );
+    let out = run(bounce()
+        .arg("reference")
+        .arg(cornell())
+        .arg("--lights")
+        .arg(&lights)
+        .args(["--points", "patches", "--spp", "1", "--baked"])
+        .arg(&baked));
+    assert!(!out.status.success());
+    assert!(stderr(&out).contains("at least 2"), "{}", stderr(&out));
+    let out = run(bounce().arg("verify").arg(&baked).arg(cornell()));
+    assert!(!out.status.success());
+    assert!(
+        stderr(&out).contains("no lights of its own"),
+        "{}",
+        stderr(&out)
     );
 }

@@ -216,6 +216,14 @@ impl Engine {
         let mut indirect = vec![[0.0f32; 3]; b0.len()];
         if !b0.is_empty() {
             scene.transport.apply(&b0, &mut indirect)?;
+            // Direct light is clamped to f32::MAX, but `T · B0` sums many such terms and can
+            // overflow: keep E_ind finite too (a frame then clamps it to its format's largest
+            // and flags it). NaN is left alone: it would be a bug to see, not light to clamp.
+            for v in indirect.iter_mut().flatten() {
+                if *v == f32::INFINITY {
+                    *v = f32::MAX;
+                }
+            }
         }
         let indirect_s = start.elapsed().as_secs_f64();
         let out = direct

@@ -73,7 +73,7 @@ pub(crate) fn sample(
 }
 
 /// Irradiance from the punctual lights at `y` (normal `n`), shadowed by the full mesh.
-fn direct(mesh: &Mesh, sources: &[Source], y: Vec3, n: Vec3) -> Vec3 {
+pub(crate) fn direct(mesh: &Mesh, sources: &[Source], y: Vec3, n: Vec3) -> Vec3 {
     let origin = y + n * mesh.epsilon;
     sources
         .iter()

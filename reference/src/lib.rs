@@ -190,6 +190,23 @@ impl Reference {
             .collect())
     }
 
+    /// Direct irradiance from the punctual lights at every point, shadowed by the full mesh:
+    /// exact (one shadow ray per light), so it has no standard error. With the patches' albedo
+    /// it gives the pipeline's `B0` as the original surfaces would have it, which separates the
+    /// error of lighting a voxel patch from the error of its transport.
+    pub fn direct(&self, lights: &LightSet, points: &[Point]) -> Vec<[f64; 3]> {
+        let sources: Vec<Source> = lights.lights.iter().filter_map(Source::new).collect();
+        points
+            .par_iter()
+            .map(|p| {
+                let n = Vec3::from(p.normal).normalize_or_zero();
+                estimate::direct(&self.mesh, &sources, Vec3::from(p.position), n)
+                    .to_array()
+                    .map(f64::from)
+            })
+            .collect()
+    }
+
     fn point(&self, sources: &[Source], p: &Point, index: u64, options: &Options) -> Estimate {
         let x = Vec3::from(p.position);
         let n = Vec3::from(p.normal).normalize();

@@ -101,7 +101,8 @@ impl Source {
             } => {
                 let to = position - p;
                 let d = to.length();
-                if !(d > 0.0) {
+                // NaN (a non-finite position) and zero both end here.
+                if d.is_nan() || d <= 0.0 {
                     return None;
                 }
                 let dir = to / d;

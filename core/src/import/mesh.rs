@@ -143,6 +143,15 @@ impl Importer<'_> {
             .iter()
             .map(|&p| world.transform_point3(p))
             .collect();
+        // Otherwise its triangles would be counted as degenerate, hiding the cause.
+        if let Some(vertex) = world_positions.iter().position(|p| !p.is_finite()) {
+            return Err(Problem::Fatal(ImportError::NonFiniteWorldPosition {
+                path: self.path.to_path_buf(),
+                mesh: mesh_label.to_owned(),
+                primitive: primitive.index(),
+                vertex,
+            }));
+        }
         let flip = mirrors(&world);
         // Under a mirroring transform the same index order winds the other way; swapping two
         // corners keeps `cross()` pointing where the author's normal pointed.

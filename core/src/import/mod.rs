@@ -77,6 +77,15 @@ pub enum ImportError {
         primitive: usize,
         vertex: usize,
     },
+
+    /// A finite position that its node transform takes past f32's range.
+    #[error("{}: {mesh} primitive {primitive}: vertex {vertex} is not finite in world space (its node transform overflows f32)", path.display())]
+    NonFiniteWorldPosition {
+        path: PathBuf,
+        mesh: String,
+        primitive: usize,
+        vertex: usize,
+    },
 }
 
 /// What an import produces beyond the bake's triangles.

@@ -12,7 +12,7 @@ use glam::Vec3;
 fn no_progress(_: u64) {}
 
 /// An axis-aligned box `[0, size]³` whose one-sided walls face inwards.
-fn closed_box(size: f32, albedo: f32) -> Scene {
+pub(crate) fn closed_box(size: f32, albedo: f32) -> Scene {
     let mut triangles = Vec::new();
     let c = |x: f32, y: f32, z: f32| Vec3::new(x, y, z) * size;
     // Each wall as four corners; the winding is fixed below so that every normal points inwards.

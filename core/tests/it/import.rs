@@ -391,14 +391,14 @@ fn sheen_chair_has_the_sun_and_textured_albedo() {
 
 /// Builds a glTF document with one embedded (data URI) buffer.
 #[derive(Default)]
-struct Gltf {
+pub(crate) struct Gltf {
     bin: Vec<u8>,
     views: Vec<Value>,
     accessors: Vec<Value>,
 }
 
 impl Gltf {
-    fn view(&mut self, bytes: &[u8]) -> usize {
+    pub(crate) fn view(&mut self, bytes: &[u8]) -> usize {
         while !self.bin.len().is_multiple_of(4) {
             self.bin.push(0);
         }
@@ -408,7 +408,7 @@ impl Gltf {
         self.views.len() - 1
     }
 
-    fn floats(&mut self, values: &[f32], ty: &str) -> usize {
+    pub(crate) fn floats(&mut self, values: &[f32], ty: &str) -> usize {
         let bytes: Vec<u8> = values.iter().flat_map(|v| v.to_le_bytes()).collect();
         let dims = match ty {
             "VEC2" => 2,
@@ -422,15 +422,15 @@ impl Gltf {
         self.accessors.len() - 1
     }
 
-    fn positions(&mut self, p: &[[f32; 3]]) -> usize {
+    pub(crate) fn positions(&mut self, p: &[[f32; 3]]) -> usize {
         self.floats(&p.concat(), "VEC3")
     }
 
-    fn uvs(&mut self, uv: &[[f32; 2]]) -> usize {
+    pub(crate) fn uvs(&mut self, uv: &[[f32; 2]]) -> usize {
         self.floats(&uv.concat(), "VEC2")
     }
 
-    fn indices(&mut self, i: &[u16]) -> usize {
+    pub(crate) fn indices(&mut self, i: &[u16]) -> usize {
         let bytes: Vec<u8> = i.iter().flat_map(|v| v.to_le_bytes()).collect();
         let view = self.view(&bytes);
         self.accessors.push(json!({
@@ -440,7 +440,7 @@ impl Gltf {
     }
 
     /// The finished JSON: `doc` plus `asset`, the buffer, its views and accessors.
-    fn json(self, mut doc: Value) -> Vec<u8> {
+    pub(crate) fn json(self, mut doc: Value) -> Vec<u8> {
         let o = doc.as_object_mut().unwrap();
         o.insert("asset".into(), json!({"version": "2.0"}));
         o.insert(
@@ -456,7 +456,7 @@ impl Gltf {
     }
 
     /// The same as a GLB, the buffer in the BIN chunk.
-    fn glb(self, mut doc: Value) -> Vec<u8> {
+    pub(crate) fn glb(self, mut doc: Value) -> Vec<u8> {
         let mut bin = self.bin;
         while !bin.len().is_multiple_of(4) {
             bin.push(0);

@@ -11,4 +11,5 @@ mod formfactor;
 mod furnace;
 mod import;
 mod shard;
+mod stress;
 mod tracers;

@@ -248,7 +248,7 @@ fn wrong_sets_of_shards_are_refused_clearly() {
         .unwrap()
         .write_atomic(&baked)
         .unwrap();
-    let e = err(shard::merge(&[baked.clone()], &NoProgress));
+    let e = err(shard::merge(std::slice::from_ref(&baked), &NoProgress));
     assert!(e.contains("baked file, not a bake shard"), "{e}");
     match Baked::read(&ff[0]) {
         Err(FormatError::ShardNotBaked) => {}

@@ -5,3 +5,4 @@ mod gpu;
 mod gpu_direct;
 mod layout;
 mod relight;
+mod stress;

@@ -19,7 +19,7 @@ use bounce_engine::baseline::jacobi;
 use bounce_engine::{Engine, EngineChoice, EngineError, EngineKind, Irradiance};
 
 /// The Cornell box at about 300 patches, 3 bounces, with its form factors.
-fn baked() -> &'static Baked {
+pub(crate) fn baked() -> &'static Baked {
     static BAKED: OnceLock<Baked> = OnceLock::new();
     BAKED.get_or_init(|| {
         let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/cornell-box/scene.gltf");
@@ -34,7 +34,7 @@ fn baked() -> &'static Baked {
     })
 }
 
-fn gpu_engine() -> Option<Engine> {
+pub(crate) fn gpu_engine() -> Option<Engine> {
     match Engine::new(EngineChoice::Gpu) {
         Ok(e) => Some(e),
         Err(e) if std::env::var("BOUNCE_ALLOW_NO_GPU").as_deref() == Ok("1") => {

@@ -1,0 +1,447 @@
+//! `bounce verify`: the pipeline's indirect irradiance against the path-traced reference, with
+//! the error split into what the codec adds and what the method (voxel simplification,
+//! form-factor noise, patch-level direct light) does.
+
+use std::path::PathBuf;
+
+use anyhow::{Context, Result, bail};
+use bounce_core::bake::{BakeOptions, CodecRequest, NoProgress, bake_scene};
+use bounce_core::codec;
+use bounce_core::format::Baked;
+use bounce_core::import::import_path;
+use bounce_core::matrix::DENSE_F32;
+use bounce_core::voxel::Resolution;
+use bounce_engine::{Engine, EngineChoice};
+use bounce_reference::{Options, Reference};
+use clap::Args;
+use serde::Serialize;
+
+use crate::progress::TermProgress;
+use crate::reference_cmd::{lights_or_scene, trace};
+
+#[derive(Args, Debug)]
+pub struct VerifyArgs {
+    /// The baked file to check.
+    pub baked: PathBuf,
+    /// The glTF/GLB scene it was baked from.
+    pub scene: PathBuf,
+    /// Light configuration, `{"lights": [...]}`; without it, the scene's own glTF lights.
+    #[arg(long, value_name = "L.json")]
+    pub lights: Option<PathBuf>,
+    /// Reference sample paths per patch.
+    #[arg(long, value_name = "N", default_value_t = 1024)]
+    pub spp: u32,
+    /// Reference seed.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// The relight engine computing the pipeline's values: auto, gpu or cpu.
+    #[arg(long, default_value = "cpu")]
+    pub engine: String,
+    /// Print the report as JSON on stdout instead of a table.
+    #[arg(long)]
+    pub json: bool,
+    /// Also write every patch's values as CSV: its reference point, the reference and its
+    /// standard error, and the pipeline's values (compressed, exact, exact on the surfaces' B0).
+    #[arg(long, value_name = "FILE.csv")]
+    pub patches_out: Option<PathBuf>,
+    /// No progress bars.
+    #[arg(long, short)]
+    pub quiet: bool,
+}
+
+/// Upper edges of the per-patch relative error histogram; the last bin is open.
+const BINS: [f64; 7] = [0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0];
+
+/// A per-patch error's denominator is at least this share of the RMS reference value: patches in
+/// near darkness would otherwise turn a tiny absolute difference into a huge ratio.
+const FLOOR: f64 = 0.05;
+
+#[derive(Debug, Serialize)]
+pub(crate) struct Report {
+    pub patches: usize,
+    pub codec: String,
+    pub spp: u32,
+    pub bounces: String,
+    /// Compressed `T` against exact `T`, same patches.
+    pub codec_rel_l2: f64,
+    /// Exact `T` against the reference (includes the reference's own noise, below).
+    pub method_rel_l2: f64,
+    /// Compressed `T` against the reference.
+    pub total_rel_l2: f64,
+    /// The method error split in two. Lighting the voxel patches rather than the original
+    /// surfaces: exact `T` on the pipeline's `B0` against exact `T` on `B0` from direct light at
+    /// the reference points.
+    pub direct_at_patches_rel_l2: f64,
+    /// The transport itself (voxel geometry, form-factor noise): exact `T` on the surfaces'
+    /// `B0` against the reference.
+    pub transport_rel_l2: f64,
+    /// `method_rel_l2` with the reference's noise taken out in quadrature.
+    pub method_rel_l2_without_noise: f64,
+    /// `‖stderr‖ / ‖reference‖`.
+    pub reference_rel_stderr: f64,
+    /// Largest per-patch error of the compressed `T` against the reference, relative to the
+    /// patch's reference value (floored at 5% of the RMS value).
+    pub worst_patch_rel: f64,
+    pub worst_patch: usize,
+    pub patch_rel_p50: f64,
+    pub patch_rel_p90: f64,
+    pub patch_rel_p99: f64,
+    /// Patches per error bin: upper edges `bin_edges`, then one bin above the last.
+    pub histogram: Vec<usize>,
+    pub bin_edges: Vec<f64>,
+    pub snapped_points: usize,
+    pub centroid_points: usize,
+    pub reference_seconds: f64,
+    pub exact_from: String,
+}
+
+pub fn run(args: &VerifyArgs) -> Result<()> {
+    let baked =
+        Baked::read(&args.baked).with_context(|| format!("reading {}", args.baked.display()))?;
+    let scene =
+        import_path(&args.scene).with_context(|| format!("importing {}", args.scene.display()))?;
+    let lights = lights_or_scene(args.lights.as_deref(), &scene)?;
+    let (exact, exact_from) = exact_transport(&baked, &scene, &args.scene, args.quiet)?;
+
+    let engine = Engine::new(args.engine.parse::<EngineChoice>()?)?;
+    let relight = |b: &Baked| -> Result<Vec<[f32; 3]>> {
+        let loaded = engine.load(b)?;
+        let mut lit = engine.relight(&loaded, std::slice::from_ref(&lights))?;
+        Ok(lit.remove(0).indirect)
+    };
+    let compressed = relight(&baked)?;
+    let exact_e = match &exact {
+        Some(exact) => relight(exact)?,
+        None => compressed.clone(),
+    };
+
+    let reference = Reference::new(&scene)?;
+    let (points, snap) = reference.snap_patches(&baked.layout);
+    let options = Options {
+        spp: args.spp,
+        bounces: baked.meta.settings.bounces,
+        seed: args.seed,
+    };
+    let traced = trace(
+        &reference,
+        &lights,
+        points,
+        Some(snap),
+        &options,
+        args.quiet,
+    )?;
+    let reference_e: Vec<[f64; 3]> = traced.estimates.iter().map(|e| e.mean).collect();
+    // The exact transport applied to direct light evaluated on the original surfaces (at the
+    // reference points) instead of on the voxel patches: what is left against the reference is
+    // the transport's own error (voxel geometry, form-factor noise).
+    let surface_direct = reference.direct(&lights, &traced.points);
+    let b0: Vec<[f32; 3]> = baked
+        .layout
+        .patches
+        .iter()
+        .zip(&surface_direct)
+        .map(|(p, e)| std::array::from_fn(|c| p.emission[c] + p.albedo[c] * e[c] as f32))
+        .collect();
+    let exact_op = codec::decode(&exact.as_ref().unwrap_or(&baked).transport)?;
+    let mut surface_lit = vec![[0.0f32; 3]; b0.len()];
+    exact_op.matvec_batch(&b0, &mut surface_lit)?;
+
+    let report = compare(
+        &compressed,
+        &exact_e,
+        &surface_lit,
+        &reference_e,
+        traced.rel_stderr(),
+        Meta {
+            codec: baked.transport.codec.clone(),
+            spp: args.spp,
+            bounces: baked.meta.settings.bounces.to_string(),
+            snapped: snap.snapped,
+            kept: snap.kept,
+            seconds: traced.seconds,
+            exact_from,
+        },
+    );
+    if let Some(path) = &args.patches_out {
+        let mut csv = String::from(
+            "patch,x,y,z,nx,ny,nz,ref_r,ref_g,ref_b,se_r,se_g,se_b,compressed_r,compressed_g,\
+             compressed_b,exact_r,exact_g,exact_b,surface_b0_r,surface_b0_g,surface_b0_b\n",
+        );
+        for (i, (p, e)) in traced.points.iter().zip(&traced.estimates).enumerate() {
+            let row: Vec<String> = p
+                .position
+                .iter()
+                .chain(&p.normal)
+                .map(|v| v.to_string())
+                .chain(e.mean.iter().chain(&e.stderr).map(|v| v.to_string()))
+                .chain(
+                    compressed[i]
+                        .iter()
+                        .chain(&exact_e[i])
+                        .chain(&surface_lit[i])
+                        .map(|v| v.to_string()),
+                )
+                .collect();
+            csv += &format!("{i},{}\n", row.join(","));
+        }
+        std::fs::write(path, csv).with_context(|| format!("writing {}", path.display()))?;
+    }
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    } else {
+        print_table(&report);
+    }
+    Ok(())
+}
+
+/// The exact (`dense-f32`) transport on the same patches: the file itself when it is exact,
+/// else baked again from the file's recorded settings (same seed, so the same form factors).
+fn exact_transport(
+    baked: &Baked,
+    scene: &bounce_core::scene::Scene,
+    path: &std::path::Path,
+    quiet: bool,
+) -> Result<(Option<Baked>, String)> {
+    if baked.transport.codec == DENSE_F32 {
+        return Ok((None, "the file (dense-f32)".into()));
+    }
+    let s = &baked.meta.settings;
+    let resolution = match (s.target_patches, s.requested_voxel_size) {
+        (_, Some(size)) => Resolution::VoxelSize(size),
+        (Some(p), None) => Resolution::TargetPatches(p),
+        (None, None) => bail!("the baked file records neither a patch count nor a voxel size"),
+    };
+    let options = BakeOptions {
+        resolution,
+        rays: s.rays_per_patch,
+        seed: s.seed,
+        bounces: s.bounces,
+        keep_form_factors: false,
+        tracer: s.tracer,
+        codec: CodecRequest::Named(DENSE_F32.to_string()),
+        sparse_share: None,
+        patch_order: s.patch_order,
+    };
+    if !quiet {
+        eprintln!(
+            "re-baking {} as dense-f32 for the exact transport",
+            path.display()
+        );
+    }
+    let progress = TermProgress::new(quiet);
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let exact = if quiet {
+        bake_scene(scene, &name, &options, &NoProgress)?
+    } else {
+        bake_scene(scene, &name, &options, &progress)?
+    };
+    if exact.layout != baked.layout {
+        bail!(
+            "baking {} again with the file's settings gives other patches ({} against {}): the \
+             scene is not the one baked, or the file was baked by another version",
+            path.display(),
+            exact.layout.len(),
+            baked.layout.len()
+        );
+    }
+    Ok((Some(exact), "re-baked as dense-f32".into()))
+}
+
+pub(crate) struct Meta {
+    pub codec: String,
+    pub spp: u32,
+    pub bounces: String,
+    pub snapped: usize,
+    pub kept: usize,
+    pub seconds: f64,
+    pub exact_from: String,
+}
+
+fn rel_l2(a: &[[f64; 3]], b: &[[f64; 3]]) -> f64 {
+    let (mut d, mut n) = (0.0, 0.0);
+    for (x, y) in a.iter().zip(b) {
+        for c in 0..3 {
+            d += (x[c] - y[c]) * (x[c] - y[c]);
+            n += y[c] * y[c];
+        }
+    }
+    if n > 0.0 { (d / n).sqrt() } else { d.sqrt() }
+}
+
+fn widen(v: &[[f32; 3]]) -> Vec<[f64; 3]> {
+    v.iter().map(|c| c.map(f64::from)).collect()
+}
+
+pub(crate) fn compare(
+    compressed: &[[f32; 3]],
+    exact: &[[f32; 3]],
+    surface_lit: &[[f32; 3]],
+    reference: &[[f64; 3]],
+    reference_rel_stderr: f64,
+    meta: Meta,
+) -> Report {
+    let (compressed, exact, surface_lit) = (widen(compressed), widen(exact), widen(surface_lit));
+    let method = rel_l2(&exact, reference);
+    let norm = |c: &[f64; 3]| (c[0] * c[0] + c[1] * c[1] + c[2] * c[2]).sqrt();
+    let rms = (reference.iter().map(|r| norm(r).powi(2)).sum::<f64>()
+        / reference.len().max(1) as f64)
+        .sqrt();
+    let floor = (FLOOR * rms).max(f64::MIN_POSITIVE);
+    let per_patch: Vec<f64> = compressed
+        .iter()
+        .zip(reference)
+        .map(|(c, r)| {
+            let d = [c[0] - r[0], c[1] - r[1], c[2] - r[2]];
+            norm(&d) / norm(r).max(floor)
+        })
+        .collect();
+    let (worst_patch, worst) = per_patch
+        .iter()
+        .copied()
+        .enumerate()
+        .max_by(|a, b| a.1.total_cmp(&b.1))
+        .unwrap_or((0, 0.0));
+    let mut sorted = per_patch.clone();
+    sorted.sort_by(f64::total_cmp);
+    let q = |p: f64| {
+        sorted
+            .get(((sorted.len() as f64 - 1.0) * p).round() as usize)
+            .copied()
+            .unwrap_or(0.0)
+    };
+    let mut histogram = vec![0; BINS.len() + 1];
+    for e in &per_patch {
+        histogram[BINS.iter().position(|edge| e <= edge).unwrap_or(BINS.len())] += 1;
+    }
+    Report {
+        patches: reference.len(),
+        codec: meta.codec,
+        spp: meta.spp,
+        bounces: meta.bounces,
+        codec_rel_l2: rel_l2(&compressed, &exact),
+        method_rel_l2: method,
+        direct_at_patches_rel_l2: rel_l2(&exact, &surface_lit),
+        transport_rel_l2: rel_l2(&surface_lit, reference),
+        total_rel_l2: rel_l2(&compressed, reference),
+        method_rel_l2_without_noise: (method * method
+            - reference_rel_stderr * reference_rel_stderr)
+            .max(0.0)
+            .sqrt(),
+        reference_rel_stderr,
+        worst_patch_rel: worst,
+        worst_patch,
+        patch_rel_p50: q(0.5),
+        patch_rel_p90: q(0.9),
+        patch_rel_p99: q(0.99),
+        histogram,
+        bin_edges: BINS.to_vec(),
+        snapped_points: meta.snapped,
+        centroid_points: meta.kept,
+        reference_seconds: meta.seconds,
+        exact_from: meta.exact_from,
+    }
+}
+
+fn print_table(r: &Report) {
+    let pct = |v: f64| format!("{:.2}%", v * 100.0);
+    println!(
+        "{} patches, codec {}, {} bounces; reference {} spp in {:.1} s ({} points on their surface, {} at the centroid); exact T: {}",
+        r.patches,
+        r.codec,
+        r.bounces,
+        r.spp,
+        r.reference_seconds,
+        r.snapped_points,
+        r.centroid_points,
+        r.exact_from
+    );
+    println!("| error (relative L2 of E_ind) | value |");
+    println!("|---|---:|");
+    println!(
+        "| codec: compressed T vs exact T | {} |",
+        pct(r.codec_rel_l2)
+    );
+    println!(
+        "| method: exact T vs reference | {} |",
+        pct(r.method_rel_l2)
+    );
+    println!(
+        "| · of which lighting voxel patches, not the surfaces | {} |",
+        pct(r.direct_at_patches_rel_l2)
+    );
+    println!(
+        "| · of which transport (voxels, form-factor noise) | {} |",
+        pct(r.transport_rel_l2)
+    );
+    println!(
+        "| method, reference noise removed | {} |",
+        pct(r.method_rel_l2_without_noise)
+    );
+    println!(
+        "| total: compressed T vs reference | {} |",
+        pct(r.total_rel_l2)
+    );
+    println!(
+        "| reference's own standard error | {} |",
+        pct(r.reference_rel_stderr)
+    );
+    println!(
+        "per patch (total, relative to the patch's reference): p50 {}, p90 {}, p99 {}, worst {} (patch {})",
+        pct(r.patch_rel_p50),
+        pct(r.patch_rel_p90),
+        pct(r.patch_rel_p99),
+        pct(r.worst_patch_rel),
+        r.worst_patch
+    );
+    let mut lo = 0.0;
+    for (i, count) in r.histogram.iter().enumerate() {
+        let label = match r.bin_edges.get(i) {
+            Some(hi) => format!("{:>5} – {:<5}", pct(lo), pct(*hi)),
+            None => format!("   > {:<7}", pct(lo)),
+        };
+        let bar = "#".repeat((60 * count).div_ceil(r.patches.max(1)));
+        println!("  {label} {count:>6} {bar}");
+        lo = r.bin_edges.get(i).copied().unwrap_or(lo);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn meta() -> Meta {
+        Meta {
+            codec: "bc1".into(),
+            spp: 4,
+            bounces: "3".into(),
+            snapped: 3,
+            kept: 0,
+            seconds: 0.0,
+            exact_from: "test".into(),
+        }
+    }
+
+    #[test]
+    fn errors_split_into_codec_and_method() {
+        let reference = [[1.0, 1.0, 1.0], [2.0, 2.0, 2.0], [0.0, 0.0, 0.0]];
+        let exact = [[1.1, 1.1, 1.1], [2.0, 2.0, 2.0], [0.0, 0.0, 0.0]];
+        let compressed = [[1.1, 1.1, 1.1], [2.0, 2.0, 2.0], [0.01, 0.01, 0.01]];
+        let r = compare(&compressed, &exact, &exact, &reference, 0.0, meta());
+        // ‖(0.1,0.1,0.1)‖ / ‖ref‖ = √0.03 / √15.
+        assert!((r.method_rel_l2 - (0.03f64 / 15.0).sqrt()).abs() < 1e-6);
+        assert!((r.codec_rel_l2 - (0.0003f64 / (3.0 * 1.21 + 12.0)).sqrt()).abs() < 1e-6);
+        // The dark patch's error is measured against the floor, not against zero.
+        let rms = (15.0f64 / 3.0).sqrt();
+        let dark = (0.0003f64).sqrt() / (FLOOR * rms);
+        let first = (0.03f64).sqrt() / 3f64.sqrt();
+        assert!((r.worst_patch_rel - dark.max(first)).abs() < 1e-6);
+        assert_eq!(r.histogram.iter().sum::<usize>(), 3);
+        assert_eq!(r.histogram[0], 1, "the exact patch");
+        // Noise removal never goes below zero.
+        let noisy = compare(&compressed, &exact, &exact, &reference, 1.0, meta());
+        assert_eq!(noisy.method_rel_l2_without_noise, 0.0);
+    }
+}
