@@ -5,8 +5,10 @@
 //! onto the face (`bounce_core::voxel`'s rule, restated here from its documentation, not called).
 //! One point cannot stand for that where the pieces lie at several depths (a ceiling and a
 //! panel a unit below it, in one 15-unit voxel): the pieces in a gap are dark, the others lit.
-//! So the reference samples the footprint: points drawn with probability ∝ area × cos inside the
-//! voxel box, by rejection from whole triangles.
+//! So the reference samples the footprint: lines along the face's axis through uniform points of
+//! the voxel's cross-section, and every facing triangle piece they cross inside the voxel. A
+//! uniform point of the cross-section lands on a piece with probability ∝ its area projected
+//! onto the face, area × cos: the bake's weight.
 
 use std::collections::{HashMap, HashSet};
 
@@ -17,8 +19,8 @@ use crate::Point;
 use crate::mesh::Mesh;
 use crate::rng::{Pcg32, mix};
 
-/// Draws per accepted point before a patch gives up (its pieces are slivers of big triangles).
-const TRIES_PER_POINT: usize = 256;
+/// Lines per wanted point before a patch gives up (its pieces cover little of the voxel).
+const TRIES_PER_POINT: usize = 64;
 
 /// `count` points on each patch's footprint; an empty list for a patch none could be drawn for.
 pub(crate) fn footprints(
@@ -58,51 +60,46 @@ pub(crate) fn footprints(
             let dir = patch.face.normal();
             let lo = origin + Vec3::from(patch.voxel.map(|v| v as f32)) * size;
             let hi = lo + Vec3::splat(size);
-            // Facing triangles with their weight (area × cos) and the side that faces.
-            let mut candidates: Vec<(u32, f32, Vec3)> = Vec::new();
+            // Facing triangles and the side that faces.
+            let mut candidates: Vec<(u32, Vec3)> = Vec::new();
             for &i in by_voxel.get(&patch.voxel).into_iter().flatten() {
                 let t = &mesh.tris[i as usize];
-                let area = 0.5 * t.e1.cross(t.e2).length();
                 let c = t.normal.dot(dir);
-                let side = if c > 0.0 {
-                    Some((c, t.normal))
+                if c > 0.0 {
+                    candidates.push((i, t.normal));
                 } else if t.double_sided && c < 0.0 {
-                    Some((-c, -t.normal))
-                } else {
-                    None
-                };
-                if let Some((c, n)) = side {
-                    candidates.push((i, area * c, n));
+                    candidates.push((i, -t.normal));
                 }
             }
-            let total: f32 = candidates.iter().map(|c| c.1).sum();
             let mut points = Vec::with_capacity(count);
-            if total <= 0.0 {
+            if candidates.is_empty() {
                 return points;
             }
+            let axis = patch.face.axis();
+            let (u, v) = ((axis + 1) % 3, (axis + 2) % 3);
+            let mut along = Vec3::ZERO;
+            along[axis] = 1.0;
+            // A hair beyond the voxel's faces, so a surface lying on one is crossed.
+            let slack = size * 1e-6;
             let mut rng = Pcg32::new(mix(seed ^ 0x5EED_F007), mix(index as u64));
             let mut tries = 0;
             while points.len() < count && tries < count * TRIES_PER_POINT {
                 tries += 1;
-                let mut pick = rng.next_f32() * total;
-                let &(i, _, n) = candidates
-                    .iter()
-                    .find(|c| {
-                        pick -= c.1;
-                        pick < 0.0
-                    })
-                    .unwrap_or(&candidates[candidates.len() - 1]);
-                let t = &mesh.tris[i as usize];
-                let (mut u, mut v) = (rng.next_f32(), rng.next_f32());
-                if u + v > 1.0 {
-                    (u, v) = (1.0 - u, 1.0 - v);
-                }
-                let p = t.p0 + t.e1 * u + t.e2 * v;
-                if p.cmpge(lo).all() && p.cmplt(hi).all() {
-                    points.push(Point {
-                        position: p.to_array(),
-                        normal: n.to_array(),
-                    });
+                let mut start = lo;
+                start[axis] -= slack;
+                start[u] += rng.next_f32() * size;
+                start[v] += rng.next_f32() * size;
+                for &(i, n) in &candidates {
+                    let t = &mesh.tris[i as usize];
+                    if let Some(d) = t.intersect(start, along, 0.0, size + 2.0 * slack) {
+                        let p = start + along * d;
+                        if p.cmpge(lo).all() && p.cmplt(hi).all() && points.len() < count {
+                            points.push(Point {
+                                position: p.to_array(),
+                                normal: n.to_array(),
+                            });
+                        }
+                    }
                 }
             }
             points
@@ -175,23 +172,19 @@ mod tests {
         let (up, down) = (&sets[0], &sets[1]);
         assert_eq!((up.len(), down.len()), (64, 64));
         let inside = |p: &Point| p.position.iter().all(|&c| (0.0..1.0).contains(&c));
+        let at = |p: &Point, y: f32| (p.position[1] - y).abs() < 1e-5;
         // Facing up: the floor, and the two-sided panel's upper side; never the ceiling.
         assert!(up.iter().all(inside));
         assert!(up.iter().all(|p| p.normal == [0.0, 1.0, 0.0]));
-        assert!(
-            up.iter()
-                .all(|p| p.position[1] == 0.25 || p.position[1] == 0.5)
-        );
-        assert!(
-            up.iter().any(|p| p.position[1] == 0.25) && up.iter().any(|p| p.position[1] == 0.5)
-        );
+        assert!(up.iter().all(|p| at(p, 0.25) || at(p, 0.5)));
+        // The floor covers the voxel's cross-section, the panel (one triangle, cut by the
+        // diagonal x = z) half of it: two thirds of the points are on the floor.
+        let floor = up.iter().filter(|p| at(p, 0.25)).count();
+        assert!((36..=50).contains(&floor), "{floor} of 64 on the floor");
         // Facing down: the ceiling and the panel's own side; never the floor.
         assert!(down.iter().all(inside));
         assert!(down.iter().all(|p| p.normal == [0.0, -1.0, 0.0]));
-        assert!(
-            down.iter()
-                .all(|p| p.position[1] == 0.75 || p.position[1] == 0.5)
-        );
+        assert!(down.iter().all(|p| at(p, 0.75) || at(p, 0.5)));
         // A voxel no triangle crosses has no footprint.
         let empty = PatchLayout {
             patches: vec![patch([0, 0, 0], Face::PosX)],

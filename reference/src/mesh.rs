@@ -31,7 +31,7 @@ impl Tri {
     /// Möller–Trumbore: the distance along the ray if it crosses the triangle (either side) at
     /// `t` in `(t_min, t_max)`.
     #[inline]
-    fn intersect(&self, origin: Vec3, dir: Vec3, t_min: f32, t_max: f32) -> Option<f32> {
+    pub(crate) fn intersect(&self, origin: Vec3, dir: Vec3, t_min: f32, t_max: f32) -> Option<f32> {
         let p = dir.cross(self.e2);
         let det = self.e1.dot(p);
         if det.abs() < 1e-20 {
