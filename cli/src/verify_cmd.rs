@@ -165,10 +165,14 @@ pub fn run(args: &VerifyArgs) -> Result<()> {
         other => bail!("--points {other}: give footprints or patches"),
     };
     let reference_e: Vec<[f64; 3]> = traced.estimates.iter().map(|e| e.mean).collect();
-    // The exact transport applied to direct light evaluated on the original surfaces (at the
-    // reference points) instead of on the voxel patches: what is left against the reference is
-    // the transport's own error (voxel geometry, form-factor noise).
-    let surface_direct = reference.direct(&lights, &traced.points);
+    // The exact transport applied to direct light evaluated on the original surfaces (over the
+    // same footprints or points as the reference) instead of on the voxel patches: what is left
+    // against the reference is the transport's own error (voxel geometry, form-factor noise).
+    let surface_direct = if args.points == "footprints" {
+        reference.footprint_direct(&lights, &baked.layout, args.footprint_points, args.seed)
+    } else {
+        reference.direct(&lights, &traced.points)
+    };
     let b0: Vec<[f32; 3]> = baked
         .layout
         .patches

@@ -262,6 +262,35 @@ impl Reference {
         Ok((estimates, sets.iter().map(|s| s[0]).collect(), fallbacks))
     }
 
+    /// Direct irradiance averaged over each patch's footprint (the same points
+    /// [`Self::estimate_footprints`] draws for this seed; the snapped centroid where there are
+    /// none).
+    pub fn footprint_direct(
+        &self,
+        lights: &LightSet,
+        layout: &PatchLayout,
+        points_per_patch: usize,
+        seed: u64,
+    ) -> Vec<[f64; 3]> {
+        let sets = footprint::footprints(&self.mesh, layout, points_per_patch.max(1), seed);
+        let (snapped, _) = self.snap_patches(layout);
+        sets.iter()
+            .zip(snapped)
+            .map(|(set, fallback)| {
+                let set = if set.is_empty() {
+                    std::slice::from_ref(&fallback)
+                } else {
+                    set.as_slice()
+                };
+                let sum = self
+                    .direct(lights, set)
+                    .into_iter()
+                    .fold([0.0; 3], |a, d| [a[0] + d[0], a[1] + d[1], a[2] + d[2]]);
+                sum.map(|v| v / set.len() as f64)
+            })
+            .collect()
+    }
+
     fn point(&self, sources: &[Source], p: &Point, index: u64, options: &Options) -> Estimate {
         self.average(sources, std::slice::from_ref(p), index, options)
     }
