@@ -20,7 +20,8 @@ use bounce_reference::{Options, Reference};
 use clap::Args;
 
 use crate::plot::{Point, plot_error};
-use crate::reference_cmd::{lights_or_scene, trace_footprints};
+use crate::reference_cmd::trace_footprints;
+use crate::verify_cmd::{rel_l2, widen};
 
 #[derive(Args, Debug)]
 pub struct BenchTradeoffArgs {
@@ -78,7 +79,7 @@ struct Row {
 pub fn run(args: &BenchTradeoffArgs) -> Result<()> {
     let scene =
         import_path(&args.scene).with_context(|| format!("importing {}", args.scene.display()))?;
-    let lights = lights_or_scene(args.lights.as_deref(), &scene)?;
+    let lights = crate::lights_file::or_scene(args.lights.as_deref(), &scene)?;
     let reference = Reference::new(&scene)?;
     let engine = Engine::new(args.engine.parse::<EngineChoice>()?)?;
     eprintln!("relight engine: {}", engine.describe());
@@ -201,22 +202,7 @@ fn relight(
         last = lit.remove(0).indirect;
     }
     times.sort_by(f64::total_cmp);
-    Ok((widen32(&last), times[times.len() / 2]))
-}
-
-fn widen32(v: &[[f32; 3]]) -> Vec<[f64; 3]> {
-    v.iter().map(|c| c.map(f64::from)).collect()
-}
-
-fn rel_l2(a: &[[f64; 3]], b: &[[f64; 3]]) -> f64 {
-    let (mut d, mut n) = (0.0, 0.0);
-    for (x, y) in a.iter().zip(b) {
-        for c in 0..3 {
-            d += (x[c] - y[c]).powi(2);
-            n += y[c] * y[c];
-        }
-    }
-    if n > 0.0 { (d / n).sqrt() } else { d.sqrt() }
+    Ok((widen(&last), times[times.len() / 2]))
 }
 
 const HEADER: [&str; 11] = [

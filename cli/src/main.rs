@@ -13,6 +13,7 @@ mod demo;
 #[cfg(test)]
 mod deploy_check;
 mod inspect;
+mod lights_file;
 mod memory;
 mod plot;
 mod progress;

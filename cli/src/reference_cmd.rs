@@ -10,7 +10,6 @@ use bounce_core::import::import_path;
 use bounce_core::light::LightSet;
 use bounce_core::meta::Bounces;
 use bounce_core::patch::PatchLayout;
-use bounce_core::scene::Scene;
 use bounce_reference::{Estimate, Options, Point, Reference, SnapReport};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
@@ -89,7 +88,7 @@ pub fn run(args: &ReferenceArgs) -> Result<()> {
         .as_deref()
         .map(|p| Baked::read(p).with_context(|| format!("reading {}", p.display())))
         .transpose()?;
-    let lights = lights_or_scene(args.lights.as_deref(), &scene)?;
+    let lights = crate::lights_file::or_scene(args.lights.as_deref(), &scene)?;
     let reference = Reference::new(&scene)?;
     let bounces = args
         .bounces
@@ -154,25 +153,6 @@ pub fn run(args: &ReferenceArgs) -> Result<()> {
         eprintln!("wrote {}", out.display());
     }
     Ok(())
-}
-
-/// The lights of `path`, or the scene's own.
-pub(crate) fn lights_or_scene(path: Option<&Path>, scene: &Scene) -> Result<LightSet> {
-    match path {
-        Some(path) => {
-            let text = std::fs::read_to_string(path)
-                .with_context(|| format!("reading {}", path.display()))?;
-            Ok(LightSet::from_json(&text).with_context(|| format!("{}", path.display()))?)
-        }
-        None if scene.lights.is_empty() => {
-            bail!(
-                "the scene has no lights of its own: give a light configuration with --lights L.json"
-            )
-        }
-        None => Ok(LightSet {
-            lights: scene.lights.clone(),
-        }),
-    }
 }
 
 /// Traces `points` with a progress bar.

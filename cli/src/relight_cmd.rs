@@ -116,9 +116,7 @@ fn light_sets(args: &RelightArgs, baked: &Baked) -> Result<(Vec<String>, Vec<Lig
     let mut names = Vec::new();
     let mut sets = Vec::new();
     for path in &args.lights {
-        let text =
-            std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-        let set = LightSet::from_json(&text).with_context(|| format!("{}", path.display()))?;
+        let set = crate::lights_file::read(path)?;
         names.push(path.display().to_string());
         sets.push(set);
     }

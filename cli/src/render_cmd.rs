@@ -86,19 +86,7 @@ pub fn run(args: &RenderArgs) -> Result<()> {
     let bounds = scene
         .bounds()
         .with_context(|| format!("{} has no triangles", args.scene.display()))?;
-    let lights = match &args.lights {
-        Some(path) => {
-            let text = std::fs::read_to_string(path)
-                .with_context(|| format!("reading {}", path.display()))?;
-            LightSet::from_json(&text).with_context(|| format!("{}", path.display()))?
-        }
-        None if scene.lights.is_empty() => {
-            bail!("the scene has no lights of its own: give a configuration with --lights L.json")
-        }
-        None => LightSet {
-            lights: scene.lights.clone(),
-        },
-    };
+    let lights = crate::lights_file::or_scene(args.lights.as_deref(), &scene)?;
     let camera = camera.unwrap_or_else(|| Camera::framing(bounds));
 
     let volume = match (&args.baked, &args.server) {

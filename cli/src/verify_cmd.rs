@@ -5,19 +5,18 @@
 use std::path::PathBuf;
 
 use anyhow::{Context, Result, bail};
-use bounce_core::bake::{BakeOptions, CodecRequest, NoProgress, bake_scene};
+use bounce_core::bake::{BakeOptions, CodecRequest, NoProgress, bake_scene, options_of};
 use bounce_core::codec;
 use bounce_core::format::Baked;
 use bounce_core::import::import_path;
 use bounce_core::matrix::DENSE_F32;
-use bounce_core::voxel::Resolution;
 use bounce_engine::{Engine, EngineChoice};
 use bounce_reference::{Options, Reference};
 use clap::Args;
 use serde::Serialize;
 
 use crate::progress::TermProgress;
-use crate::reference_cmd::{lights_or_scene, trace, trace_footprints};
+use crate::reference_cmd::{trace, trace_footprints};
 
 #[derive(Args, Debug)]
 pub struct VerifyArgs {
@@ -108,7 +107,7 @@ pub fn run(args: &VerifyArgs) -> Result<()> {
         Baked::read(&args.baked).with_context(|| format!("reading {}", args.baked.display()))?;
     let scene =
         import_path(&args.scene).with_context(|| format!("importing {}", args.scene.display()))?;
-    let lights = lights_or_scene(args.lights.as_deref(), &scene)?;
+    let lights = crate::lights_file::or_scene(args.lights.as_deref(), &scene)?;
     let (exact, exact_from) = exact_transport(&baked, &scene, &args.scene, args.quiet)?;
 
     let engine = Engine::new(args.engine.parse::<EngineChoice>()?)?;
@@ -243,21 +242,13 @@ fn exact_transport(
         return Ok((None, "the file (dense-f32)".into()));
     }
     let s = &baked.meta.settings;
-    let resolution = match (s.target_patches, s.requested_voxel_size) {
-        (_, Some(size)) => Resolution::VoxelSize(size),
-        (Some(p), None) => Resolution::TargetPatches(p),
-        (None, None) => bail!("the baked file records neither a patch count nor a voxel size"),
-    };
+    if s.target_patches.is_none() && s.requested_voxel_size.is_none() {
+        bail!("the baked file records neither a patch count nor a voxel size");
+    }
     let options = BakeOptions {
-        resolution,
-        rays: s.rays_per_patch,
-        seed: s.seed,
-        bounces: s.bounces,
-        keep_form_factors: false,
-        tracer: s.tracer,
         codec: CodecRequest::Named(DENSE_F32.to_string()),
         sparse_share: None,
-        patch_order: s.patch_order,
+        ..options_of(s, false)
     };
     if !quiet {
         eprintln!(
@@ -296,7 +287,8 @@ pub(crate) struct Meta {
     pub exact_from: String,
 }
 
-fn rel_l2(a: &[[f64; 3]], b: &[[f64; 3]]) -> f64 {
+/// `‖a − b‖ / ‖b‖` over all entries and channels (`‖a − b‖` when `b` is zero).
+pub(crate) fn rel_l2(a: &[[f64; 3]], b: &[[f64; 3]]) -> f64 {
     let (mut d, mut n) = (0.0, 0.0);
     for (x, y) in a.iter().zip(b) {
         for c in 0..3 {
@@ -307,7 +299,7 @@ fn rel_l2(a: &[[f64; 3]], b: &[[f64; 3]]) -> f64 {
     if n > 0.0 { (d / n).sqrt() } else { d.sqrt() }
 }
 
-fn widen(v: &[[f32; 3]]) -> Vec<[f64; 3]> {
+pub(crate) fn widen(v: &[[f32; 3]]) -> Vec<[f64; 3]> {
     v.iter().map(|c| c.map(f64::from)).collect()
 }
 

@@ -376,7 +376,7 @@ pub(crate) fn settings(options: &BakeOptions, tracer: Tracer) -> BakeSettings {
 
 /// The options that gave `settings` (the inverse of [`settings`]), for the steps of a sharded
 /// bake that start from shards rather than from a command line.
-pub(crate) fn options_of(settings: &BakeSettings, keep_form_factors: bool) -> BakeOptions {
+pub fn options_of(settings: &BakeSettings, keep_form_factors: bool) -> BakeOptions {
     BakeOptions {
         resolution: match (settings.target_patches, settings.requested_voxel_size) {
             (_, Some(s)) => Resolution::VoxelSize(s),

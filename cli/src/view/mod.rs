@@ -112,14 +112,11 @@ pub fn run(args: &ViewArgs) -> Result<()> {
     let bounds = scene
         .bounds()
         .with_context(|| format!("{} has no triangles", args.scene.display()))?;
-    let given = match &args.lights {
-        Some(path) => {
-            let text = std::fs::read_to_string(path)
-                .with_context(|| format!("reading {}", path.display()))?;
-            Some(LightSet::from_json(&text).with_context(|| format!("{}", path.display()))?)
-        }
-        None => None,
-    };
+    let given = args
+        .lights
+        .as_deref()
+        .map(crate::lights_file::read)
+        .transpose()?;
     let own = || LightSet {
         lights: scene.lights.clone(),
     };
