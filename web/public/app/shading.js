@@ -1,0 +1,147 @@
+// How the page shades a surface, kept equal to the native renderer's (render/src/shade.wgsl):
+// diffuse only (radiance = albedo/π · E + emission/π), E = direct light with shadow maps + the
+// indirect irradiance sampled from the six-direction volume, Reinhard tonemap after exposure.
+//
+// three.js does the direct part: MeshLambertMaterial is per-fragment Lambert with physical light
+// units (point and spot in candela, directional in lux, glTF's inverse-square falloff with the
+// range window), which is KHR_lights_punctual and so bounce_core::direct. Two things are patched
+// into its shader: the indirect irradiance is added where three adds ambient light, and the spot
+// cone uses glTF's squared linear falloff instead of three's smoothstep.
+
+import { DoubleSide, MeshLambertMaterial, Vector3 } from 'three';
+
+// The uniforms every converted material shares: one object, so updating it updates them all.
+export function volumeUniforms() {
+  return {
+    bounceVolPX: { value: null },
+    bounceVolNX: { value: null },
+    bounceVolPY: { value: null },
+    bounceVolNY: { value: null },
+    bounceVolPZ: { value: null },
+    bounceVolNZ: { value: null },
+    bounceOrigin: { value: new Vector3() },
+    bounceVoxelSize: { value: 1 },
+    bounceDims: { value: new Vector3(1, 1, 1) },
+    // 1: add the indirect light; 0: leave it out (the "direct only" toggle, or no frame yet).
+    bounceIndirect: { value: 0 },
+  };
+}
+
+export function bindVolume(uniforms, volume) {
+  const [px, nx, py, ny, pz, nz] = volume.textures;
+  uniforms.bounceVolPX.value = px;
+  uniforms.bounceVolNX.value = nx;
+  uniforms.bounceVolPY.value = py;
+  uniforms.bounceVolNY.value = ny;
+  uniforms.bounceVolPZ.value = pz;
+  uniforms.bounceVolNZ.value = nz;
+  uniforms.bounceOrigin.value.fromArray(volume.origin);
+  uniforms.bounceVoxelSize.value = volume.voxelSize;
+  uniforms.bounceDims.value.fromArray(volume.dims);
+}
+
+const VERTEX_DECL = /* glsl */ `
+varying vec3 vBounceWorld;
+void main() {`;
+
+const VERTEX_WORLD = /* glsl */ `#include <project_vertex>
+  vBounceWorld = (modelMatrix * vec4(transformed, 1.0)).xyz;`;
+
+// The twin of shade.wgsl's volume_filter and sample_volume.
+const FRAGMENT_DECL = /* glsl */ `
+uniform highp sampler3D bounceVolPX;
+uniform highp sampler3D bounceVolNX;
+uniform highp sampler3D bounceVolPY;
+uniform highp sampler3D bounceVolNY;
+uniform highp sampler3D bounceVolPZ;
+uniform highp sampler3D bounceVolNZ;
+uniform vec3 bounceOrigin;
+uniform float bounceVoxelSize;
+uniform vec3 bounceDims;
+uniform float bounceIndirect;
+varying vec3 vBounceWorld;
+
+vec4 bounceFilter(int face, vec3 p) {
+  vec3 uvw = (p - bounceOrigin) / (bounceVoxelSize * bounceDims);
+  if (face == 0) return textureLod(bounceVolPX, uvw, 0.0);
+  if (face == 1) return textureLod(bounceVolNX, uvw, 0.0);
+  if (face == 2) return textureLod(bounceVolPY, uvw, 0.0);
+  if (face == 3) return textureLod(bounceVolNY, uvw, 0.0);
+  if (face == 4) return textureLod(bounceVolPZ, uvw, 0.0);
+  return textureLod(bounceVolNZ, uvw, 0.0);
+}
+
+vec3 bounceSampleVolume(vec3 p, vec3 n) {
+  vec3 sq = n * n;
+  float len = sq.x + sq.y + sq.z;
+  vec3 w = len > 0.0 ? sq / len : vec3(1.0 / 3.0);
+  vec3 sum = vec3(0.0);
+  float covered = 0.0;
+  for (int axis = 0; axis < 3; axis++) {
+    if (w[axis] == 0.0) continue;
+    int face = axis * 2 + (n[axis] >= 0.0 ? 0 : 1);
+    vec4 v = bounceFilter(face, p);
+    if (v.w >= ${(1 / 256).toFixed(8)}) {
+      sum += w[axis] * v.rgb / v.w;
+      covered += w[axis];
+    }
+  }
+  return covered > 0.0 ? sum / covered : vec3(0.0);
+}
+void main() {`;
+
+// `normal` is the shading normal in view space, already turned towards the viewer on back faces
+// (DoubleSide) or derived from the triangle (flat shading): the side that is seen is the side
+// that is lit and sampled, as in shade.wgsl.
+const FRAGMENT_INDIRECT = /* glsl */ `
+if (bounceIndirect > 0.0) {
+  irradiance += bounceSampleVolume(vBounceWorld, inverseTransformDirection(normal, viewMatrix));
+}
+#include <lights_fragment_end>`;
+
+const SPOT_THREE = 'return smoothstep( coneCosine, penumbraCosine, angleCosine );';
+const SPOT_GLTF =
+  'float a = clamp( ( angleCosine - coneCosine ) / max( penumbraCosine - coneCosine, 0.001 ), 0.0, 1.0 ); return a * a;';
+
+function patchShader(shader, uniforms) {
+  Object.assign(shader.uniforms, uniforms);
+  shader.vertexShader = shader.vertexShader
+    .replace('void main() {', VERTEX_DECL)
+    .replace('#include <project_vertex>', VERTEX_WORLD);
+  shader.fragmentShader = shader.fragmentShader
+    .replace('void main() {', FRAGMENT_DECL)
+    .replace('#include <lights_fragment_end>', FRAGMENT_INDIRECT)
+    .replace('#include <lights_pars_begin>', THREE_LIGHTS_PARS_GLTF_SPOT);
+}
+
+let THREE_LIGHTS_PARS_GLTF_SPOT = '#include <lights_pars_begin>';
+
+// Called once with three's ShaderChunk, so the spot falloff patch fails loudly if three changes.
+export function installSpotFalloff(ShaderChunk) {
+  const chunk = ShaderChunk.lights_pars_begin;
+  if (!chunk.includes(SPOT_THREE)) {
+    throw new Error('three.js changed its spot falloff; shading.js must be updated');
+  }
+  THREE_LIGHTS_PARS_GLTF_SPOT = chunk.replace(SPOT_THREE, SPOT_GLTF);
+}
+
+// The glTF's material as the native renderer draws it: base colour factor × COLOR_0 × base-colour
+// map, emission, no specular, both sides.
+export function convertMaterial(source, uniforms) {
+  const m = new MeshLambertMaterial({
+    name: source.name,
+    color: source.color ? source.color.clone() : undefined,
+    map: source.map ?? null,
+    vertexColors: source.vertexColors === true,
+    flatShading: source.flatShading === true,
+    side: DoubleSide,
+  });
+  if (source.emissive) {
+    // glTF's emissive is an exitance-like factor that shade.wgsl divides by π like albedo · E.
+    m.emissive.copy(source.emissive).multiplyScalar((source.emissiveIntensity ?? 1) / Math.PI);
+    m.emissiveMap = source.emissiveMap ?? null;
+  }
+  m.onBeforeCompile = (shader) => patchShader(shader, uniforms);
+  m.customProgramCacheKey = () => 'bounce-volume-v1';
+  return m;
+}

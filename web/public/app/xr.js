@@ -1,0 +1,110 @@
+// WebXR: an "Enter VR" button where the browser offers immersive-vr (three's VRButton, which says
+// why where it cannot: no WebXR, not a secure context, no headset), stereo rendering of the same
+// scene by three's XR manager, and controllers that grab a light with the trigger and move it
+// (the thumbstick dims and brightens the light held).
+
+import { BufferGeometry, Group, Line, LineBasicMaterial, Matrix4, Vector3 } from 'three';
+import { VRButton } from 'three/addons/webxr/VRButton.js';
+
+import { markerPosition, moveLight, scaleLight } from './lights.js';
+
+const GRAB_REACH = 0.25; // metres from the controller's ray to a light marker that still grabs it
+
+export class Xr {
+  constructor(viewer) {
+    this.viewer = viewer;
+    const renderer = viewer.renderer;
+    renderer.xr.enabled = true;
+    // The headset stands where the desktop camera is, on the scene's floor.
+    this.rig = new Group();
+    viewer.scene.add(this.rig);
+    renderer.xr.addEventListener('sessionstart', () => this.enter());
+    renderer.xr.addEventListener('sessionend', () => this.leave());
+    this.button = VRButton.createButton(renderer);
+    this.button.id = 'vr-button';
+    viewer.root.appendChild(this.button);
+    this.controllers = [0, 1].map((i) => this.controller(i));
+    this.grabbed = new Map(); // controller → {index, offset}
+  }
+
+  controller(i) {
+    const c = this.viewer.renderer.xr.getController(i);
+    const ray = new Line(
+      new BufferGeometry().setFromPoints([new Vector3(0, 0, 0), new Vector3(0, 0, -1)]),
+      new LineBasicMaterial({ color: 0xffffff }),
+    );
+    ray.scale.z = 5;
+    c.add(ray);
+    c.addEventListener('connected', (e) => {
+      c.userData.gamepad = e.data.gamepad;
+    });
+    c.addEventListener('selectstart', () => this.grab(c));
+    c.addEventListener('selectend', () => this.grabbed.delete(c));
+    this.rig.add(c);
+    return c;
+  }
+
+  // three poses the XR camera relative to the camera's parent: the rig.
+  enter() {
+    const v = this.viewer;
+    this.saved = { position: v.camera.position.clone(), quaternion: v.camera.quaternion.clone() };
+    this.rig.position.set(v.camera.position.x, v.bounds.min.y, v.camera.position.z);
+    this.rig.add(v.camera);
+    v.camera.position.set(0, 0, 0);
+    v.camera.quaternion.identity();
+  }
+
+  leave() {
+    const v = this.viewer;
+    this.grabbed.clear();
+    v.scene.add(v.camera);
+    if (this.saved) {
+      v.camera.position.copy(this.saved.position);
+      v.camera.quaternion.copy(this.saved.quaternion);
+    }
+  }
+
+  // The marker nearest the controller's ray, within reach.
+  grab(c) {
+    const v = this.viewer;
+    if (!v.writable) {
+      v.message('read-only viewer: this page has no write token the server accepts');
+      return;
+    }
+    const origin = new Vector3().setFromMatrixPosition(c.matrixWorld);
+    const dir = new Vector3(0, 0, -1).transformDirection(c.matrixWorld);
+    let best = -1;
+    let bestDistance = GRAB_REACH;
+    v.lights.lights.forEach((l, i) => {
+      const p = markerPosition(l, v.bounds);
+      const along = Math.max(p.clone().sub(origin).dot(dir), 0);
+      const d = origin.clone().addScaledVector(dir, along).distanceTo(p);
+      if (d < bestDistance) {
+        best = i;
+        bestDistance = d;
+      }
+    });
+    if (best < 0) return;
+    v.select(best);
+    // Held rigidly: the light keeps its place relative to the controller.
+    const inverse = new Matrix4().copy(c.matrixWorld).invert();
+    const offset = markerPosition(v.lights.lights[best], v.bounds).applyMatrix4(inverse);
+    this.grabbed.set(c, { index: best, offset });
+  }
+
+  update() {
+    const v = this.viewer;
+    if (!v.renderer.xr.isPresenting) return;
+    for (const [c, g] of this.grabbed) {
+      const p = g.offset.clone().applyMatrix4(c.matrixWorld);
+      const stick = c.userData.gamepad?.axes?.[3] ?? 0;
+      v.editLights((set) => {
+        const l = set.lights[g.index];
+        if (!l) return null;
+        moveLight(l, p, v.bounds);
+        if (Math.abs(stick) > 0.2) scaleLight(l, 1 - stick * 0.02);
+        return set;
+      });
+    }
+  }
+}
