@@ -138,6 +138,16 @@ export class Markers {
     });
   }
 
+  // About 1.5% of the view's height wherever the camera is.
+  scaleFor(camera) {
+    const eye = camera.getWorldPosition(new Vector3());
+    const k = 2 * Math.tan((camera.fov * Math.PI) / 360) * 0.015;
+    for (const m of this.group.children) {
+      const s = Math.max(m.position.distanceTo(eye) * k, 1e-6);
+      m.scale.setScalar(m.userData.index === this.selected ? s * 1.6 : s);
+    }
+  }
+
   setVisible(visible) {
     this.group.visible = visible;
   }

@@ -151,6 +151,13 @@ export class Viewer {
         return converted.get(m);
       });
       o.material = Array.isArray(o.material) ? mine : mine[0];
+      if (!o.geometry.attributes.normal) {
+        // glTF draws a primitive without normals flat (the shader derives the triangle's
+        // normal), but three's shadow lookup offsets along the vertex normal: without one it
+        // does not offset at all and surfaces shadow themselves. Per-triangle normals here.
+        o.geometry = o.geometry.index ? o.geometry.toNonIndexed() : o.geometry;
+        o.geometry.computeVertexNormals();
+      }
       o.castShadow = true;
       o.receiveShadow = true;
     });
@@ -218,6 +225,7 @@ export class Viewer {
       }
     }
     if (this.fly.on) this.flyStep(dt);
+    this.markers.scaleFor(this.camera);
     this.xr.update(xrFrame);
     this.updateDepthRange();
     this.uniforms.bounceIndirect.value = this.terms.indirect && (this.drawn || applied) ? 1 : 0;
