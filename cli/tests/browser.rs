@@ -6,5 +6,15 @@
 
 #[path = "browser/cdp.rs"]
 mod cdp;
+#[path = "browser/fixture.rs"]
+mod fixture;
 #[path = "browser/selftest.rs"]
 mod selftest;
+#[path = "browser/viewer.rs"]
+mod viewer;
+
+/// A launched chromium, or `None` where BOUNCE_ALLOW_NO_BROWSER=1 allows going without.
+async fn browser() -> Option<cdp::Browser> {
+    cdp::chromium_or_skip()?;
+    Some(cdp::Browser::launch().await.expect("chromium launches"))
+}

@@ -1,0 +1,186 @@
+//! A real `bounce serve` child process on loopback, with a baked Cornell box, for the browser
+//! tests: the page is served by the binary users run.
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::OnceLock;
+
+use serde_json::{Value, json};
+
+pub fn bounce() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_bounce"))
+}
+
+pub fn cornell() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/cornell-box/scene.gltf")
+}
+
+/// One Cornell box bake shared by every test of this binary (baking is the slow part): 600
+/// patches keeps the page and the server quick on CI's two cores.
+pub fn baked_cornell() -> &'static Path {
+    static BAKED: OnceLock<(tempfile::TempDir, PathBuf)> = OnceLock::new();
+    let (_, path) = BAKED.get_or_init(|| {
+        let dir = tempfile::tempdir().expect("a temporary directory");
+        let path = dir.path().join("box.bounce");
+        let out = bounce()
+            .args(["bake", "--patches", "600", "--rays", "512", "--quiet", "-o"])
+            .arg(&path)
+            .arg(cornell())
+            .output()
+            .expect("bounce bake runs");
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        (dir, path)
+    });
+    path
+}
+
+/// The light every test starts from: the README's point light under the ceiling.
+pub fn ceiling_light() -> Value {
+    json!([{"type": "point", "position": [0.0, 1.5, 0.0], "intensity": 10.0}])
+}
+
+pub struct Serve {
+    child: Child,
+    pub http: String,
+    pub grpc: String,
+    pub dir: tempfile::TempDir,
+}
+
+pub struct ServeOptions<'a> {
+    pub token: Option<&'a str>,
+    /// A fixed HTTP port (to restart on the same address); a free one when `None`.
+    pub http_port: Option<u16>,
+    /// Reuse a previous server's directory (scenes and stored sessions).
+    pub dir: Option<tempfile::TempDir>,
+}
+
+impl Default for ServeOptions<'_> {
+    fn default() -> Self {
+        ServeOptions {
+            token: None,
+            http_port: None,
+            dir: None,
+        }
+    }
+}
+
+impl Serve {
+    pub fn start(options: ServeOptions<'_>) -> Serve {
+        let dir = options.dir.unwrap_or_else(|| {
+            let dir = tempfile::tempdir().expect("a temporary directory");
+            std::fs::create_dir_all(dir.path().join("scenes")).expect("scenes dir");
+            std::fs::copy(baked_cornell(), dir.path().join("scenes/box.bounce"))
+                .expect("copy the baked box");
+            dir
+        });
+        let http = format!("127.0.0.1:{}", options.http_port.unwrap_or(0));
+        let mut cmd = bounce();
+        cmd.args(["serve", "--engine", "cpu", "--grpc", "127.0.0.1:0"])
+            .args(["--http", &http, "--reload-every", "0"])
+            .arg("--scenes")
+            .arg(dir.path().join("scenes"))
+            .arg("--data-dir")
+            .arg(dir.path().join("data"))
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null());
+        if let Some(t) = options.token {
+            cmd.args(["--token", t]);
+        }
+        let mut child = cmd.spawn().expect("bounce serve starts");
+        let stdout = child.stdout.take().expect("stdout");
+        let (mut grpc, mut http) = (None, None);
+        for line in BufReader::new(stdout).lines() {
+            let line = line.expect("stdout line");
+            let line = line.trim_start();
+            let first = |rest: &str| rest.split_whitespace().next().map(str::to_owned);
+            if let Some(rest) = line.strip_prefix("gRPC  ") {
+                grpc = first(rest);
+            } else if let Some(rest) = line.strip_prefix("HTTP  ") {
+                http = first(rest);
+            }
+            if grpc.is_some() && http.is_some() {
+                break;
+            }
+        }
+        Serve {
+            child,
+            http: http.expect("bounce serve printed its HTTP address"),
+            grpc: grpc.expect("bounce serve printed its gRPC address"),
+            dir,
+        }
+    }
+
+    /// SIGKILL: nothing of the server's shutdown runs, as in a crash.
+    pub fn kill(mut self) -> tempfile::TempDir {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+        let dir = tempfile::tempdir().expect("a temporary directory");
+        std::mem::replace(&mut self.dir, dir)
+    }
+
+    pub fn port(&self) -> u16 {
+        self.http
+            .rsplit(':')
+            .next()
+            .and_then(|p| p.trim_end_matches('/').parse().ok())
+            .expect("a port in the HTTP address")
+    }
+
+    /// `POST /v1/sessions` with `lights`; the new session's id.
+    pub async fn create_session(&self, lights: Value, token: Option<&str>) -> String {
+        let mut request = reqwest::Client::new()
+            .post(format!("{}/v1/sessions", self.http))
+            .json(&json!({"scene": "box", "lights": lights}));
+        if let Some(t) = token {
+            request = request.bearer_auth(t);
+        }
+        let answer: Value = request
+            .send()
+            .await
+            .and_then(|r| r.error_for_status())
+            .expect("POST /v1/sessions")
+            .json()
+            .await
+            .expect("a JSON answer");
+        answer["session_id"]
+            .as_str()
+            .expect("a session id")
+            .to_owned()
+    }
+
+    /// `PUT /v1/sessions/{id}/lights`; the new lights version.
+    pub async fn set_lights(&self, session: &str, lights: Value, token: Option<&str>) -> u64 {
+        let mut request = reqwest::Client::new()
+            .put(format!("{}/v1/sessions/{session}/lights", self.http))
+            .json(&json!({"lights": lights}));
+        if let Some(t) = token {
+            request = request.bearer_auth(t);
+        }
+        let answer: Value = request
+            .send()
+            .await
+            .and_then(|r| r.error_for_status())
+            .expect("PUT lights")
+            .json()
+            .await
+            .expect("a JSON answer");
+        answer["lights_version"].as_u64().expect("a lights version")
+    }
+
+    pub fn page_url(&self, session: &str, extra: &str) -> String {
+        format!("{}/?scene=box&session={session}{extra}", self.http)
+    }
+}
+
+impl Drop for Serve {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+

@@ -1,0 +1,559 @@
+//! The browser viewer (web/public, served by `bounce serve`) in headless Chromium against a real
+//! server: it loads cleanly, draws the streamed indirect light where it belongs, shares a
+//! session with other tabs and a gRPC subscriber, draws what `bounce render` draws, explains
+//! refusals, and rides out a server restart.
+
+use std::time::Duration;
+
+use bounce_client::layout::Layout;
+use bounce_client::volume::Volume;
+use bounce_server::frame::Frame;
+use bounce_server::proto::{self, bounce_client::BounceClient};
+use glam::{Mat4, Vec3};
+use image::RgbaImage;
+use serde_json::{Value, json};
+
+use crate::cdp::{Browser, MouseButton, MouseKind, Page};
+use crate::fixture::{Serve, ServeOptions, bounce, ceiling_light, cornell};
+
+const WAIT: Duration = Duration::from_secs(90);
+const W: u32 = 320;
+const H: u32 = 240;
+/// The camera both viewers use for pictures: the box from the open side.
+const EYE: [f32; 3] = [0.0, 1.0, 3.4];
+const TARGET: [f32; 3] = [0.0, 1.0, 0.0];
+const FOV: f32 = 45.0;
+
+fn camera_param() -> String {
+    let v: Vec<String> = EYE
+        .iter()
+        .chain(&TARGET)
+        .chain(&[FOV])
+        .map(|x| x.to_string())
+        .collect();
+    v.join(",")
+}
+
+/// Page parameters for a picture comparable with `bounce render`: no overlay, buttons, light
+/// markers or antialiasing, one pixel per CSS pixel.
+fn picture_params() -> String {
+    format!(
+        "&camera={}&overlay=off&ui=off&markers=off&aa=off&pixel_ratio=1",
+        camera_param()
+    )
+}
+
+async fn open(browser: &Browser, url: &str) -> Page {
+    let page = browser.new_page(W, H).await.expect("a page");
+    page.goto(url).await.expect("the page loads");
+    page
+}
+
+/// Waits until the viewer has drawn its first frame of indirect light.
+async fn wait_drawn(page: &Page) -> Value {
+    page.wait_for(
+        "window.bounceError ? {error: window.bounceError} : window.bounce?.drawn",
+        WAIT,
+    )
+    .await
+    .map(|v| {
+        assert!(v.get("error").is_none(), "the page failed: {v}");
+        v
+    })
+    .expect("the first indirect frame is drawn")
+}
+
+/// Two animation frames later: whatever was set is on screen.
+async fn settle(page: &Page) {
+    page.eval(
+        "new Promise(r => requestAnimationFrame(() => requestAnimationFrame(() => r(true))))",
+    )
+    .await
+    .expect("animation frames run");
+}
+
+async fn screenshot(page: &Page) -> RgbaImage {
+    settle(page).await;
+    let png = page.screenshot_png().await.expect("a screenshot");
+    image::load_from_memory(&png)
+        .expect("a PNG")
+        .to_rgba8()
+}
+
+fn assert_no_errors(page: &Page) {
+    let errors = page.errors();
+    assert!(errors.is_empty(), "console errors: {errors:#?}");
+}
+
+/// Where a world point lands in a `W`×`H` picture from the test camera (top-left origin).
+fn project(p: Vec3) -> (u32, u32) {
+    // The native renderer's own camera: the same projection the page must match.
+    let camera = bounce_render::Camera {
+        eye: Vec3::from(EYE),
+        target: Vec3::from(TARGET),
+        fov_y: FOV.to_radians(),
+    };
+    let bounds = (Vec3::new(-1.0, 0.0, -1.0), Vec3::new(1.0, 2.0, 1.0));
+    let view_proj: Mat4 = camera
+        .view_proj(W as f32 / H as f32, bounds)
+        .expect("a valid camera");
+    let ndc = view_proj.project_point3(p);
+    let x = ((ndc.x + 1.0) / 2.0 * W as f32) as u32;
+    let y = ((1.0 - ndc.y) / 2.0 * H as f32) as u32;
+    (x.min(W - 1), y.min(H - 1))
+}
+
+fn rgb(img: &RgbaImage, (x, y): (u32, u32)) -> [f32; 3] {
+    let p = img.get_pixel(x, y).0;
+    [p[0], p[1], p[2]].map(f32::from)
+}
+
+fn luma(c: [f32; 3]) -> f32 {
+    0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2]
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_page_lists_scenes_and_draws_the_indirect_light_where_it_belongs() {
+    let Some(browser) = crate::browser().await else {
+        return;
+    };
+    let serve = Serve::start(ServeOptions::default());
+    let session = serve.create_session(ceiling_light(), None).await;
+
+    // The landing page lists the scene and its session.
+    let home = open(&browser, &format!("{}/", serve.http)).await;
+    let listed = home
+        .wait_for(
+            "document.querySelectorAll('.sessions a').length > 0 && \
+             [...document.querySelectorAll('#scenes h2')].map(h => h.textContent)",
+            WAIT,
+        )
+        .await
+        .expect("the scene list shows");
+    assert_eq!(listed, json!(["box"]));
+    let link = home
+        .eval("document.querySelector('.sessions a').textContent")
+        .await
+        .unwrap();
+    assert_eq!(link, json!(session));
+    assert_no_errors(&home);
+
+    let page = open(&browser, &serve.page_url(&session, &picture_params())).await;
+    let drawn = wait_drawn(&page).await;
+    assert_eq!(drawn["lightsVersion"], 1, "{drawn}");
+    let scenes: Value = reqwest::get(format!("{}/v1/scenes", serve.http))
+        .await
+        .and_then(|r| r.error_for_status())
+        .expect("the scene list")
+        .json()
+        .await
+        .expect("JSON");
+    let patches = scenes["scenes"][0]["patch_count"].as_u64().expect("a patch count");
+    assert_eq!(drawn["bytes"].as_u64(), Some(32 + 4 * patches), "{drawn}");
+    assert_no_errors(&page);
+
+    page.eval("window.bounce.setTerms('direct')").await.unwrap();
+    let direct = screenshot(&page).await;
+    page.eval("window.bounce.setTerms('both')").await.unwrap();
+    let both = screenshot(&page).await;
+
+    // Shadowed floor: points the light does not reach (black with direct light only) get
+    // light from the walls.
+    let mut shadowed = Vec::new();
+    for i in 0..=16 {
+        for k in 0..=16 {
+            let p = Vec3::new(-0.95 + 1.9 * i as f32 / 16.0, 0.001, -0.95 + 1.9 * k as f32 / 16.0);
+            let px = project(p);
+            if luma(rgb(&direct, px)) < 4.0 {
+                shadowed.push(px);
+            }
+        }
+    }
+    assert!(
+        shadowed.len() >= 5,
+        "the ceiling light must leave some floor in shadow ({} points)",
+        shadowed.len()
+    );
+    let mean = |img: &RgbaImage| {
+        shadowed.iter().map(|&p| luma(rgb(img, p))).sum::<f32>() / shadowed.len() as f32
+    };
+    let (off, on) = (mean(&direct), mean(&both));
+    assert!(
+        on > off + 15.0,
+        "shadowed floor: {off:.1} without indirect light, {on:.1} with it"
+    );
+
+    // The floor beside the red (left, −X) wall turns red with its bounce light.
+    let redness = |img: &RgbaImage| {
+        let c = rgb(img, project(Vec3::new(-0.85, 0.001, 0.4)));
+        c[0] / c[1].max(1.0)
+    };
+    let (off, on) = (redness(&direct), redness(&both));
+    assert!(
+        on > off * 1.05,
+        "floor beside the red wall, red/green: {off:.3} without indirect light, {on:.3} with it"
+    );
+    assert_no_errors(&page);
+}
+
+/// FNV-1a over a frame's payload words: the page computes the same (viewer.js `checksum`).
+fn checksum(frame: &Frame) -> u64 {
+    let mut h: u32 = 0x811c_9dc5;
+    for w in frame.words() {
+        h = (h ^ w).wrapping_mul(0x0100_0193);
+    }
+    u64::from(h)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn tabs_and_a_grpc_subscriber_share_one_session() {
+    let Some(browser) = crate::browser().await else {
+        return;
+    };
+    let serve = Serve::start(ServeOptions::default());
+    let session = serve.create_session(ceiling_light(), None).await;
+
+    // A gRPC subscriber records every frame it gets.
+    let mut grpc = BounceClient::connect(serve.grpc.clone())
+        .await
+        .expect("gRPC connects");
+    let mut stream = grpc
+        .subscribe(proto::SubscribeRequest {
+            session_id: session.clone(),
+        })
+        .await
+        .expect("subscribe")
+        .into_inner();
+    let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel();
+    tokio::spawn(async move {
+        while let Ok(Some(f)) = stream.message().await {
+            if let Ok(frame) = Frame::parse(f.data) {
+                let _ = tx.send(frame);
+            }
+        }
+    });
+
+    let url = serve.page_url(&session, &picture_params());
+    let a = open(&browser, &url).await;
+    let b = open(&browser, &url).await;
+    wait_drawn(&a).await;
+    wait_drawn(&b).await;
+    let before = screenshot(&b).await;
+
+    // Tab A moves the light and tints it; tab B draws the new light.
+    let moved = json!({"lights": [{"type": "point", "position": [0.6, 1.2, 0.2],
+        "intensity": 14.0, "color": [1.0, 0.4, 0.3]}]});
+    let edit = a
+        .eval(&format!("window.bounce.setLights({moved})"))
+        .await
+        .expect("A sets lights");
+    let version = edit["answer"]["lights_version"].as_u64().expect("a version");
+    assert_eq!(version, 2, "{edit}");
+    let shown = b
+        .eval(&format!("window.bounce.drawnVersion({version})"))
+        .await
+        .expect("B draws the new light");
+    assert_eq!(shown["lightsVersion"], version);
+    let b_lights = b
+        .wait_for(
+            &format!("window.bounce.lights.lights[0]?.intensity === 14 && window.bounce.lights"),
+            WAIT,
+        )
+        .await
+        .expect("B reads the new lights for its direct light");
+    assert_eq!(b_lights, moved);
+    let after = screenshot(&b).await;
+    let changed = before
+        .pixels()
+        .zip(after.pixels())
+        .filter(|(p, q)| (0..3).any(|c| p.0[c].abs_diff(q.0[c]) > 20))
+        .count();
+    assert!(
+        changed > (W * H / 10) as usize,
+        "B's picture changed in only {changed} pixels"
+    );
+
+    // The frames B received are frames the gRPC subscriber received, in the same order, and
+    // its newest is the subscriber's newest.
+    let received: Vec<(u64, u64, u64)> = serde_json::from_value::<Vec<Value>>(
+        b.eval("window.bounce.received").await.unwrap(),
+    )
+    .unwrap()
+    .iter()
+    .map(|f| {
+        (
+            f["lightsVersion"].as_u64().unwrap(),
+            f["sequence"].as_u64().unwrap(),
+            f["checksum"].as_u64().unwrap(),
+        )
+    })
+    .collect();
+    let mut seen = Vec::new();
+    while seen.last().map(|s: &(u64, u64, u64)| s.0) != Some(version) {
+        let frame = tokio::time::timeout(WAIT, rx.recv())
+            .await
+            .expect("the subscriber gets the new frame")
+            .expect("the stream is open");
+        let h = frame.header;
+        seen.push((h.lights_version, h.sequence, checksum(&frame)));
+    }
+    let mut rest = seen.iter();
+    for r in &received {
+        assert!(
+            rest.any(|s| s == r),
+            "B got {r:?}, which the subscriber did not get in that order: {seen:?}"
+        );
+    }
+    assert_eq!(received.last(), seen.last());
+
+    // A real drag: the mouse moves tab A's light marker, B follows.
+    let at = a.eval("window.bounce.markerOnScreen(0)").await.unwrap();
+    let (x, y) = (at["x"].as_f64().unwrap(), at["y"].as_f64().unwrap());
+    a.mouse(MouseKind::Move, x, y).await.unwrap();
+    a.mouse(MouseKind::Down(MouseButton::Left), x, y).await.unwrap();
+    for step in 1..=5 {
+        a.mouse(MouseKind::Move, x - 8.0 * f64::from(step), y).await.unwrap();
+    }
+    a.mouse(MouseKind::Up(MouseButton::Left), x - 40.0, y).await.unwrap();
+    let dragged = a
+        .wait_for(
+            "window.bounce.lights.lights[0].position[0] < 0.55 && window.bounce.lights",
+            WAIT,
+        )
+        .await
+        .expect("the drag moves the light");
+    let dragged_x = dragged["lights"][0]["position"][0].as_f64().unwrap();
+    b.wait_for(
+        &format!("Math.abs(window.bounce.lights.lights[0].position[0] - {dragged_x}) < 1e-6"),
+        WAIT,
+    )
+    .await
+    .expect("B follows A's drag");
+    assert_no_errors(&a);
+    assert_no_errors(&b);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_browser_draws_what_bounce_render_draws() {
+    let Some(browser) = crate::browser().await else {
+        return;
+    };
+    let serve = Serve::start(ServeOptions::default());
+    let spot = json!([{"type": "spot", "position": [0.0, 1.9, 0.0], "direction": [0.0, -1.0, 0.0],
+        "intensity": 15.0, "inner_cone_angle": 0.5, "outer_cone_angle": 0.9}]);
+    let session = serve.create_session(spot, None).await;
+    let page = open(&browser, &serve.page_url(&session, &picture_params())).await;
+    let drawn = wait_drawn(&page).await;
+    let browser_img = screenshot(&page).await;
+
+    // The native renderer, with its indirect light from the same session's frame.
+    let dir = tempfile::tempdir().unwrap();
+    let png = dir.path().join("native.png");
+    let out = bounce()
+        .arg("render")
+        .arg(cornell())
+        .args(["--server", &serve.grpc, "--scene-name", "box", "--session", &session])
+        .args(["--camera", &camera_param(), "--width", &W.to_string()])
+        .args(["--height", &H.to_string(), "--out"])
+        .arg(&png)
+        .env("XDG_RUNTIME_DIR", dir.path())
+        .output()
+        .expect("bounce render runs");
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let native = image::open(&png).expect("a PNG").to_rgba8();
+    assert_eq!(native.dimensions(), browser_img.dimensions());
+    let _ = drawn;
+
+    let diffs: Vec<u8> = native
+        .pixels()
+        .zip(browser_img.pixels())
+        .map(|(p, q)| (0..3).map(|c| p.0[c].abs_diff(q.0[c])).max().unwrap_or(0))
+        .collect();
+    let mean = diffs.iter().map(|&d| f64::from(d)).sum::<f64>() / diffs.len() as f64;
+    let large = diffs.iter().filter(|&&d| d > 32).count() as f64 / diffs.len() as f64;
+    if mean > 4.0 || large > 0.03 {
+        let _ = native.save(std::env::temp_dir().join("bounce-native.png"));
+        let _ = browser_img.save(std::env::temp_dir().join("bounce-browser.png"));
+    }
+    assert!(
+        mean <= 4.0 && large <= 0.03,
+        "browser against native: mean difference {mean:.2}/255, {:.2}% of pixels off by more \
+         than 32 (pictures saved in the temp dir)",
+        large * 100.0
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_pages_volume_samples_as_the_client_library_does() {
+    let Some(browser) = crate::browser().await else {
+        return;
+    };
+    let serve = Serve::start(ServeOptions::default());
+    let session = serve.create_session(ceiling_light(), None).await;
+    let page = open(&browser, &serve.page_url(&session, "&overlay=off")).await;
+    wait_drawn(&page).await;
+
+    let layout: Vec<u8> = reqwest::get(format!("{}/v1/scenes/box/layout", serve.http))
+        .await
+        .and_then(|r| r.error_for_status())
+        .expect("the layout")
+        .bytes()
+        .await
+        .expect("its bytes")
+        .to_vec();
+    let layout = Layout::from_json(&layout).expect("a valid layout");
+    let mut grpc = BounceClient::connect(serve.grpc.clone()).await.unwrap();
+    let mut stream = grpc
+        .subscribe(proto::SubscribeRequest {
+            session_id: session.clone(),
+        })
+        .await
+        .unwrap()
+        .into_inner();
+    let frame = Frame::parse(stream.message().await.unwrap().unwrap().data).unwrap();
+    let mut volume = Volume::new(&layout).unwrap();
+    volume.apply(&frame).unwrap();
+    let drawn = page.eval("window.bounce.received.at(-1)").await.unwrap();
+    assert_eq!(drawn["checksum"].as_u64(), Some(checksum(&frame)));
+
+    let points = [
+        (Vec3::new(-0.5, 0.01, 0.2), Vec3::Y),
+        (Vec3::new(-0.98, 1.0, -0.3), Vec3::X),
+        (Vec3::new(0.3, 1.98, 0.1), Vec3::NEG_Y),
+        (Vec3::new(0.2, 0.7, -0.99), Vec3::new(0.3, 0.2, 0.93).normalize()),
+        (Vec3::new(0.95, 0.4, 0.5), Vec3::NEG_X),
+    ];
+    for (p, n) in points {
+        let js = page
+            .eval(&format!(
+                "window.bounce.sample([{},{},{}],[{},{},{}])",
+                p.x, p.y, p.z, n.x, n.y, n.z
+            ))
+            .await
+            .unwrap();
+        let js: Vec<f32> = serde_json::from_value(js).unwrap();
+        let rust = volume.sample(p, n);
+        for c in 0..3 {
+            assert!(
+                (js[c] - rust[c]).abs() <= 1e-5 * rust[c].abs().max(1.0),
+                "at {p} {n}: page {js:?}, client {rust:?}"
+            );
+        }
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn refusals_and_missing_sessions_are_explained() {
+    let Some(browser) = crate::browser().await else {
+        return;
+    };
+    let serve = Serve::start(ServeOptions {
+        token: Some("sesame"),
+        ..ServeOptions::default()
+    });
+    let session = serve.create_session(ceiling_light(), Some("sesame")).await;
+
+    // No token: the page watches, and says why a light does not move.
+    let spectator = open(&browser, &serve.page_url(&session, "")).await;
+    wait_drawn(&spectator).await;
+    assert_eq!(spectator.eval("window.bounce.writable").await.unwrap(), json!(false));
+    spectator
+        .eval("window.bounce.setLights({lights: []})")
+        .await
+        .unwrap();
+    let message = spectator.eval("window.bounce.message").await.unwrap();
+    assert!(
+        message.as_str().is_some_and(|m| m.contains("read-only")),
+        "{message}"
+    );
+
+    // A wrong token: the server refuses the write, the page says so and keeps the session's
+    // lights.
+    let wrong = open(&browser, &serve.page_url(&session, "&token=wrong")).await;
+    wait_drawn(&wrong).await;
+    wrong
+        .eval("window.bounce.setLights({lights: []})")
+        .await
+        .unwrap();
+    let state = wrong
+        .wait_for(
+            "window.bounce.lights.lights.length === 1 && !window.bounce.writable && \
+             window.bounce.message",
+            WAIT,
+        )
+        .await
+        .expect("the refusal is shown");
+    assert!(state.as_str().is_some_and(|m| m.contains("read-only")), "{state}");
+
+    // The right token writes.
+    let writer = open(&browser, &serve.page_url(&session, "&token=sesame")).await;
+    wait_drawn(&writer).await;
+    let edit = writer
+        .eval("window.bounce.setLights({lights: [{type: 'point', position: [0, 1, 0], intensity: 3}]})")
+        .await
+        .unwrap();
+    assert_eq!(edit["answer"]["lights_version"], 2, "{edit}");
+    assert_no_errors(&writer);
+
+    // An unknown session.
+    let lost = open(&browser, &serve.page_url("0123456789abcdef", "")).await;
+    let text = lost
+        .wait_for("window.bounceError", WAIT)
+        .await
+        .expect("an error is shown");
+    assert!(
+        text.as_str().is_some_and(|t| t.contains("0123456789abcdef")),
+        "{text}"
+    );
+    let shown = lost
+        .eval("document.getElementById('message').textContent")
+        .await
+        .unwrap();
+    assert_eq!(shown, text);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_page_keeps_its_light_through_a_restart_and_reconnects() {
+    let Some(browser) = crate::browser().await else {
+        return;
+    };
+    let serve = Serve::start(ServeOptions::default());
+    let port = serve.port();
+    let session = serve.create_session(ceiling_light(), None).await;
+    let page = open(&browser, &serve.page_url(&session, "")).await;
+    let first = wait_drawn(&page).await;
+
+    let dir = serve.kill();
+    let state = page
+        .wait_for(
+            "window.bounce.connection.state === 'disconnected' && window.bounce.connection",
+            WAIT,
+        )
+        .await
+        .expect("the page notices");
+    assert!(state["detail"].is_string(), "{state}");
+    // Still lit by the last frame.
+    assert_eq!(page.eval("window.bounce.drawn").await.unwrap()["sequence"], first["sequence"]);
+
+    let serve = Serve::start(ServeOptions {
+        http_port: Some(port),
+        dir: Some(dir),
+        ..ServeOptions::default()
+    });
+    page.wait_for("window.bounce.connection.state === 'live'", WAIT)
+        .await
+        .expect("the page reconnects");
+    let version = serve
+        .set_lights(&session, json!([{"type": "point", "position": [0.2, 1.4, 0.0], "intensity": 8.0}]), None)
+        .await;
+    page.eval(&format!("window.bounce.drawnVersion({version})"))
+        .await
+        .expect("frames flow again");
+    let errors: Vec<String> = page
+        .errors()
+        .into_iter()
+        // The browser reports the refused reconnection attempts while the server is down.
+        .filter(|e| !e.contains("WebSocket") && !e.contains("ERR_CONNECTION_REFUSED"))
+        .collect();
+    assert!(errors.is_empty(), "{errors:#?}");
+}
