@@ -183,6 +183,7 @@ fn sample(channels: usize, with_form_factors: bool) -> Baked {
         transport: EncodedMatrix::encode_dense_f32(&dense(n, channels, 1.0)),
         form_factors: with_form_factors.then(|| EncodedMatrix::encode_dense_f32(&dense(n, 1, 2.0))),
         occupancy: Some(SAMPLE_OCCUPANCY.to_vec()),
+        model: None,
     }
 }
 
@@ -1362,6 +1363,7 @@ fn arb_baked() -> impl Strategy<Value = Baked> {
                 transport,
                 form_factors,
                 occupancy,
+                model: None,
             })
     })
 }
