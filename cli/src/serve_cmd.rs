@@ -289,10 +289,12 @@ fn demo_scenes(cache_dir: Option<PathBuf>) -> Result<PathBuf> {
     let scenes = demo.join("scenes");
     let baked = scenes.join("cornell-box.bounce");
     // A cached bake from a bounce that did not keep the model is baked again: the page needs it.
-    let cached = Baked::read(&baked).map_err(|e| e.to_string()).and_then(|b| match b.model {
-        Some(_) => Ok(()),
-        None => Err("it has no model for the browser page".to_string()),
-    });
+    let cached = Baked::read(&baked)
+        .map_err(|e| e.to_string())
+        .and_then(|b| match b.model {
+            Some(_) => Ok(()),
+            None => Err("it has no model for the browser page".to_string()),
+        });
     match cached {
         Ok(()) => info!(file = %baked.display(), "demo scene from the cache"),
         Err(e) => {

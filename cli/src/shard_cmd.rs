@@ -65,14 +65,15 @@ pub fn form_factors(
         .then(|| crate::bake_cmd::pack_model(scene))
         .transpose()?;
     let progress = TermProgress::new(quiet);
-    let mut file = shard::form_factor_shard(scene, options, spec, &progress).with_context(|| {
-        format!(
-            "baking form-factor shard {}/{} of {}",
-            spec.index,
-            spec.count,
-            scene.display()
-        )
-    })?;
+    let mut file =
+        shard::form_factor_shard(scene, options, spec, &progress).with_context(|| {
+            format!(
+                "baking form-factor shard {}/{} of {}",
+                spec.index,
+                spec.count,
+                scene.display()
+            )
+        })?;
     file.model = model;
     write(&file, &path, quiet, start)
 }

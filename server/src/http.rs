@@ -148,10 +148,7 @@ fn router(hub: Hub, sockets: TaskTracker) -> Router {
         .route("/v1/scenes", get(list_scenes))
         .route("/v1/scenes/{name}/layout", get(layout))
         .route("/v1/scenes/{name}/model", compressed(get(model)))
-        .route(
-            "/v1/sessions",
-            get(list_sessions).post(create_session),
-        )
+        .route("/v1/sessions", get(list_sessions).post(create_session))
         .route("/v1/sessions/{id}", get(get_session))
         .route("/v1/sessions/{id}/lights", put(set_lights))
         .route("/v1/sessions/{id}/ws", get(ws::upgrade))
@@ -176,7 +173,9 @@ fn router(hub: Hub, sockets: TaskTracker) -> Router {
 fn compressed(route: MethodRouter<AppState>) -> MethodRouter<AppState> {
     route
         .layer(CompressionLayer::new().gzip(true).br(true))
-        .layer(axum::middleware::map_response(cache::weaken_compressed_etag))
+        .layer(axum::middleware::map_response(
+            cache::weaken_compressed_etag,
+        ))
 }
 
 /// What went wrong, as every HTTP and WebSocket answer names it: the JSON `code`, the HTTP

@@ -77,7 +77,9 @@ pub fn load(baked_path: &Path, from_file: Option<Vec<u8>>) -> Option<SceneModel>
                     ModelSource::Sibling(candidate),
                 ));
             }
-            Err(e) => warn!(file = %candidate.display(), error = %e, "model beside the baked file not usable"),
+            Err(e) => {
+                warn!(file = %candidate.display(), error = %e, "model beside the baked file not usable")
+            }
         }
     }
     None

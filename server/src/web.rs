@@ -139,7 +139,10 @@ pub(crate) async fn serve(State(state): State<AppState>, request: Request) -> Re
             Ok(None) => no_route(),
             Err(e) => ApiError::new(
                 ErrorCode::Internal,
-                format!("reading {path} from the web directory {}: {e}", dir.display()),
+                format!(
+                    "reading {path} from the web directory {}: {e}",
+                    dir.display()
+                ),
             )
             .into_response(),
         },
@@ -161,7 +164,6 @@ async fn read_from(dir: &Path, path: &str) -> std::io::Result<Option<Vec<u8>>> {
         .await
         .map_err(std::io::Error::other)?
 }
-
 
 #[cfg(test)]
 mod tests {
@@ -197,7 +199,11 @@ mod tests {
         let paths: Vec<&str> = embedded_paths().collect();
         assert!(paths.contains(&"index.html"), "{paths:?}");
         assert!(paths.contains(&"vendor/three/three.module.js"), "{paths:?}");
-        assert!(paths.iter().all(|p| file_path(&format!("/{p}")).as_deref() == Some(*p)));
+        assert!(
+            paths
+                .iter()
+                .all(|p| file_path(&format!("/{p}")).as_deref() == Some(*p))
+        );
     }
 
     #[test]

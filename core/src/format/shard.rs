@@ -96,11 +96,8 @@ impl ShardFile {
                 SectionKind::OCCU,
                 encode_occupancy(&h.occupancy, &h.layout)?,
             ),
-            rows_section(ROWS, &h.meta, h.meta.channels, &self.rows),
         ];
-        if let Some(f) = &self.form_factor_rows {
-            sections.push(rows_section(FROW, &h.meta, 1, f));
-        }
+        // Before the rows, which stay last as they are the bulk of the file.
         if let Some(model) = &self.model {
             validate_model(model)?;
             sections.push(Section {
@@ -108,6 +105,10 @@ impl ShardFile {
                 flags: SECTION_OPTIONAL,
                 pieces: vec![Cow::Borrowed(model)],
             });
+        }
+        sections.push(rows_section(ROWS, &h.meta, h.meta.channels, &self.rows));
+        if let Some(f) = &self.form_factor_rows {
+            sections.push(rows_section(FROW, &h.meta, 1, f));
         }
         Assembled::new_as(sections, Flavour::Shard)
     }

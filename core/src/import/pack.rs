@@ -108,7 +108,12 @@ pub fn pack_bytes(bytes: &[u8], base: Option<&Path>, path: &Path) -> Result<Vec<
                 .bin
                 .map(<[u8]>::to_vec)
                 .ok_or_else(|| resource(what(), "no URI and no GLB BIN chunk".into()))?,
-            None => return Err(resource(what(), "no URI (only buffer 0 of a GLB may have none)".into())),
+            None => {
+                return Err(resource(
+                    what(),
+                    "no URI (only buffer 0 of a GLB may have none)".into(),
+                ));
+            }
         };
         let data = usize::try_from(len)
             .ok()
@@ -155,7 +160,11 @@ pub fn pack_bytes(bytes: &[u8], base: Option<&Path>, path: &Path) -> Result<Vec<
         let data = source::read_uri(&uri, base).map_err(|e| resource(what.clone(), e))?;
         let mime = mime_of(&uri)
             .map(str::to_owned)
-            .or_else(|| obj.get("mimeType").and_then(Value::as_str).map(str::to_owned))
+            .or_else(|| {
+                obj.get("mimeType")
+                    .and_then(Value::as_str)
+                    .map(str::to_owned)
+            })
             .or_else(|| sniff_mime(&data).map(str::to_owned))
             .ok_or_else(|| {
                 resource(
@@ -192,7 +201,11 @@ pub fn pack_bytes(bytes: &[u8], base: Option<&Path>, path: &Path) -> Result<Vec<
         .unwrap_or_default();
     buffer.remove("uri");
     buffer.insert("byteLength".into(), json!(total));
-    put(doc, "buffers", (total > 0 || !placed.is_empty()).then(|| vec![Value::Object(buffer)]));
+    put(
+        doc,
+        "buffers",
+        (total > 0 || !placed.is_empty()).then(|| vec![Value::Object(buffer)]),
+    );
     put(doc, "bufferViews", (!views.is_empty()).then_some(views));
     put(doc, "images", (!images.is_empty()).then_some(images));
 
