@@ -213,12 +213,12 @@ pub fn bake(
     quiet: bool,
 ) -> Result<Baked> {
     let start = Instant::now();
-    // Packed first: it is quick, and a scene it cannot pack should fail before the long part.
-    let model = keep_model.then(|| pack_model(scene)).transpose()?;
     let progress = TermProgress::new(quiet);
     let mut baked = bake_file(scene, options, &progress)
         .with_context(|| format!("baking {}", scene.display()))?;
-    baked.model = model;
+    // After the bake, so that a file that is not a scene gets the importer's error; by now the
+    // files it names have been read once, so packing rarely fails.
+    baked.model = keep_model.then(|| pack_model(scene)).transpose()?;
     let write_start = Instant::now();
     baked
         .write_atomic(out)

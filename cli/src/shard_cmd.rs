@@ -61,9 +61,6 @@ pub fn form_factors(
 ) -> Result<()> {
     let start = Instant::now();
     let path = shard_path(out, Phase::FormFactors, spec)?;
-    let model = keep_model
-        .then(|| crate::bake_cmd::pack_model(scene))
-        .transpose()?;
     let progress = TermProgress::new(quiet);
     let mut file =
         shard::form_factor_shard(scene, options, spec, &progress).with_context(|| {
@@ -74,7 +71,10 @@ pub fn form_factors(
                 scene.display()
             )
         })?;
-    file.model = model;
+    // After the shard's import, as in a whole bake, so a bad scene gets the importer's error.
+    file.model = keep_model
+        .then(|| crate::bake_cmd::pack_model(scene))
+        .transpose()?;
     write(&file, &path, quiet, start)
 }
 

@@ -21,10 +21,12 @@ use super::source;
 /// the buffer or image and the file it points to.
 #[derive(Debug, Error)]
 pub enum PackError {
-    #[error("{}: {source}", path.display())]
+    // The cause is in the message, not a `source`, so a reporter printing the chain does not
+    // repeat it.
+    #[error("{}: {error}", path.display())]
     Io {
         path: PathBuf,
-        source: std::io::Error,
+        error: std::io::Error,
     },
     #[error("{}: not a glTF 2.0 file: {reason}", path.display())]
     NotGltf { path: PathBuf, reason: String },
@@ -45,9 +47,9 @@ const ALIGN: usize = 4;
 /// The scene at `path` (`.gltf` or `.glb`) as one self-contained GLB. A GLB whose buffers and
 /// images name no URI is returned as it is.
 pub fn pack_glb(path: &Path) -> Result<Vec<u8>, PackError> {
-    let bytes = std::fs::read(path).map_err(|source| PackError::Io {
+    let bytes = std::fs::read(path).map_err(|error| PackError::Io {
         path: path.to_path_buf(),
-        source,
+        error,
     })?;
     pack_bytes(&bytes, path.parent(), path)
 }

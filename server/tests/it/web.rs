@@ -300,7 +300,7 @@ async fn sessions_are_listed_newest_first_by_scene_with_their_viewers() {
         ["lights_version", "scene", "session_id", "viewers"]
     );
     let limited: Value = list("?limit=1").await.json().await.expect("JSON");
-    assert_eq!(ids(&limited), [other.clone()]);
+    assert_eq!(ids(&limited), std::slice::from_ref(&other));
     let limited: Value = list("?limit=1000&scene=bare")
         .await
         .json()
