@@ -7,6 +7,7 @@ use anyhow::{Context, Result, bail};
 use bounce_core::bake::{BakeOptions, CodecRequest, bake_file};
 use bounce_core::format::Baked;
 use bounce_core::formfactor::MAX_RAYS;
+use bounce_core::import::pack_glb;
 use bounce_core::meta::{BakeStats, Bounces, StageTiming};
 use bounce_core::rays::Tracer;
 use bounce_core::voxel::{PatchOrder, Resolution};
@@ -97,6 +98,10 @@ pub struct BakeArgs {
     /// Also store the single-bounce form-factor matrix (doubles the file for k > 1).
     #[arg(long)]
     pub keep_form_factors: bool,
+    /// Leave the scene's model out of the baked file. By default it is kept, packed into one
+    /// GLB (meshes, materials, textures), so that `bounce serve` can hand it to the browser page.
+    #[arg(long)]
+    pub no_model: bool,
     /// No progress bars or stage lines; the summary is still printed.
     #[arg(short, long)]
     pub quiet: bool,
@@ -151,10 +156,17 @@ fn run_bake(args: &BakeArgs) -> Result<()> {
             bail!("--report-json describes a whole bake; a shard prints its own summary");
         }
         let spec = crate::shard_cmd::spec(shard)?;
-        return crate::shard_cmd::form_factors(scene, out, &args.options()?, spec, args.quiet);
+        return crate::shard_cmd::form_factors(
+            scene,
+            out,
+            &args.options()?,
+            spec,
+            !args.no_model,
+            args.quiet,
+        );
     }
     let start = Instant::now();
-    let baked = bake(scene, out, &args.options()?, args.quiet)?;
+    let baked = bake(scene, out, &args.options()?, !args.no_model, args.quiet)?;
     if let Some(path) = &args.report_json {
         let report = BakeReport {
             wall_seconds: start.elapsed().as_secs_f64(),
@@ -180,18 +192,38 @@ pub struct BakeReport {
     pub timings: Vec<StageTiming>,
 }
 
-/// Bake `scene` into `out` and print the summary.
-pub fn bake(scene: &Path, out: &Path, options: &BakeOptions, quiet: bool) -> Result<Baked> {
+/// The scene at `path` packed into one GLB, for the baked file to keep.
+pub fn pack_model(path: &Path) -> Result<Vec<u8>> {
+    pack_glb(path).with_context(|| {
+        format!(
+            "packing the model of {} into the baked file (fix the file, or bake with --no-model \
+             to leave the model out)",
+            path.display()
+        )
+    })
+}
+
+/// Bake `scene` into `out` and print the summary. With `keep_model` the file keeps the scene,
+/// packed into one GLB.
+pub fn bake(
+    scene: &Path,
+    out: &Path,
+    options: &BakeOptions,
+    keep_model: bool,
+    quiet: bool,
+) -> Result<Baked> {
     let start = Instant::now();
     let progress = TermProgress::new(quiet);
-    let baked = bake_file(scene, options, &progress)
+    let mut baked = bake_file(scene, options, &progress)
         .with_context(|| format!("baking {}", scene.display()))?;
+    // After the bake, so that a file that is not a scene gets the importer's error; by now the
+    // files it names have been read once, so packing rarely fails.
+    baked.model = keep_model.then(|| pack_model(scene)).transpose()?;
     let write_start = Instant::now();
     baked
         .write_atomic(out)
         .with_context(|| format!("writing {}", out.display()))?;
     let write_s = write_start.elapsed().as_secs_f64();
-    let mut baked = baked;
     baked.meta.timings.push(StageTiming {
         stage: "write".to_string(),
         seconds: write_s,
@@ -255,6 +287,12 @@ pub fn print_summary(baked: &Baked, out: &Path, file_bytes: u64, total_s: f64) {
         println!(
             "  isolated      {} patch(es) see no other patch",
             s.isolated_patches
+        );
+    }
+    if let Some(model) = &baked.model {
+        println!(
+            "  model         {} (the scene as one GLB, for the browser page)",
+            human_bytes(model.len() as u64)
         );
     }
     println!(

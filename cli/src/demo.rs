@@ -46,7 +46,8 @@ pub fn bake_demo(
         bounces,
         ..BakeOptions::default()
     };
-    crate::bake_cmd::bake(&gltf, out, &options, quiet)?;
+    // The model is kept: the browser page `bounce serve` hands out draws it.
+    crate::bake_cmd::bake(&gltf, out, &options, true, quiet)?;
     Ok(())
 }
 

@@ -74,6 +74,8 @@ pub fn run(args: &InspectArgs) -> Result<()> {
             "matrix_bytes": baked.transport.payload.len(),
             "form_factors_stored": baked.form_factors.is_some(),
             "occupied_voxels_stored": baked.occupancy.as_ref().map(Vec::len),
+            "model_stored": baked.model.is_some(),
+            "model_bytes": baked.model.as_ref().map(Vec::len),
             "layout": {
                 "origin": l.origin,
                 "voxel_size": l.voxel_size,
@@ -146,6 +148,13 @@ pub fn run(args: &InspectArgs) -> Result<()> {
             ""
         }
     );
+    match &baked.model {
+        Some(m) => println!(
+            "  model         {} GLB (the scene, for the browser page)",
+            human_bytes(m.len() as u64)
+        ),
+        None => println!("  model         none (baked with --no-model or by an older bounce)"),
+    }
     println!(
         "  checks        row sums {:.4}..{:.4} (mean {:.4}), reciprocity {:.2}%, {} isolated",
         s.row_sum_min,

@@ -74,6 +74,10 @@ pub struct ServeArgs {
     /// Viewing needs none.
     #[arg(long, value_name = "T", env = "BOUNCE_TOKEN", hide_env_values = true)]
     pub token: Option<String>,
+    /// Serve the browser page from this directory (e.g. web/public), read again on every
+    /// request, instead of the copy built into the binary: for working on the page.
+    #[arg(long, value_name = "DIR", env = "BOUNCE_WEB_DIR")]
+    pub web_dir: Option<PathBuf>,
     /// Open connections each front end accepts; past it a new connection is closed at once.
     #[arg(
         long,
@@ -124,6 +128,15 @@ pub fn run(args: &ServeArgs) -> Result<()> {
     config.data_dir = data_dir.clone();
     config.session_ttl = args.session_ttl;
     config.token = args.token.clone();
+    if let Some(dir) = &args.web_dir
+        && !dir.join("index.html").is_file()
+    {
+        anyhow::bail!(
+            "--web-dir {}: no index.html there (give the page's directory, e.g. web/public)",
+            dir.display()
+        );
+    }
+    config.web_dir = args.web_dir.clone();
     config.max_connections = args.max_connections;
     config.reload_interval = (!args.reload_every.is_zero()).then_some(args.reload_every);
     // Blocking (reads files, may upload to a GPU): before the runtime serves.
@@ -159,6 +172,13 @@ pub fn run(args: &ServeArgs) -> Result<()> {
             format!("  gRPC  http://{grpc}   (try: grpcurl -plaintext {grpc} list)"),
             format!(
                 "  HTTP  http://{http}   (health /healthz, metrics /metrics, scenes /v1/scenes)"
+            ),
+            format!(
+                "  page  http://{http}/   ({})",
+                match &args.web_dir {
+                    Some(d) => format!("from {}", d.display()),
+                    None => "built in".to_string(),
+                }
             ),
             format!("  WebSocket  ws://{http}/v1/sessions/SESSION_ID/ws"),
             String::new(),
@@ -268,11 +288,18 @@ fn demo_scenes(cache_dir: Option<PathBuf>) -> Result<PathBuf> {
     let demo = cache.join("demo");
     let scenes = demo.join("scenes");
     let baked = scenes.join("cornell-box.bounce");
-    match Baked::read(&baked) {
-        Ok(_) => info!(file = %baked.display(), "demo scene from the cache"),
+    // A cached bake from a bounce that did not keep the model is baked again: the page needs it.
+    let cached = Baked::read(&baked)
+        .map_err(|e| e.to_string())
+        .and_then(|b| match b.model {
+            Some(_) => Ok(()),
+            None => Err("it has no model for the browser page".to_string()),
+        });
+    match cached {
+        Ok(()) => info!(file = %baked.display(), "demo scene from the cache"),
         Err(e) => {
             if baked.exists() {
-                info!(file = %baked.display(), error = %e, "cached demo unreadable, baking again");
+                info!(file = %baked.display(), error = %e, "cached demo not usable, baking again");
             }
             std::fs::create_dir_all(&scenes)
                 .with_context(|| format!("creating {}", scenes.display()))?;

@@ -49,25 +49,32 @@ fn shard_path(out: &Path, phase: Phase, spec: ShardSpec) -> Result<PathBuf> {
     Ok(out.join(phase.file_name(spec)))
 }
 
-/// Phase 1: this shard's rows of the form factors of `scene`.
+/// Phase 1: this shard's rows of the form factors of `scene`. With `keep_model` the shard
+/// carries the scene packed into one GLB; phase 2 passes it on and the merge keeps it.
 pub fn form_factors(
     scene: &Path,
     out: &Path,
     options: &BakeOptions,
     spec: ShardSpec,
+    keep_model: bool,
     quiet: bool,
 ) -> Result<()> {
     let start = Instant::now();
     let path = shard_path(out, Phase::FormFactors, spec)?;
     let progress = TermProgress::new(quiet);
-    let file = shard::form_factor_shard(scene, options, spec, &progress).with_context(|| {
-        format!(
-            "baking form-factor shard {}/{} of {}",
-            spec.index,
-            spec.count,
-            scene.display()
-        )
-    })?;
+    let mut file =
+        shard::form_factor_shard(scene, options, spec, &progress).with_context(|| {
+            format!(
+                "baking form-factor shard {}/{} of {}",
+                spec.index,
+                spec.count,
+                scene.display()
+            )
+        })?;
+    // After the shard's import, as in a whole bake, so a bad scene gets the importer's error.
+    file.model = keep_model
+        .then(|| crate::bake_cmd::pack_model(scene))
+        .transpose()?;
     write(&file, &path, quiet, start)
 }
 

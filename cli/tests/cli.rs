@@ -83,6 +83,37 @@ fn bake_then_inspect_the_cornell_box() {
     for word in ["format", "patches", "dense-f32", "row sums", "reciprocity"] {
         assert!(text.contains(word), "inspect text lacks '{word}':\n{text}");
     }
+
+    // The model is kept by default, as the scene packed into one GLB, and shown by inspect.
+    let model = bounce_core::import::pack_glb(&cornell()).unwrap();
+    assert_eq!(baked.model.as_ref(), Some(&model));
+    assert_eq!(j["model_stored"], true);
+    assert_eq!(j["model_bytes"], model.len());
+    assert!(text.contains("model") && text.contains("GLB"), "{text}");
+    assert!(summary.contains("model"), "{summary}");
+
+    // --no-model leaves it out, and says so.
+    let bare = dir.path().join("bare.bounce");
+    let out = run(bounce()
+        .args([
+            "bake",
+            "--patches",
+            "400",
+            "--rays",
+            "64",
+            "--no-model",
+            "-qo",
+        ])
+        .arg(&bare)
+        .arg(cornell()));
+    assert!(out.status.success(), "{}", stderr(&out));
+    assert_eq!(Baked::read(&bare).unwrap().model, None);
+    let j = inspect_json(&bare);
+    assert_eq!(j["model_stored"], false);
+    assert_eq!(j["model_bytes"], Value::Null);
+    let out = run(bounce().arg("inspect").arg(&bare));
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(text.contains("model         none"), "{text}");
 }
 
 #[test]

@@ -495,5 +495,7 @@ fn bake_with(
         // The runtime traces shadow rays against the voxels the form factors were traced
         // against.
         occupancy: Some(vox.occupied),
+        // The caller decides whether the file keeps the scene ([`crate::import::pack_glb`]).
+        model: None,
     })
 }

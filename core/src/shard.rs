@@ -290,6 +290,8 @@ pub fn form_factor_shard(
         },
         rows: f_rows,
         form_factor_rows: None,
+        // The caller packs the model when the bake keeps it ([`crate::import::pack_glb`]).
+        model: None,
     })
 }
 
@@ -300,6 +302,7 @@ pub fn transport_shard(
     progress: &dyn Progress,
 ) -> Result<ShardFile, ShardError> {
     let members = gather(inputs, Some(Phase::FormFactors))?;
+    let model = model_of(&members)?;
     let mut timer = Timer::new(progress);
     let first = members[0].header.clone();
     let n = first.meta.patches;
@@ -357,6 +360,7 @@ pub fn transport_shard(
         },
         rows: t_rows,
         form_factor_rows,
+        model,
     })
 }
 
@@ -364,6 +368,7 @@ pub fn transport_shard(
 /// and encodes `T`; from phase-1 shards it computes `T` first, as one process would.
 pub fn merge(inputs: &[PathBuf], progress: &dyn Progress) -> Result<Baked, ShardError> {
     let members = gather(inputs, None)?;
+    let model = model_of(&members)?;
     let mut timer = Timer::new(progress);
     let first = members[0].header.clone();
     let m0 = &first.meta;
@@ -427,6 +432,19 @@ pub fn merge(inputs: &[PathBuf], progress: &dyn Progress) -> Result<Baked, Shard
         transport,
         form_factors,
         occupancy: Some(first.occupancy),
+        model,
+    })
+}
+
+/// The model the shards carry, from the first: every shard of one bake packed the same scene
+/// (`gather` checked that their sources match), so one read is enough.
+fn model_of(members: &[Member]) -> Result<Option<Vec<u8>>, ShardError> {
+    let Some(first) = members.first() else {
+        return Ok(None);
+    };
+    ShardFile::read_model(&first.path).map_err(|error| ShardError::Read {
+        path: first.path.clone(),
+        error,
     })
 }
 

@@ -183,6 +183,7 @@ fn sample(channels: usize, with_form_factors: bool) -> Baked {
         transport: EncodedMatrix::encode_dense_f32(&dense(n, channels, 1.0)),
         form_factors: with_form_factors.then(|| EncodedMatrix::encode_dense_f32(&dense(n, 1, 2.0))),
         occupancy: Some(SAMPLE_OCCUPANCY.to_vec()),
+        model: None,
     }
 }
 
@@ -1362,6 +1363,7 @@ fn arb_baked() -> impl Strategy<Value = Baked> {
                 transport,
                 form_factors,
                 occupancy,
+                model: None,
             })
     })
 }
@@ -1521,4 +1523,102 @@ fn writer_refuses_invalid_occupancy() {
         let err = b.to_bytes().expect_err("invalid occupancy was written");
         assert!(err.to_string().contains(want), "{err}");
     }
+}
+
+// ---------------------------------------------------------------------------------------------
+// The model (`MODL`): the scene as one GLB, kept for viewers.
+
+/// A small valid GLB: a glTF with no meshes and a 5-byte BIN chunk.
+fn tiny_glb() -> Vec<u8> {
+    let json = br#"{"asset":{"version":"2.0"},"buffers":[{"byteLength":5}]}"#;
+    gltf::binary::Glb {
+        header: gltf::binary::Header {
+            magic: *b"glTF",
+            version: 2,
+            length: 0,
+        },
+        json: json.as_slice().into(),
+        bin: Some(b"abcde".as_slice().into()),
+    }
+    .to_vec()
+    .unwrap()
+}
+
+#[test]
+fn the_model_round_trips_and_is_optional() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut with = sample(3, false);
+    with.model = Some(tiny_glb());
+    let path = dir.path().join("with.bounce");
+    with.write_atomic(&path).unwrap();
+    let back = Baked::read(&path).unwrap();
+    assert_eq!(back, with);
+    // Flagged optional, exactly the GLB's bytes.
+    let bytes = std::fs::read(&path).unwrap();
+    let e = entry_at(entry_of(&bytes, b"MODL"));
+    assert_eq!(get_u32(&bytes, e + 4), SECTION_OPTIONAL);
+    let (o, l) = section_of(&bytes, b"MODL");
+    assert_eq!(&bytes[o..o + l], tiny_glb().as_slice());
+
+    // Without it: no section, and the reader gives none.
+    let without = sample(3, false);
+    let bytes = without.to_bytes().unwrap();
+    assert!(read_back_sections(&bytes).iter().all(|k| k != b"MODL"));
+    assert_eq!(Baked::from_bytes(&bytes).unwrap().model, None);
+
+    // A file with the model, made by hand from the documented layout, reads too.
+    let mut sections: Vec<([u8; 4], u32, Vec<u8>)> = sample_sections()
+        .into_iter()
+        .map(|(k, v)| (k, u32::from(&k == b"OCCU"), v))
+        .collect();
+    sections.push((*b"MODL", SECTION_OPTIONAL, tiny_glb()));
+    let refs: Vec<(&[u8; 4], u32, &[u8])> = sections
+        .iter()
+        .map(|(k, f, v)| (k, *f, v.as_slice()))
+        .collect();
+    let read = Baked::from_bytes(&raw_file(&refs)).unwrap();
+    assert_eq!(read.model.as_deref(), Some(tiny_glb().as_slice()));
+}
+
+fn read_back_sections(bytes: &[u8]) -> Vec<[u8; 4]> {
+    FileSummary::from_bytes(bytes)
+        .unwrap()
+        .sections
+        .iter()
+        .map(|s| s.entry.kind.0)
+        .collect()
+}
+
+#[test]
+fn a_corrupt_model_is_refused_clearly() {
+    let mut sections: Vec<([u8; 4], u32, Vec<u8>)> = sample_sections()
+        .into_iter()
+        .map(|(k, v)| (k, u32::from(&k == b"OCCU"), v))
+        .collect();
+    let mut short = tiny_glb();
+    short.truncate(short.len() - 4);
+    let mut wrong_len = tiny_glb();
+    let n = wrong_len.len() as u32 + 8;
+    wrong_len[8..12].copy_from_slice(&n.to_le_bytes());
+    for (model, says) in [
+        (b"not a GLB at all".to_vec(), "magic"),
+        (short, "header says"),
+        (wrong_len, "header says"),
+        (b"glTF".to_vec(), "truncated"),
+    ] {
+        sections.retain(|(k, _, _)| k != b"MODL");
+        sections.push((*b"MODL", SECTION_OPTIONAL, model));
+        let refs: Vec<(&[u8; 4], u32, &[u8])> = sections
+            .iter()
+            .map(|(k, f, v)| (k, *f, v.as_slice()))
+            .collect();
+        let e = Baked::from_bytes(&raw_file(&refs)).unwrap_err();
+        assert!(matches!(e, FormatError::Model(_)), "{e:?}");
+        let msg = e.to_string();
+        assert!(msg.contains("'MODL'") && msg.contains(says), "{msg}");
+    }
+    // The writer refuses what the reader would.
+    let mut bad = sample(1, false);
+    bad.model = Some(b"nope".to_vec());
+    assert!(matches!(bad.to_bytes(), Err(FormatError::Model(_))));
 }

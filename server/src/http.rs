@@ -7,15 +7,23 @@
 //! | `GET /healthz` | 200 `ok` while the process serves |
 //! | `GET /readyz` | 200 when the hub is ready, 503 once it shuts down |
 //! | `GET /metrics` | the Prometheus text exposition |
-//! | `GET /v1/scenes` | `{"engine", "scenes": [{"name", "patch_count", "codec"}]}` |
+//! | `GET /v1/scenes` | `{"engine", "writes_need_token", "scenes": [{"name", "patch_count", "codec", "has_model"}]}` |
 //! | `GET /v1/scenes/{name}/layout` | the proto `Layout`'s fields as JSON |
+//! | `GET /v1/scenes/{name}/model` | the scene's model, one GLB (`model/gltf-binary`); 404 when it has none |
+//! | `GET /v1/sessions?scene=NAME&limit=N` | `{"sessions": [{"session_id", "scene", "lights_version", "viewers"}]}`, newest first |
 //! | `POST /v1/sessions` | `{"scene", "lights"}` → 201 `{"session_id", "lights_version"}` |
 //! | `GET /v1/sessions/{id}` | `{"session_id", "scene", "lights_version", "lights"}` |
 //! | `PUT /v1/sessions/{id}/lights` | `{"lights"}` → `{"lights_version", "changed"}` |
 //! | `GET /v1/sessions/{id}/ws` | the session's WebSocket |
+//! | `GET /`, `GET /PATH` | the browser page: `index.html`, and each file of `web/public/` ([`crate::web`]) |
 //!
 //! Writes present the hub's token, if it has one, as `Authorization: Bearer T` or `?token=T`.
-//! Every refusal is `{"code", "message"}` with the status [`ErrorCode`] gives.
+//! Every refusal is `{"code", "message"}` with the status [`ErrorCode`] gives; a path that is
+//! neither a route nor a file of the page is a 404 `no such route`.
+//!
+//! The model and the page's files carry a strong `ETag` (a 304 answers a matching
+//! `If-None-Match`) and `Cache-Control: no-cache`, and are gzip- or brotli-compressed when the
+//! client accepts it (the tag then turns weak). The JSON routes and WebSockets are not compressed.
 
 use std::future::Future;
 use std::net::SocketAddr;
@@ -27,7 +35,7 @@ use axum::extract::{FromRequestParts, Path, Query, State};
 use axum::http::request::Parts;
 use axum::http::{HeaderMap, StatusCode, header};
 use axum::response::{IntoResponse, Response};
-use axum::routing::{get, put};
+use axum::routing::{MethodRouter, get, put};
 use axum::serve::Listener;
 use axum::{Json, Router};
 use bounce_core::light::LightSet;
@@ -35,14 +43,16 @@ use bytes::Bytes;
 use serde::{Deserialize, Serialize};
 use tokio::net::{TcpListener, TcpStream};
 use tokio_util::task::TaskTracker;
+use tower_http::compression::CompressionLayer;
 use tracing::{info, warn};
 
+use crate::cache;
 use crate::error::ServerError;
 use crate::hub::Hub;
 use crate::limits::{ConnectionLimit, Limited};
 use crate::metrics::{self, Metrics, Transport};
 use crate::serve::MAX_REQUEST_BYTES;
-use crate::ws;
+use crate::{web, ws};
 
 /// How long open WebSockets get to send their close frames once the server stops; a client
 /// that reads nothing must not hold the shutdown.
@@ -137,7 +147,8 @@ fn router(hub: Hub, sockets: TaskTracker) -> Router {
         .route("/metrics", get(metrics))
         .route("/v1/scenes", get(list_scenes))
         .route("/v1/scenes/{name}/layout", get(layout))
-        .route("/v1/sessions", axum::routing::post(create_session))
+        .route("/v1/scenes/{name}/model", compressed(get(model)))
+        .route("/v1/sessions", get(list_sessions).post(create_session))
         .route("/v1/sessions/{id}", get(get_session))
         .route("/v1/sessions/{id}/lights", put(set_lights))
         .route("/v1/sessions/{id}/ws", get(ws::upgrade))
@@ -147,13 +158,24 @@ fn router(hub: Hub, sockets: TaskTracker) -> Router {
                 "this route does not take that method".into(),
             )
         })
-        .fallback(|| async { ApiError::new(ErrorCode::NotFound, "no such route") })
+        // Routes first: the page's files answer only what no route takes.
+        .fallback_service(compressed(axum::routing::any(web::serve)).with_state(state.clone()))
         .layer(axum::extract::DefaultBodyLimit::max(MAX_REQUEST_BYTES))
         .layer(axum::middleware::map_response_with_state(
             hub,
             count_refusals,
         ))
         .with_state(state)
+}
+
+/// `route` behind gzip and brotli compression, for what is large and sent once (the model, the
+/// page's files), with the `ETag` weakened when the body is compressed.
+fn compressed(route: MethodRouter<AppState>) -> MethodRouter<AppState> {
+    route
+        .layer(CompressionLayer::new().gzip(true).br(true))
+        .layer(axum::middleware::map_response(
+            cache::weaken_compressed_etag,
+        ))
 }
 
 /// What went wrong, as every HTTP and WebSocket answer names it: the JSON `code`, the HTTP
@@ -361,6 +383,8 @@ async fn metrics(State(state): State<AppState>) -> impl IntoResponse {
 #[derive(Serialize)]
 struct SceneList {
     engine: String,
+    /// Whether creating sessions and changing lights need the server's token.
+    writes_need_token: bool,
     scenes: Vec<SceneEntry>,
 }
 
@@ -369,6 +393,8 @@ struct SceneEntry {
     name: String,
     patch_count: usize,
     codec: String,
+    /// Whether `GET /v1/scenes/{name}/model` has a model to give.
+    has_model: bool,
 }
 
 async fn list_scenes(State(state): State<AppState>) -> Json<SceneList> {
@@ -380,12 +406,51 @@ async fn list_scenes(State(state): State<AppState>) -> Json<SceneList> {
             name: s.name.clone(),
             patch_count: s.layout.len(),
             codec: s.codec.clone(),
+            has_model: s.model.is_some(),
         })
         .collect();
     Json(SceneList {
         engine: state.hub.engine().to_string(),
+        writes_need_token: state.hub.has_token(),
         scenes,
     })
+}
+
+/// The scene's model as one GLB: from its baked file, else from a glTF beside it.
+async fn model(
+    State(state): State<AppState>,
+    Path(name): Path<String>,
+    headers: HeaderMap,
+) -> Result<Response, ApiError> {
+    let scene = state.hub.scene(&name)?;
+    let Some(model) = &scene.model else {
+        let file = |ext| {
+            scene
+                .path
+                .with_extension(ext)
+                .file_name()
+                .map(|f| f.to_string_lossy().into_owned())
+                .unwrap_or_default()
+        };
+        return Err(ApiError::new(
+            ErrorCode::NotFound,
+            format!(
+                "scene {name:?} has no model: its baked file {} was made without one (an older \
+                 bounce, or `bounce bake --no-model`). Bake the scene again with this bounce, \
+                 which keeps the model, or put the glTF it was baked from beside it as {} or {} \
+                 (a .gltf with its files beside it)",
+                file("bounce"),
+                file("glb"),
+                file("gltf")
+            ),
+        ));
+    };
+    Ok(cache::respond(
+        &headers,
+        model.bytes.clone(),
+        &model.etag,
+        "model/gltf-binary",
+    ))
 }
 
 /// The proto `Layout`, field for field.
@@ -417,6 +482,64 @@ async fn layout(
         voxels: l.patches.iter().flat_map(|p| p.voxel).collect(),
         faces: l.patches.iter().map(|p| p.face.code()).collect(),
     }))
+}
+
+/// Sessions a list gives when no `limit` is asked, and the most it gives.
+const LIST_DEFAULT: usize = 100;
+const LIST_MAX: usize = 1000;
+
+#[derive(Deserialize)]
+struct ListQuery {
+    scene: Option<String>,
+    /// Read as text so that a bad value gets our message, not the extractor's.
+    limit: Option<String>,
+}
+
+#[derive(Serialize)]
+struct SessionList {
+    sessions: Vec<SessionEntry>,
+}
+
+#[derive(Serialize)]
+struct SessionEntry {
+    session_id: String,
+    scene: String,
+    lights_version: u64,
+    /// Open viewers: gRPC streams and WebSockets.
+    viewers: usize,
+}
+
+async fn list_sessions(
+    State(state): State<AppState>,
+    query: Result<Query<ListQuery>, axum::extract::rejection::QueryRejection>,
+) -> Result<Json<SessionList>, ApiError> {
+    let Query(q) = query.map_err(|r| ApiError::from_rejection(r.status(), r.body_text()))?;
+    let limit = match q.limit.as_deref() {
+        None => LIST_DEFAULT,
+        Some(l) => l
+            .trim()
+            .parse::<usize>()
+            .ok()
+            .filter(|n| (1..=LIST_MAX).contains(n))
+            .ok_or_else(|| {
+                ServerError::Invalid(format!(
+                    "limit {l:?}: give a whole number from 1 to {LIST_MAX} (default {LIST_DEFAULT})"
+                ))
+            })?,
+    };
+    let scene = q.scene.as_deref().filter(|s| !s.is_empty());
+    let sessions = state
+        .hub
+        .list_sessions(scene, limit)?
+        .iter()
+        .map(|s| SessionEntry {
+            session_id: s.id.clone(),
+            scene: state.hub.scene_of(s),
+            lights_version: s.lights_version(),
+            viewers: s.viewers(),
+        })
+        .collect();
+    Ok(Json(SessionList { sessions }))
 }
 
 #[derive(Deserialize)]

@@ -37,6 +37,9 @@ pub struct HubConfig {
     /// When set, every write (creating a session, changing lights, a one-shot relight) must
     /// present it.
     pub token: Option<String>,
+    /// Serve the browser page from this directory, read on every request, instead of the copy
+    /// of `web/public/` built into the binary: for working on the page without rebuilding.
+    pub web_dir: Option<PathBuf>,
     /// How often the scene directory is checked for new or changed baked files; `None` never.
     pub reload_interval: Option<Duration>,
     /// Open connections each front end accepts; past it a new connection is closed at once.
@@ -53,6 +56,7 @@ impl HubConfig {
             data_dir: None,
             session_ttl: Duration::from_secs(24 * 3600),
             token: None,
+            web_dir: None,
             reload_interval: Some(Duration::from_secs(2)),
             max_connections: 4096,
         }
@@ -75,6 +79,7 @@ struct Inner {
     store: Option<Store>,
     metrics: Arc<Metrics>,
     token: Option<String>,
+    web_dir: Option<PathBuf>,
     session_ttl: Duration,
     max_connections: usize,
     ready: AtomicBool,
@@ -143,6 +148,7 @@ impl Hub {
                 store,
                 metrics,
                 token: config.token.clone().filter(|t| !t.is_empty()),
+                web_dir: config.web_dir.clone(),
                 session_ttl: config.session_ttl,
                 max_connections: config.max_connections.max(1),
                 ready: AtomicBool::new(false),
@@ -258,6 +264,28 @@ impl Hub {
             .ok_or_else(|| ServerError::UnknownSession(id.to_string()))
     }
 
+    /// The sessions, on `scene` only when given (an unknown scene is an error), newest first
+    /// (by when this process created or restored them; then by id), at most `limit`.
+    pub fn list_sessions(
+        &self,
+        scene: Option<&str>,
+        limit: usize,
+    ) -> Result<Vec<Arc<Session>>, ServerError> {
+        let scene = scene.map(|s| self.scene_index(s)).transpose()?;
+        let mut list: Vec<Arc<Session>> = self
+            .inner
+            .sessions
+            .read()
+            .unwrap_or_else(|e| e.into_inner())
+            .values()
+            .filter(|s| scene.is_none_or(|i| s.scene == i))
+            .cloned()
+            .collect();
+        list.sort_by(|a, b| b.created().cmp(&a.created()).then_with(|| a.id.cmp(&b.id)));
+        list.truncate(limit);
+        Ok(list)
+    }
+
     pub fn session_count(&self) -> usize {
         self.inner
             .sessions
@@ -283,6 +311,11 @@ impl Hub {
     /// Whether writes need a token.
     pub fn has_token(&self) -> bool {
         self.inner.token.is_some()
+    }
+
+    /// Where the browser page is read from, when not from the binary.
+    pub fn web_dir(&self) -> Option<&std::path::Path> {
+        self.inner.web_dir.as_deref()
     }
 
     /// A new session on `scene` with validated `lights` at version 1, stored before this
@@ -466,11 +499,12 @@ impl Hub {
     }
 
     fn reload_inner(&self, path: &std::path::Path, name: &str) -> Result<(), ServerError> {
-        let baked = Baked::read(path).map_err(|source| ServerError::SceneFile {
+        let mut baked = Baked::read(path).map_err(|source| ServerError::SceneFile {
             path: path.to_path_buf(),
             source,
         })?;
-        let info = SceneInfo::new(name.to_string(), path.to_path_buf(), &baked);
+        // The model too is read again: a new bake, or a glTF put beside the file, replaces it.
+        let info = SceneInfo::new(name.to_string(), path.to_path_buf(), &mut baked);
         let existing = self.scene_index(name).ok();
         let index = existing.unwrap_or_else(|| self.scenes().len());
         if let Some(old) = existing.and_then(|i| self.scene_at(i))

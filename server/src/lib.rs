@@ -7,11 +7,13 @@
 //! batch ([`worker`]), frames and their byte layout ([`frame`]) and what each viewer reads of
 //! them ([`viewer`]), the hub tying these together ([`hub`]), Prometheus [`metrics`], and the
 //! front ends: gRPC ([`grpc`], [`serve`]) with health and reflection, and HTTP with WebSockets
-//! ([`http`]).
+//! ([`http`]), which also serves the browser page ([`web`]) and each scene's model ([`model`]),
+//! both cached by tag ([`cache`]).
 //!
 //! Not here: the math (`bounce-core`), the engines themselves (`bounce-engine`), the command
 //! line and its runtime, logging setup and signals (`bounce serve` in `bounce-cli`).
 
+pub mod cache;
 pub mod error;
 pub mod frame;
 pub mod grpc;
@@ -20,11 +22,13 @@ pub mod hub;
 pub mod lights;
 pub mod limits;
 pub mod metrics;
+pub mod model;
 pub mod scenes;
 pub mod serve;
 pub mod session;
 pub mod store;
 pub mod viewer;
+pub mod web;
 mod worker;
 mod ws;
 

@@ -5,29 +5,38 @@
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 use std::time::SystemTime;
 
 use bounce_core::format::Baked;
 use bounce_core::patch::PatchLayout;
 
 use crate::error::{ServerError, SkippedScene};
+use crate::model::{self, SceneModel};
 
-/// What the service knows about a scene without the engine: its name and layout.
+/// What the service knows about a scene without the engine: its name, layout and model.
 #[derive(Debug, Clone)]
 pub struct SceneInfo {
     pub name: String,
     pub path: PathBuf,
     pub codec: String,
     pub layout: PatchLayout,
+    /// What the browser page draws ([`crate::model`]); `None` when neither the baked file nor a
+    /// glTF beside it has one.
+    pub model: Option<Arc<SceneModel>>,
 }
 
 impl SceneInfo {
-    pub fn new(name: String, path: PathBuf, baked: &Baked) -> SceneInfo {
+    /// The scene in `baked`, read from `path`. Takes the model out of `baked` (the engine has no
+    /// use for it) or, lacking one, looks for a glTF beside `path`.
+    pub fn new(name: String, path: PathBuf, baked: &mut Baked) -> SceneInfo {
+        let model = model::load(&path, baked.model.take()).map(Arc::new);
         SceneInfo {
             name,
             path,
             codec: baked.transport.codec.clone(),
             layout: baked.layout.clone(),
+            model,
         }
     }
 }
@@ -108,8 +117,8 @@ pub(crate) fn read_dir(dir: &Path) -> Result<(Vec<ReadScene>, Vec<SkippedScene>)
         // Stamped before reading, so a write that lands meanwhile is seen as a change.
         let Ok(stamp) = stamp(&path) else { continue };
         match Baked::read(&path) {
-            Ok(baked) => scenes.push(ReadScene {
-                info: SceneInfo::new(name, path, &baked),
+            Ok(mut baked) => scenes.push(ReadScene {
+                info: SceneInfo::new(name, path, &mut baked),
                 baked,
                 stamp,
             }),

@@ -18,6 +18,9 @@ pub struct Session {
     pub id: String,
     /// Index of the scene in the hub.
     pub scene: usize,
+    /// When this process created or restored it: what lists sessions newest first. Not stored,
+    /// so sessions restored after a restart all date from the restart.
+    created: Instant,
     state: Mutex<State>,
     frames: watch::Sender<Option<Frame>>,
     /// Held across a write's store commit, so writes to one session are stored in order.
@@ -43,6 +46,7 @@ impl Session {
         Session {
             id,
             scene,
+            created: now,
             state: Mutex::new(State {
                 lights,
                 version,
@@ -154,6 +158,12 @@ impl Session {
         self.frames.subscribe()
     }
 
+    /// When this process created or restored the session.
+    pub fn created(&self) -> Instant {
+        self.created
+    }
+
+    /// Open viewers (gRPC streams and WebSockets): each holds one receiver of the frames.
     pub fn viewers(&self) -> usize {
         self.frames.receiver_count()
     }

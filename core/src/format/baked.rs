@@ -20,6 +20,12 @@
 //! as u32 when the grid has at most 2^32 cells and as u64 otherwise (the width is fixed by the
 //! grid, so a file has one encoding). Every patch's voxel is among them. Files without the
 //! section are valid; their readers get no occupancy and trace shadows against the patches alone.
+//!
+//! `MODL` (flagged [`SECTION_OPTIONAL`]): the scene the file was baked from, packed into one
+//! self-contained GLB 2.0 file ([`crate::import::pack_glb`]): every buffer and image inside its
+//! BIN chunk, the glTF JSON otherwise as the source had it. The section is exactly the GLB's
+//! bytes (its header's length is the section's length). Viewers that draw the original meshes
+//! (the browser page) take it from here; files without it are valid.
 
 use std::borrow::Cow;
 use std::path::Path;
@@ -57,6 +63,9 @@ pub struct Baked {
     /// [`crate::voxel::Voxelization::occupied`]): what shadow rays are traced against. Absent in
     /// files from bakes that did not store it.
     pub occupancy: Option<Vec<u64>>,
+    /// The scene baked, as one self-contained GLB (the `MODL` section): what a viewer draws.
+    /// Absent in files baked without it (`bounce bake --no-model`, or an older bounce).
+    pub model: Option<Vec<u8>>,
 }
 
 impl Baked {
@@ -91,6 +100,14 @@ impl Baked {
                 pieces: vec![Cow::Owned(encode_occupancy(occ, &self.layout)?)],
             });
         }
+        if let Some(model) = &self.model {
+            validate_model(model)?;
+            sections.push(Section {
+                kind: SectionKind::MODL,
+                flags: SECTION_OPTIONAL,
+                pieces: vec![Cow::Borrowed(model)],
+            });
+        }
         Assembled::new(sections)
     }
 
@@ -105,6 +122,7 @@ impl Baked {
                 SectionKind::MTRX,
                 SectionKind::FFAC,
                 SectionKind::OCCU,
+                SectionKind::MODL,
             ]
             .contains(&e.kind);
             if !known && !e.is_optional() {
@@ -134,12 +152,21 @@ impl Baked {
             Some(e) => Some(decode_occupancy(c.section(e)?, &layout)?),
             None => None,
         };
+        let model = match c.entry(SectionKind::MODL) {
+            Some(e) => {
+                let bytes = c.section(e)?;
+                validate_model(bytes)?;
+                Some(bytes.to_vec())
+            }
+            None => None,
+        };
         Ok(Baked {
             meta,
             layout,
             transport,
             form_factors,
             occupancy,
+            model,
         })
     }
 
@@ -415,6 +442,38 @@ pub(super) fn decode_occupancy(
         .collect();
     validate_occupancy(&occ, layout)?;
     Ok(occ)
+}
+
+/// The checks shared by writer and reader: a GLB 2.0 file whose header's length is the
+/// section's, with chunks that parse. (The glTF inside is the viewer's to judge.)
+pub(crate) fn validate_model(bytes: &[u8]) -> Result<(), FormatError> {
+    let bad = |m: String| Err(FormatError::Model(m));
+    if !bytes.starts_with(b"glTF") {
+        return bad(format!(
+            "it does not start with the GLB magic 'glTF' ({} bytes)",
+            bytes.len()
+        ));
+    }
+    let word = |at: usize| {
+        bytes
+            .get(at..at + 4)
+            .map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+    };
+    match (word(4), word(8)) {
+        (Some(2), Some(len)) if len as usize == bytes.len() => {}
+        (Some(2), Some(len)) => {
+            return bad(format!(
+                "its header says {len} bytes but the section has {}",
+                bytes.len()
+            ));
+        }
+        (Some(v), Some(_)) => return bad(format!("GLB version {v}, expected 2")),
+        _ => return bad("its header is truncated".to_string()),
+    }
+    match gltf::Glb::from_slice(bytes) {
+        Ok(_) => Ok(()),
+        Err(e) => bad(e.to_string()),
+    }
 }
 
 fn valid_codec_name(name: &[u8]) -> bool {

@@ -84,6 +84,7 @@ impl SectionKind {
     pub const MTRX: SectionKind = SectionKind(*b"MTRX");
     pub const FFAC: SectionKind = SectionKind(*b"FFAC");
     pub const OCCU: SectionKind = SectionKind(*b"OCCU");
+    pub const MODL: SectionKind = SectionKind(*b"MODL");
 }
 
 impl fmt::Display for SectionKind {

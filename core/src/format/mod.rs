@@ -16,8 +16,9 @@
 //!
 //! Sections of version 1: `META` (the [`crate::meta::BakeMeta`] as JSON), `LAYT` (the patch layout,
 //! binary), `MTRX` (the transport matrix) and optionally `FFAC` (the single-bounce form factors, same
-//! encoding as `MTRX`) and `OCCU` (the occupied voxels, flagged optional so that a reader
-//! predating it skips it). Bake shards (partial results of a sharded bake, [`crate::shard`]) use the
+//! encoding as `MTRX`), `OCCU` (the occupied voxels, flagged optional so that a reader
+//! predating it skips it) and `MODL` (the scene the file was baked from as one self-contained
+//! GLB, for viewers that draw it; optional too). Bake shards (partial results of a sharded bake, [`crate::shard`]) use the
 //! same container under the magic `BOUNCE\0S` with sections of their own ([`ShardFile`]). A reader skips sections of unknown kind whose [`SECTION_OPTIONAL`] flag is set
 //! and refuses the file otherwise, so later versions can add sections that old readers may ignore.
 
@@ -175,6 +176,8 @@ pub enum FormatError {
     },
     #[error("section 'OCCU': {0}")]
     Occupancy(String),
+    #[error("section 'MODL' is not a valid GLB model: {0} (bake the scene again)")]
+    Model(String),
     #[error("{what} is too large for the format ({value} > {max})")]
     TooLarge {
         what: &'static str,

@@ -13,6 +13,8 @@
 //!   Form-factor rows in phase 1, transport rows in phase 2.
 //! - `FROW` (phase 2, only when the bake keeps its form factors): the same rows of `F`, same
 //!   encoding, one channel.
+//! - `MODL` (flagged optional, when the bake keeps the model): the scene as one GLB, as in a
+//!   baked file. Phase 1 packs it, phase 2 passes it on, the merge puts it in the baked file.
 //!
 //! Reading checks, beyond the container, that the metadata, layout and rows agree with each other
 //! (row range of the shard index, channel count of the phase, lengths) and that every entry is
@@ -25,10 +27,12 @@ use crate::patch::PatchLayout;
 use crate::shard::{Phase, ShardMeta, shard_rows};
 
 use super::FormatError;
-use super::baked::{decode_layout, decode_occupancy, encode_layout, encode_occupancy};
+use super::baked::{
+    decode_layout, decode_occupancy, encode_layout, encode_occupancy, validate_model,
+};
 use super::container::{
-    self, Assembled, Container, FieldReader, FileBytes, Flavour, SECTION_ALIGN, Section,
-    SectionKind,
+    self, Assembled, Container, FieldReader, FileBytes, Flavour, SECTION_ALIGN, SECTION_OPTIONAL,
+    Section, SectionKind,
 };
 
 /// Bytes of the `ROWS`/`FROW` fields before the (64-byte aligned) values.
@@ -55,6 +59,8 @@ pub struct ShardFile {
     pub rows: Vec<f32>,
     /// Phase 2 of a bake that keeps its form factors: the same rows of `F`.
     pub form_factor_rows: Option<Vec<f32>>,
+    /// The scene as one self-contained GLB, for the baked file's `MODL` section.
+    pub model: Option<Vec<u8>>,
 }
 
 impl ShardFile {
@@ -90,8 +96,17 @@ impl ShardFile {
                 SectionKind::OCCU,
                 encode_occupancy(&h.occupancy, &h.layout)?,
             ),
-            rows_section(ROWS, &h.meta, h.meta.channels, &self.rows),
         ];
+        // Before the rows, which stay last as they are the bulk of the file.
+        if let Some(model) = &self.model {
+            validate_model(model)?;
+            sections.push(Section {
+                kind: SectionKind::MODL,
+                flags: SECTION_OPTIONAL,
+                pieces: vec![Cow::Borrowed(model)],
+            });
+        }
+        sections.push(rows_section(ROWS, &h.meta, h.meta.channels, &self.rows));
         if let Some(f) = &self.form_factor_rows {
             sections.push(rows_section(FROW, &h.meta, 1, f));
         }
@@ -121,11 +136,28 @@ impl ShardFile {
             (Some(_), false) => return Err(bad("form-factor rows in a shard that has none")),
             (None, true) => return Err(FormatError::MissingSection { kind: FROW }),
         };
+        let model = model_of(&c)?;
         Ok(ShardFile {
             header,
             rows,
             form_factor_rows,
+            model,
         })
+    }
+
+    /// Only the model of the shard at `path`, its checksum verified: what the later steps pass
+    /// on without reading a shard's rows twice.
+    pub fn read_model(path: &Path) -> Result<Option<Vec<u8>>, FormatError> {
+        let bytes = FileBytes::open(path)?;
+        let c = Container::parse_as(&bytes, Flavour::Shard)?;
+        if let Some(e) = c.entry(SectionKind::MODL)
+            && !c.section_crc_ok(e)?
+        {
+            return Err(FormatError::SectionChecksum {
+                kind: SectionKind::MODL,
+            });
+        }
+        model_of(&c)
     }
 
     /// Memory-maps `path` and parses all of it, every checksum verified.
@@ -164,9 +196,29 @@ fn section<'a>(c: &Container<'a>, kind: SectionKind) -> Result<&'a [u8], FormatE
         .and_then(|e| c.section(e))
 }
 
+fn model_of(c: &Container<'_>) -> Result<Option<Vec<u8>>, FormatError> {
+    match c.entry(SectionKind::MODL) {
+        Some(e) => {
+            let bytes = c.section(e)?;
+            validate_model(bytes)?;
+            Ok(Some(bytes.to_vec()))
+        }
+        None => Ok(None),
+    }
+}
+
 fn header_from(c: &Container<'_>) -> Result<ShardHeader, FormatError> {
     for e in &c.entries {
         let known = [SHRD, SectionKind::LAYT, SectionKind::OCCU, ROWS, FROW].contains(&e.kind);
+        if e.kind == SectionKind::MODL {
+            if e.flags != SECTION_OPTIONAL {
+                return Err(FormatError::UnknownFlags {
+                    kind: e.kind,
+                    flags: e.flags,
+                });
+            }
+            continue;
+        }
         if !known && !e.is_optional() {
             return Err(FormatError::UnknownSection { kind: e.kind });
         }

@@ -13,10 +13,14 @@
 //! ([`ImportOptions::shading`]) it also keeps what a viewer needs to draw the surfaces rather than
 //! bake them: per-corner normals, texture coordinates and tints, and the decoded base-colour
 //! images (the `shading` submodule); a bake leaves it off and does none of that work.
+//!
+//! Also here, as it reads the same files: [`pack_glb`], the scene as one self-contained GLB, which
+//! a baked file keeps for viewers that draw the original meshes.
 
 mod accessor;
 mod material;
 mod mesh;
+mod pack;
 mod shading;
 mod source;
 mod texture;
@@ -29,6 +33,8 @@ use glam::{Mat3, Mat4, Quat, Vec3};
 use gltf::json::validation::{Checked, Validate};
 
 use crate::light::Light;
+
+pub use self::pack::{PackError, pack_bytes, pack_glb};
 use crate::scene::{ImportReport, Scene};
 
 use self::accessor::BufferData;

@@ -10,6 +10,7 @@ mod direct;
 mod formfactor;
 mod furnace;
 mod import;
+mod pack;
 mod shard;
 mod stress;
 mod tracers;

@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 
 use bounce_core::bake::{BakeOptions, CodecRequest, NoProgress, bake_file};
 use bounce_core::format::{Baked, FormatError, ShardFile};
+use bounce_core::import::pack_glb;
 use bounce_core::meta::Bounces;
 use bounce_core::shard::{self, Phase, ShardError, ShardSpec, shard_rows};
 use bounce_core::voxel::Resolution;
@@ -31,8 +32,10 @@ fn phase1(scene: &Path, options: &BakeOptions, count: u32, dir: &Path) -> Vec<Pa
     std::fs::create_dir_all(dir).unwrap();
     (0..count)
         .map(|i| {
-            let file = shard::form_factor_shard(scene, options, spec(i, count), &NoProgress)
+            let mut file = shard::form_factor_shard(scene, options, spec(i, count), &NoProgress)
                 .unwrap_or_else(|e| panic!("phase 1, shard {i}/{count}: {e}"));
+            // As `bounce bake --shard` does: each shard carries the packed scene.
+            file.model = Some(pack_glb(scene).unwrap());
             let path = dir.join(Phase::FormFactors.file_name(spec(i, count)));
             file.write_atomic(&path).unwrap();
             path
@@ -54,6 +57,13 @@ fn phase2(inputs: &[PathBuf], count: u32, dir: &Path) -> Vec<PathBuf> {
         .collect()
 }
 
+/// The one-process bake, keeping the model as `bounce bake` does.
+fn bake_one(scene: &Path, options: &BakeOptions) -> Baked {
+    let mut one = bake_file(scene, options, &NoProgress).unwrap();
+    one.model = Some(pack_glb(scene).unwrap());
+    one
+}
+
 /// The two bakes agree in everything but timings, down to the bytes of the written file.
 fn assert_same_bake(one: &Baked, merged: &Baked, what: &str) {
     assert_eq!(one.layout, merged.layout, "{what}: layout");
@@ -64,6 +74,11 @@ fn assert_same_bake(one: &Baked, merged: &Baked, what: &str) {
         "{what}: form factors"
     );
     assert_eq!(one.meta.stats, merged.meta.stats, "{what}: statistics");
+    assert!(
+        merged.model.is_some(),
+        "{what}: the merged file keeps the model"
+    );
+    assert_eq!(one.model, merged.model, "{what}: model");
     let stages =
         |b: &Baked| -> Vec<String> { b.meta.timings.iter().map(|t| t.stage.clone()).collect() };
     assert!(
@@ -83,7 +98,7 @@ fn assert_same_bake(one: &Baked, merged: &Baked, what: &str) {
 fn sharded_bakes_equal_the_one_process_bake() {
     let dir = tempfile::tempdir().unwrap();
     let scene = cornell();
-    let one = bake_file(&scene, &options(), &NoProgress).unwrap();
+    let one = bake_one(&scene, &options());
     let n = one.layout.len();
     assert_eq!(one.meta.stats.channels, 3, "coloured walls: three channels");
     // Three shards of a row count that 3 does not divide, so the split is uneven.
@@ -130,7 +145,7 @@ fn all_bounces_a_codec_and_kept_form_factors_shard_too() {
         codec: CodecRequest::Named("bc1".to_string()),
         ..options()
     };
-    let one = bake_file(&scene, &options, &NoProgress).unwrap();
+    let one = bake_one(&scene, &options);
     assert!(one.form_factors.is_some());
     let ff = phase1(&scene, &options, 2, &dir.path().join("ff"));
     let t = phase2(&ff, 3, &dir.path().join("t"));

@@ -37,7 +37,9 @@ pub fn scenes_dir() -> PathBuf {
             rays: 512,
             ..BakeOptions::default()
         };
-        let baked = bake_file(&gltf, &options, &NoProgress).expect("baking the Cornell box");
+        let mut baked = bake_file(&gltf, &options, &NoProgress).expect("baking the Cornell box");
+        // As `bounce bake` keeps it: the browser page's model.
+        baked.model = Some(bounce_core::import::pack_glb(&gltf).expect("packing the model"));
         baked
             .write_atomic(&dir.path().join(format!("{SCENE}.bounce")))
             .expect("writing the baked file");

@@ -101,9 +101,11 @@ async fn scenes_and_layout_match_grpc() {
     let want: Vec<Value> = listed
         .scenes
         .iter()
-        .map(|s| json!({"name": s.name, "patch_count": s.patch_count, "codec": s.codec}))
+        // `has_model` is HTTP's alone: the browser page is its client.
+        .map(|s| json!({"name": s.name, "patch_count": s.patch_count, "codec": s.codec, "has_model": true}))
         .collect();
     assert_eq!(scenes["scenes"], Value::Array(want));
+    assert_eq!(scenes["writes_need_token"], false);
 
     let layout: Value = http
         .get(server.url(&format!("/v1/scenes/{SCENE}/layout")))

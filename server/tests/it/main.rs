@@ -5,4 +5,5 @@ mod grpc;
 mod http;
 mod lifecycle;
 mod stress;
+mod web;
 mod ws;
