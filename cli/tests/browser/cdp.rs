@@ -55,6 +55,11 @@ const FLAGS: &[&str] = &[
     //   getContext('webgl2') returns null); next to the two flags above it is harmless.
     "--use-angle=swiftshader",
     "--enable-unsafe-swiftshader",
+    // Several pages draw at once (two tabs on one session): none of them may be throttled or
+    // paused as a background tab.
+    "--disable-background-timer-throttling",
+    "--disable-renderer-backgrounding",
+    "--disable-backgrounding-occluded-windows",
     "--remote-debugging-port=0",
 ];
 
@@ -673,7 +678,12 @@ impl Browser {
     /// Page, Runtime and Log domains on.
     pub async fn new_page(&self, width: u32, height: u32) -> Result<Page, CdpError> {
         let target = self
-            .call("Target.createTarget", json!({ "url": "about:blank" }))
+            // Each page its own window, so every page is visible and runs its animation frames
+            // (a background tab's requestAnimationFrame is paused).
+            .call(
+                "Target.createTarget",
+                json!({ "url": "about:blank", "newWindow": true }),
+            )
             .await?;
         let target_id = target["targetId"]
             .as_str()

@@ -51,22 +51,13 @@ pub struct Serve {
     pub dir: tempfile::TempDir,
 }
 
+#[derive(Default)]
 pub struct ServeOptions<'a> {
     pub token: Option<&'a str>,
     /// A fixed HTTP port (to restart on the same address); a free one when `None`.
     pub http_port: Option<u16>,
     /// Reuse a previous server's directory (scenes and stored sessions).
     pub dir: Option<tempfile::TempDir>,
-}
-
-impl Default for ServeOptions<'_> {
-    fn default() -> Self {
-        ServeOptions {
-            token: None,
-            http_port: None,
-            dir: None,
-        }
-    }
 }
 
 impl Serve {
@@ -183,4 +174,3 @@ impl Drop for Serve {
         let _ = self.child.wait();
     }
 }
-
