@@ -124,20 +124,11 @@ impl Serve {
 
     /// `POST /v1/sessions` with `lights`; the new session's id.
     pub async fn create_session(&self, lights: Value, token: Option<&str>) -> String {
-        let mut request = reqwest::Client::new()
+        let client = reqwest::Client::new();
+        let request = client
             .post(format!("{}/v1/sessions", self.http))
             .json(&json!({"scene": "box", "lights": lights}));
-        if let Some(t) = token {
-            request = request.bearer_auth(t);
-        }
-        let answer: Value = request
-            .send()
-            .await
-            .and_then(|r| r.error_for_status())
-            .expect("POST /v1/sessions")
-            .json()
-            .await
-            .expect("a JSON answer");
+        let answer = send(request, token, "POST /v1/sessions").await;
         answer["session_id"]
             .as_str()
             .expect("a session id")
@@ -146,20 +137,11 @@ impl Serve {
 
     /// `PUT /v1/sessions/{id}/lights`; the new lights version.
     pub async fn set_lights(&self, session: &str, lights: Value, token: Option<&str>) -> u64 {
-        let mut request = reqwest::Client::new()
+        let client = reqwest::Client::new();
+        let request = client
             .put(format!("{}/v1/sessions/{session}/lights", self.http))
             .json(&json!({"lights": lights}));
-        if let Some(t) = token {
-            request = request.bearer_auth(t);
-        }
-        let answer: Value = request
-            .send()
-            .await
-            .and_then(|r| r.error_for_status())
-            .expect("PUT lights")
-            .json()
-            .await
-            .expect("a JSON answer");
+        let answer = send(request, token, "PUT lights").await;
         answer["lights_version"].as_u64().expect("a lights version")
     }
 
@@ -173,4 +155,19 @@ impl Drop for Serve {
         let _ = self.child.kill();
         let _ = self.child.wait();
     }
+}
+
+/// Sends a write (with the token, if any) and returns its JSON answer; a refusal fails the test.
+async fn send(mut request: reqwest::RequestBuilder, token: Option<&str>, what: &str) -> Value {
+    if let Some(t) = token {
+        request = request.bearer_auth(t);
+    }
+    request
+        .send()
+        .await
+        .and_then(|r| r.error_for_status())
+        .unwrap_or_else(|e| panic!("{what}: {e}"))
+        .json()
+        .await
+        .unwrap_or_else(|e| panic!("{what}: not JSON: {e}"))
 }
