@@ -917,10 +917,20 @@ impl Page {
     /// value (or exception), and the page's errors so far.
     pub async fn wait_for(&self, js: &str, timeout: Duration) -> Result<Value, CdpError> {
         let start = Instant::now();
-        let mut last = String::from("(never evaluated)");
+        // The last answer the page gave, and whether a later evaluation went unanswered: a busy
+        // page may answer once and then not in time, and the answer it gave is still worth naming.
+        let mut last: Option<String> = None;
+        let mut unanswered = false;
         loop {
             let left = timeout.saturating_sub(start.elapsed());
             if left.is_zero() {
+                const UNANSWERED: &str =
+                    "no answer in time (a busy page, or a promise that did not settle)";
+                let was = match (&last, unanswered) {
+                    (None, _) => format!("not known: {UNANSWERED}"),
+                    (Some(v), false) => v.clone(),
+                    (Some(v), true) => format!("{v}, then {UNANSWERED}"),
+                };
                 let errors = self.errors();
                 let errors = if errors.is_empty() {
                     String::new()
@@ -928,19 +938,18 @@ impl Page {
                     format!("; the page's errors: {errors:?}")
                 };
                 return Err(CdpError::Timeout {
-                    what: format!("`{}` to be truthy; it was {last}{errors}", clip(js, 200)),
+                    what: format!("`{}` to be truthy; it was {was}{errors}", clip(js, 200)),
                     after: timeout,
                 });
             }
             match self.eval_raw(js, left.min(self.conn.timeout)).await {
                 Ok((v, true)) => return Ok(v),
-                Ok((v, false)) => last = clip(&v.to_string(), 500),
+                Ok((v, false)) => (last, unanswered) = (Some(clip(&v.to_string(), 500)), false),
                 Err(CdpError::Js { exception, .. }) => {
-                    last = format!("a throw: {}", clip(&exception, 500))
+                    (last, unanswered) =
+                        (Some(format!("a throw: {}", clip(&exception, 500))), false)
                 }
-                Err(CdpError::Timeout { .. }) => last =
-                    "not known: no answer in time (a busy page, or a promise that did not settle)"
-                        .to_owned(),
+                Err(CdpError::Timeout { .. }) => unanswered = true,
                 Err(e) => return Err(e),
             }
             tokio::time::sleep(

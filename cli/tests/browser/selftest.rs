@@ -155,7 +155,7 @@ async fn console_errors_exceptions_and_failed_loads_are_reported() {
     page.goto(&format!("{base}/bad")).await.unwrap();
     page.wait_for(
         "new Promise(r => setTimeout(() => r(true), 100))",
-        Duration::from_secs(5),
+        Duration::from_secs(30),
     )
     .await
     .unwrap();
@@ -201,27 +201,29 @@ async fn wait_for_sees_a_flag_and_times_out_helpfully() {
         start.elapsed()
     );
 
-    // The timeouts leave room for a slow answer: two chromiums share CI's 2 cores.
+    // The timeouts leave room for a slow answer: two chromiums share CI's 2 cores, and there a
+    // trivial evaluation has taken more than 1.5 s to come back (the error then says "not
+    // known", not the value this test wants to see named).
     let start = Instant::now();
     let err = page
         .wait_for(
             "window.never === 1 || window.ready.length - 3",
-            Duration::from_millis(1500),
+            Duration::from_secs(6),
         )
         .await
         .unwrap_err()
         .to_string();
     assert!(
-        start.elapsed() < Duration::from_secs(5),
+        start.elapsed() < Duration::from_secs(15),
         "{:?}",
         start.elapsed()
     );
     assert!(
-        err.contains("window.never === 1") && err.contains("it was 0") && err.contains("1.5s"),
+        err.contains("window.never === 1") && err.contains("it was 0") && err.contains("6s"),
         "{err}"
     );
     let err = page
-        .wait_for("window.app.ready", Duration::from_millis(1500))
+        .wait_for("window.app.ready", Duration::from_secs(6))
         .await
         .unwrap_err()
         .to_string();
@@ -423,7 +425,7 @@ async fn mouse_and_keys_reach_the_page() {
     page.key("Escape").await.unwrap();
     page.wait_for(
         "seen.some(e => e[0] === 'keyup' && e[1] === 'Escape') && seen.some(e => e[0] === 'wheel')",
-        Duration::from_secs(5),
+        Duration::from_secs(30),
     )
     .await
     .unwrap();
@@ -498,7 +500,7 @@ async fn dropping_the_browser_kills_chromium() {
     );
     // The renderers, the GPU process and the crash handler go too (init reaps them).
     let start = Instant::now();
-    while !chromium_processes(pid, &mark).is_empty() && start.elapsed() < Duration::from_secs(5) {
+    while !chromium_processes(pid, &mark).is_empty() && start.elapsed() < Duration::from_secs(20) {
         std::thread::sleep(Duration::from_millis(20));
     }
     assert_eq!(
