@@ -509,8 +509,14 @@ impl Browser {
             .prefix("bounce-chromium-")
             .tempdir()
             .map_err(|e| launch_err(format!("creating a profile directory: {e}"), &no_stderr))?;
+        // chromium's own temporary files (its singleton socket directory, which a killed chromium
+        // leaves behind) go inside the profile, so removing the profile removes them too.
+        let tmp = profile.path().join("tmp");
+        std::fs::create_dir(&tmp)
+            .map_err(|e| launch_err(format!("creating {}: {e}", tmp.display()), &no_stderr))?;
         let mut cmd = Command::new(path);
-        cmd.args(FLAGS)
+        cmd.env("TMPDIR", &tmp)
+            .args(FLAGS)
             .arg(format!("--user-data-dir={}", profile.path().display()))
             .args(extra)
             .arg("about:blank")

@@ -17,15 +17,19 @@ pub fn cornell() -> PathBuf {
 }
 
 /// One Cornell box bake shared by every test of this binary (baking is the slow part): 600
-/// patches keeps the page and the server quick on CI's two cores.
+/// patches keeps the page and the server quick on CI's two cores. It is baked afresh on each run
+/// (so it is always this binary's format) into cargo's target tmp directory, where the next run
+/// replaces it: a temporary directory in a static would never be removed.
 pub fn baked_cornell() -> &'static Path {
-    static BAKED: OnceLock<(tempfile::TempDir, PathBuf)> = OnceLock::new();
-    let (_, path) = BAKED.get_or_init(|| {
-        let dir = tempfile::tempdir().expect("a temporary directory");
-        let path = dir.path().join("box.bounce");
+    static BAKED: OnceLock<PathBuf> = OnceLock::new();
+    BAKED.get_or_init(|| {
+        let dir = Path::new(env!("CARGO_TARGET_TMPDIR"));
+        let path = dir.join("browser-cornell-600.bounce");
+        // Baked beside its final name and renamed, so two runs at once never read half a file.
+        let part = dir.join(format!("browser-cornell-600.{}.part", std::process::id()));
         let out = bounce()
             .args(["bake", "--patches", "600", "--rays", "512", "--quiet", "-o"])
-            .arg(&path)
+            .arg(&part)
             .arg(cornell())
             .output()
             .expect("bounce bake runs");
@@ -34,9 +38,9 @@ pub fn baked_cornell() -> &'static Path {
             "{}",
             String::from_utf8_lossy(&out.stderr)
         );
-        (dir, path)
-    });
-    path
+        std::fs::rename(&part, &path).expect("rename the bake into place");
+        path
+    })
 }
 
 /// The light every test starts from: the README's point light under the ceiling.

@@ -488,6 +488,17 @@ async fn dropping_the_browser_kills_chromium() {
         "chromium and its helpers: {members:?}"
     );
     assert!(profile.is_dir());
+    // chromium's own temporary directory (its singleton socket, left behind by a kill) is in the
+    // profile, not in /tmp where every run would add one.
+    let own_tmp: Vec<_> = std::fs::read_dir(profile.join("tmp"))
+        .unwrap()
+        .flatten()
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .collect();
+    assert!(
+        own_tmp.iter().any(|name| name.starts_with("org.chromium.")),
+        "{own_tmp:?}"
+    );
     drop(browser);
     assert!(
         !std::path::Path::new(&format!("/proc/{pid}")).exists(),

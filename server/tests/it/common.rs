@@ -27,9 +27,12 @@ pub const PATIENCE: Duration = Duration::from_secs(60);
 
 /// A directory holding `cornell-box.bounce`, baked once per test binary at about 300 patches.
 pub fn scenes_dir() -> PathBuf {
-    static DIR: OnceLock<tempfile::TempDir> = OnceLock::new();
+    // In cargo's target tmp directory, written afresh on each run (so it is always this build's
+    // format): a temporary directory held in a static is never dropped, and would stay in /tmp.
+    static DIR: OnceLock<PathBuf> = OnceLock::new();
     DIR.get_or_init(|| {
-        let dir = tempfile::tempdir().expect("tempdir");
+        let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("server-it-scenes");
+        std::fs::create_dir_all(&dir).expect("creating the scenes directory");
         let gltf =
             PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../assets/cornell-box/scene.gltf");
         let options = BakeOptions {
@@ -41,14 +44,13 @@ pub fn scenes_dir() -> PathBuf {
         // As `bounce bake` keeps it: the browser page's model.
         baked.model = Some(bounce_core::import::pack_glb(&gltf).expect("packing the model"));
         baked
-            .write_atomic(&dir.path().join(format!("{SCENE}.bounce")))
+            .write_atomic(&dir.join(format!("{SCENE}.bounce")))
             .expect("writing the baked file");
         // Not a baked file: must be skipped, not fatal.
-        std::fs::write(dir.path().join("broken.bounce"), b"not a baked file").expect("write");
+        std::fs::write(dir.join("broken.bounce"), b"not a baked file").expect("write");
         dir
     })
-    .path()
-    .to_path_buf()
+    .clone()
 }
 
 pub fn baked() -> Baked {
