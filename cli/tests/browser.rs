@@ -12,6 +12,8 @@ mod fixture;
 mod selftest;
 #[path = "browser/viewer.rs"]
 mod viewer;
+#[path = "browser/xr.rs"]
+mod xr;
 
 /// A launched chromium, or `None` where BOUNCE_ALLOW_NO_BROWSER=1 allows going without.
 async fn browser() -> Option<cdp::Browser> {

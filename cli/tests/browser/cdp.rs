@@ -809,6 +809,17 @@ impl Page {
             .await
     }
 
+    /// Runs `source` in every document this page loads from now on, before the document's own
+    /// scripts (as an extension's content script would): to install what a test page needs first.
+    pub async fn add_init_script(&self, source: &str) -> Result<(), CdpError> {
+        self.call(
+            "Page.addScriptToEvaluateOnNewDocument",
+            json!({ "source": source }),
+        )
+        .await
+        .map(drop)
+    }
+
     /// Navigates and waits for the load event. A failed navigation (DNS, refused, aborted) is an
     /// error; an HTTP error page (404) is not: check the page or `errors()`.
     pub async fn goto(&self, url: &str) -> Result<(), CdpError> {

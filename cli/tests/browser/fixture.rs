@@ -149,6 +149,18 @@ impl Serve {
         answer["lights_version"].as_u64().expect("a lights version")
     }
 
+    /// `GET /v1/sessions/{id}`: the session as the server holds it.
+    pub async fn session(&self, session: &str) -> Value {
+        reqwest::get(format!("{}/v1/sessions/{session}", self.http))
+            .await
+            .expect("GET the session")
+            .error_for_status()
+            .expect("the session exists")
+            .json()
+            .await
+            .expect("the session as JSON")
+    }
+
     pub fn page_url(&self, session: &str, extra: &str) -> String {
         format!("{}/?scene=box&session={session}{extra}", self.http)
     }

@@ -16,7 +16,7 @@ use serde_json::{Value, json};
 use crate::cdp::{Browser, MouseButton, MouseKind, Page};
 use crate::fixture::{Serve, ServeOptions, bounce, ceiling_light, cornell};
 
-const WAIT: Duration = Duration::from_secs(90);
+pub(crate) const WAIT: Duration = Duration::from_secs(90);
 const W: u32 = 320;
 const H: u32 = 240;
 /// The camera both viewers use for pictures: the box from the open side.
@@ -24,7 +24,7 @@ const EYE: [f32; 3] = [0.0, 1.0, 3.4];
 const TARGET: [f32; 3] = [0.0, 1.0, 0.0];
 const FOV: f32 = 45.0;
 
-fn camera_param() -> String {
+pub(crate) fn camera_param() -> String {
     let v: Vec<String> = EYE
         .iter()
         .chain(&TARGET)
@@ -43,14 +43,14 @@ fn picture_params() -> String {
     )
 }
 
-async fn open(browser: &Browser, url: &str) -> Page {
+pub(crate) async fn open(browser: &Browser, url: &str) -> Page {
     let page = browser.new_page(W, H).await.expect("a page");
     page.goto(url).await.expect("the page loads");
     page
 }
 
 /// Waits until the viewer has drawn its first frame of indirect light.
-async fn wait_drawn(page: &Page) -> Value {
+pub(crate) async fn wait_drawn(page: &Page) -> Value {
     page.wait_for(
         "window.bounceError ? {error: window.bounceError} : window.bounce?.drawn",
         WAIT,
@@ -64,7 +64,7 @@ async fn wait_drawn(page: &Page) -> Value {
 }
 
 /// Two animation frames later: whatever was set is on screen.
-async fn settle(page: &Page) {
+pub(crate) async fn settle(page: &Page) {
     page.eval(
         "new Promise(r => requestAnimationFrame(() => requestAnimationFrame(() => r(true))))",
     )
@@ -72,13 +72,13 @@ async fn settle(page: &Page) {
     .expect("animation frames run");
 }
 
-async fn screenshot(page: &Page) -> RgbaImage {
+pub(crate) async fn screenshot(page: &Page) -> RgbaImage {
     settle(page).await;
     let png = page.screenshot_png().await.expect("a screenshot");
     image::load_from_memory(&png).expect("a PNG").to_rgba8()
 }
 
-fn assert_no_errors(page: &Page) {
+pub(crate) fn assert_no_errors(page: &Page) {
     let errors = page.errors();
     assert!(errors.is_empty(), "console errors: {errors:#?}");
 }

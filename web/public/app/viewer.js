@@ -76,6 +76,10 @@ function testHooks(viewer) {
     drawnVersion: (lightsVersion) => viewer.waitDrawn(lightsVersion),
     // Where light `i`'s marker is on the page, in CSS pixels (for driving the mouse).
     markerOnScreen: (i) => viewer.markerOnScreen(i),
+    // {presenting, rig, held}: an immersive session, the rig's place, the lights held.
+    get xr() {
+      return viewer.xr.state;
+    },
   };
 }
 
@@ -197,7 +201,7 @@ export class Viewer {
     window.addEventListener('resize', () => this.resize());
     this.resize();
     this.last = performance.now();
-    this.renderer.setAnimationLoop((t, xrFrame) => this.frame(t, xrFrame));
+    this.renderer.setAnimationLoop((t) => this.frame(t));
   }
 
   resize() {
@@ -210,7 +214,7 @@ export class Viewer {
   }
 
   // One animation frame: the newest indirect light into the volume, the camera moved, drawn.
-  frame(now, xrFrame) {
+  frame(now) {
     const dt = Math.min((now - this.last) / 1000, 0.1);
     this.last = now;
     let applied = null;
@@ -226,7 +230,7 @@ export class Viewer {
     }
     if (this.fly.on) this.flyStep(dt);
     this.markers.scaleFor(this.camera);
-    this.xr.update(xrFrame);
+    this.xr.update(dt);
     this.updateDepthRange();
     this.uniforms.bounceIndirect.value = this.terms.indirect && (this.drawn || applied) ? 1 : 0;
     this.lightGroup.visible = this.terms.direct;

@@ -9,6 +9,9 @@ import { VRButton } from 'three/addons/webxr/VRButton.js';
 import { markerPosition, moveLight, scaleLight } from './lights.js';
 
 const GRAB_REACH = 0.25; // metres from the controller's ray to a light marker that still grabs it
+const STICK_DEAD_ZONE = 0.2;
+const DIM_RATE = Math.log(4); // a full push scales the light by 4× (or ¼) a second
+const MOVE_EPSILON = 1e-5; // of the scene's radius: closer than this is holding still
 
 export class Xr {
   constructor(viewer) {
@@ -92,19 +95,38 @@ export class Xr {
     this.grabbed.set(c, { index: best, offset });
   }
 
-  update() {
+  // Called every animation frame with its length in seconds: the lights held follow their
+  // controllers. Only a change is an edit, so a light held still sends nothing.
+  update(dt) {
     const v = this.viewer;
     if (!v.renderer.xr.isPresenting) return;
     for (const [c, g] of this.grabbed) {
       const p = g.offset.clone().applyMatrix4(c.matrixWorld);
       const stick = c.userData.gamepad?.axes?.[3] ?? 0;
+      // Pushed fully forward (-1 on the y axis) brightens by DIM_RATE a second, pulled back dims:
+      // by time, not by frame, so a 72 Hz and a 120 Hz headset dim alike.
+      const factor = Math.abs(stick) > STICK_DEAD_ZONE ? Math.exp(-stick * DIM_RATE * dt) : 1;
+      const held = v.lights.lights[g.index];
+      if (!held) continue;
+      const moved = markerPosition(held, v.bounds).distanceTo(p) > MOVE_EPSILON * v.bounds.radius;
+      if (!moved && factor === 1) continue;
       v.editLights((set) => {
         const l = set.lights[g.index];
         if (!l) return null;
         moveLight(l, p, v.bounds);
-        if (Math.abs(stick) > 0.2) scaleLight(l, 1 - stick * 0.02);
+        scaleLight(l, factor);
         return set;
       });
     }
+  }
+
+  // What the tests read: whether a session is presenting, and where the rig stands (the
+  // reference space's origin in the scene; it is never rotated).
+  get state() {
+    return {
+      presenting: this.viewer.renderer.xr.isPresenting,
+      rig: this.rig.position.toArray(),
+      held: [...this.grabbed.values()].map((g) => g.index),
+    };
   }
 }
