@@ -16,6 +16,8 @@ const IWER: &str = include_str!("vendor/iwer/iwer.min.js");
 /// The page for both eyes: each eye gets half the width.
 const W: u32 = 640;
 const H: u32 = 360;
+/// Scene units in a headset's metre (the page's `xr_scale`).
+const XR_SCALE: f64 = 2.0;
 
 /// IWER's Quest 3 with both eyes drawn, installed over the browser's own `navigator.xr` (headless
 /// chromium has one, with no device behind it).
@@ -124,6 +126,9 @@ async fn a_headset_enters_vr_and_its_controller_carries_and_dims_a_light() {
     let serve = Serve::start(ServeOptions::default());
     let session = serve.create_session(ceiling_light(), None).await;
     let url = serve.page_url(&session, &format!("&camera={}", camera_param()));
+    // A headset metre is two scene units here: grabbing and carrying are in metres of the
+    // headset, the light moves in scene units.
+    let xr_url = format!("{url}&xr_scale={XR_SCALE}");
 
     // Without a headset the button says why there is no VR.
     let plain = open(&browser, &url).await;
@@ -136,7 +141,7 @@ async fn a_headset_enters_vr_and_its_controller_carries_and_dims_a_light() {
     page.add_init_script(&headset_script())
         .await
         .expect("the headset is installed first");
-    page.goto(&url).await.expect("the page loads");
+    page.goto(&xr_url).await.expect("the page loads");
     wait_drawn(&page).await;
     assert_eq!(button_text(&page).await, json!("ENTER VR"));
     click_vr_button(&page).await;
@@ -156,11 +161,13 @@ async fn a_headset_enters_vr_and_its_controller_carries_and_dims_a_light() {
 
     let xr = page.eval("window.bounce.xr").await.unwrap();
     let rig: Vec<f64> = serde_json::from_value(xr["rig"].clone()).expect("the rig's place");
-    // The ceiling light, in the reference space (the rig is never rotated).
-    let light = [0.0 - rig[0], 1.5 - rig[1], 0.0 - rig[2]];
+    assert_eq!(xr["scale"].as_f64(), Some(XR_SCALE));
+    // The ceiling light, in the reference space (the rig is never rotated, only scaled).
+    let light = [0.0, 1.5, 0.0].map(|v| v / XR_SCALE);
+    let light = [0, 1, 2].map(|i| light[i] - rig[i] / XR_SCALE);
     let version = lights_version(&serve, &session).await;
 
-    // A ray that passes 0.8 m from the light grabs nothing.
+    // A ray that passes 0.8 m from the light grabs nothing (it reaches 25 cm).
     place_controller(&page, [light[0] + 0.8, light[1], light[2] + 0.5]).await;
     trigger(&page, 1.0).await;
     assert_eq!(page.eval("window.bounce.xr.held").await.unwrap(), json!([]));
@@ -179,10 +186,10 @@ async fn a_headset_enters_vr_and_its_controller_carries_and_dims_a_light() {
     }
     assert_eq!(lights_version(&serve, &session).await, version);
 
-    // Carried 0.3 m to the right: the light goes with the controller, to the server.
+    // Carried 0.3 m to the right, 0.6 scene units: the light goes with the controller.
     place_controller(&page, [light[0] + 0.3, light[1], light[2] + 0.5]).await;
     page.wait_for(
-        "Math.abs(window.bounce.lights.lights[0].position[0] - 0.3) < 1e-4",
+        "Math.abs(window.bounce.lights.lights[0].position[0] - 0.6) < 1e-4",
         WAIT,
     )
     .await
@@ -210,7 +217,7 @@ async fn a_headset_enters_vr_and_its_controller_carries_and_dims_a_light() {
     let light_now = &stored["lights"][0];
     let position: Vec<f64> = serde_json::from_value(light_now["position"].clone()).unwrap();
     assert!(
-        (position[0] - 0.3).abs() < 1e-4
+        (position[0] - 0.6).abs() < 1e-4
             && (position[1] - 1.5).abs() < 1e-4
             && position[2].abs() < 1e-4,
         "the light the server holds: {light_now}"

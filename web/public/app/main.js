@@ -3,7 +3,8 @@
 //
 // URL parameters: scene, session, token (a write token; kept for this tab only), camera
 // (eye_x,eye_y,eye_z,target_x,target_y,target_z[,fov_deg], as `bounce render --camera`),
-// exposure, terms (both|direct|indirect), overlay (on|off), aa (on|off), markers (on|off),
+// exposure, terms (both|direct|indirect), xr_scale (the scene's units in a metre, for a headset:
+// glTF says metres, but a game level may not be), overlay (on|off), aa (on|off), markers (on|off),
 // ui (on|off: the buttons), pixel_ratio. The last few are for comparing pictures with
 // `bounce render`, which draws neither markers nor buttons.
 
@@ -115,6 +116,12 @@ async function layoutBounds(scene) {
   return new Bounds(new Box3(min, max));
 }
 
+// A positive number from the URL, or `fallback` where it is missing or not one.
+function positive(name, fallback) {
+  const v = Number(params.get(name));
+  return params.has(name) && Number.isFinite(v) && v > 0 ? v : fallback;
+}
+
 async function view(scene, session) {
   show('view');
   document.title = `bounce · ${scene}`;
@@ -126,6 +133,7 @@ async function view(scene, session) {
     camera: camera(),
     exposure: Number(params.get('exposure') ?? 1) || 1,
     terms: params.get('terms') ?? 'both',
+    xrScale: positive('xr_scale', 1),
     overlay: onOff('overlay', true),
     antialias: onOff('aa', true),
     markers: onOff('markers', true),

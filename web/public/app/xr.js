@@ -52,6 +52,9 @@ export class Xr {
     const v = this.viewer;
     this.saved = { position: v.camera.position.clone(), quaternion: v.camera.quaternion.clone() };
     this.rig.position.set(v.camera.position.x, v.bounds.min.y, v.camera.position.z);
+    // A metre of the headset's is `xrScale` scene units: the rig (and so the eyes, their distance
+    // and the controllers) is scaled, not the scene.
+    this.rig.scale.setScalar(v.params.xrScale ?? 1);
     this.rig.add(v.camera);
     v.camera.position.set(0, 0, 0);
     v.camera.quaternion.identity();
@@ -77,7 +80,7 @@ export class Xr {
     const origin = new Vector3().setFromMatrixPosition(c.matrixWorld);
     const dir = new Vector3(0, 0, -1).transformDirection(c.matrixWorld);
     let best = -1;
-    let bestDistance = GRAB_REACH;
+    let bestDistance = GRAB_REACH * this.rig.scale.x;
     v.lights.lights.forEach((l, i) => {
       const p = markerPosition(l, v.bounds);
       const along = Math.max(p.clone().sub(origin).dot(dir), 0);
@@ -120,12 +123,13 @@ export class Xr {
     }
   }
 
-  // What the tests read: whether a session is presenting, and where the rig stands (the
-  // reference space's origin in the scene; it is never rotated).
+  // What the tests read: whether a session is presenting, where the rig stands (the reference
+  // space's origin in the scene; it is never rotated) and its scale, and the lights held.
   get state() {
     return {
       presenting: this.viewer.renderer.xr.isPresenting,
       rig: this.rig.position.toArray(),
+      scale: this.rig.scale.x,
       held: [...this.grabbed.values()].map((g) => g.index),
     };
   }
