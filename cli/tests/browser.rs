@@ -6,6 +6,7 @@
 
 #[path = "browser/cdp.rs"]
 mod cdp;
+mod common;
 #[path = "browser/fixture.rs"]
 mod fixture;
 #[path = "browser/selftest.rs"]

@@ -1,34 +1,13 @@
 //! End-to-end: the real `bounce` binary on real files.
 
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::path::Path;
+use std::process::Command;
 
 use bounce_core::format::Baked;
 use serde_json::Value;
 
-fn bounce() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_bounce"))
-}
-
-fn cornell() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/cornell-box/scene.gltf")
-}
-
-fn run(cmd: &mut Command) -> Output {
-    let out = cmd.output().expect("the bounce binary runs");
-    // A panic exits with 101; every failure a user can cause must be a clean error (exit 1).
-    assert_ne!(
-        out.status.code(),
-        Some(101),
-        "bounce panicked:\n{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    out
-}
-
-fn stderr(out: &Output) -> String {
-    String::from_utf8_lossy(&out.stderr).into_owned()
-}
+mod common;
+use common::{ServeChild, bounce, cornell, run, serve_command, stderr};
 
 fn inspect_json(file: &Path) -> Value {
     let out = run(bounce().arg("inspect").arg(file).arg("--json"));
@@ -487,54 +466,9 @@ fn base64_encode(bytes: &[u8]) -> String {
     s
 }
 
-/// A `bounce serve` child process on loopback ports, with the gRPC address it printed.
-struct ServeProcess {
-    child: std::process::Child,
-    grpc: String,
-}
-
-impl ServeProcess {
-    fn start(scenes: &Path, data: &Path) -> ServeProcess {
-        use std::io::{BufRead, BufReader};
-        let mut child = bounce()
-            .args([
-                "serve",
-                "--engine",
-                "cpu",
-                "--grpc",
-                "127.0.0.1:0",
-                "--http",
-                "127.0.0.1:0",
-                "--reload-every",
-                "0",
-            ])
-            .arg("--scenes")
-            .arg(scenes)
-            .arg("--data-dir")
-            .arg(data)
-            .stdout(std::process::Stdio::piped())
-            .stderr(std::process::Stdio::null())
-            .spawn()
-            .expect("bounce serve starts");
-        let stdout = child.stdout.take().expect("stdout");
-        let mut grpc = None;
-        for line in BufReader::new(stdout).lines() {
-            let line = line.expect("stdout line");
-            if let Some(rest) = line.trim_start().strip_prefix("gRPC  ") {
-                grpc = rest.split_whitespace().next().map(str::to_owned);
-                break;
-            }
-        }
-        let grpc = grpc.expect("bounce serve printed its gRPC address");
-        ServeProcess { child, grpc }
-    }
-}
-
-impl Drop for ServeProcess {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
+/// `bounce serve` on free loopback ports with scenes from `scenes` and sessions in `data`.
+fn serve(scenes: &Path, data: &Path) -> ServeChild {
+    ServeChild::spawn(serve_command(scenes, data, "127.0.0.1:0"))
 }
 
 /// The process is killed with SIGKILL between a change and the restart: no shutdown code runs,
@@ -561,7 +495,7 @@ fn serve_keeps_sessions_across_kill_9() {
         intensity: Some(intensity),
         ..Default::default()
     };
-    let mut first = ServeProcess::start(&scenes, &data);
+    let mut first = serve(&scenes, &data);
     let (id, before) = rt.block_on(async {
         let mut c = BounceClient::connect(first.grpc.clone()).await.unwrap();
         let id = c
@@ -597,10 +531,9 @@ fn serve_keeps_sessions_across_kill_9() {
             }
         }
     });
-    first.child.kill().expect("SIGKILL");
-    first.child.wait().unwrap();
+    first.kill();
 
-    let second = ServeProcess::start(&scenes, &data);
+    let second = serve(&scenes, &data);
     rt.block_on(async {
         let mut c = BounceClient::connect(second.grpc.clone()).await.unwrap();
         let mut frames = c
@@ -642,7 +575,7 @@ fn render_from_a_server_matches_render_in_process() {
         r#"{"lights":[{"type":"spot","position":[0,1.9,0],"direction":[0,-1,0],"intensity":15,"inner_cone_angle":0.8,"outer_cone_angle":1.0}]}"#,
     )
     .unwrap();
-    let server = ServeProcess::start(&scenes, &dir.path().join("data"));
+    let server = serve(&scenes, &dir.path().join("data"));
     let render = |source: &[&std::ffi::OsStr], png: &Path| {
         let out = run(bounce()
             .arg("render")
@@ -953,7 +886,7 @@ fn the_window_moves_a_sessions_light_on_a_server() {
         r#"{"lights":[{"type":"point","position":[0.5,1.5,0],"intensity":8}]}"#,
     )
     .unwrap();
-    let server = ServeProcess::start(&scenes, &dir.path().join("data"));
+    let server = serve(&scenes, &dir.path().join("data"));
     let stats = dir.path().join("stats.json");
     let out = run(bounce()
         .arg("view")

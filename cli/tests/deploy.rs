@@ -2,52 +2,13 @@
 //! an Indexed Job runs them (the index from JOB_COMPLETION_INDEX), against a one-process bake;
 //! their refusals; and the compose file's bake script.
 
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::path::PathBuf;
+use std::process::Command;
 
 use bounce_core::format::Baked;
 
-fn bounce() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_bounce"))
-}
-
-fn repo() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
-}
-
-fn cornell() -> PathBuf {
-    repo().join("assets/cornell-box/scene.gltf")
-}
-
-fn run(cmd: &mut Command) -> Output {
-    let out = cmd.output().expect("the command runs");
-    assert_ne!(
-        out.status.code(),
-        Some(101),
-        "bounce panicked:\n{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    out
-}
-
-fn ok(cmd: &mut Command) -> Output {
-    let out = run(cmd);
-    assert!(
-        out.status.success(),
-        "{:?} failed:\n{}",
-        cmd,
-        String::from_utf8_lossy(&out.stderr)
-    );
-    out
-}
-
-/// Exit status 1 with `says` in the message.
-fn refused(cmd: &mut Command, says: &str) {
-    let out = run(cmd);
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(1), "{cmd:?}: {err}");
-    assert!(err.contains(says), "{cmd:?} should say '{says}':\n{err}");
-}
+mod common;
+use common::{bounce, cornell, ok, refused, repo, run};
 
 const BAKE: [&str; 4] = ["--patches", "300", "--rays", "128"];
 

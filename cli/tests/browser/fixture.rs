@@ -1,20 +1,13 @@
 //! A real `bounce serve` child process on loopback, with a baked Cornell box, for the browser
 //! tests: the page is served by the binary users run.
 
-use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
 use std::sync::OnceLock;
 
 use serde_json::{Value, json};
 
-pub fn bounce() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_bounce"))
-}
-
-pub fn cornell() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/cornell-box/scene.gltf")
-}
+use crate::common::{ServeChild, serve_command};
+pub use crate::common::{bounce, cornell};
 
 /// One Cornell box bake shared by every test of this binary (baking is the slow part): 600
 /// patches keeps the page and the server quick on CI's two cores. It is baked afresh on each run
@@ -49,7 +42,7 @@ pub fn ceiling_light() -> Value {
 }
 
 pub struct Serve {
-    child: Child,
+    child: ServeChild,
     pub http: String,
     pub grpc: String,
     pub dir: tempfile::TempDir,
@@ -74,48 +67,25 @@ impl Serve {
             dir
         });
         let http = format!("127.0.0.1:{}", options.http_port.unwrap_or(0));
-        let mut cmd = bounce();
-        cmd.args(["serve", "--engine", "cpu", "--grpc", "127.0.0.1:0"])
-            .args(["--http", &http, "--reload-every", "0"])
-            .arg("--scenes")
-            .arg(dir.path().join("scenes"))
-            .arg("--data-dir")
-            .arg(dir.path().join("data"))
-            .stdout(Stdio::piped())
-            .stderr(Stdio::null());
+        let mut cmd = serve_command(&dir.path().join("scenes"), &dir.path().join("data"), &http);
         if let Some(t) = options.token {
             cmd.args(["--token", t]);
         }
-        let mut child = cmd.spawn().expect("bounce serve starts");
-        let stdout = child.stdout.take().expect("stdout");
-        let (mut grpc, mut http) = (None, None);
-        for line in BufReader::new(stdout).lines() {
-            let line = line.expect("stdout line");
-            let line = line.trim_start();
-            let first = |rest: &str| rest.split_whitespace().next().map(str::to_owned);
-            if let Some(rest) = line.strip_prefix("gRPC  ") {
-                grpc = first(rest);
-            } else if let Some(rest) = line.strip_prefix("HTTP  ") {
-                http = first(rest);
-            }
-            if grpc.is_some() && http.is_some() {
-                break;
-            }
-        }
+        let child = ServeChild::spawn(cmd);
         Serve {
+            http: child.http.clone(),
+            grpc: child.grpc.clone(),
             child,
-            http: http.expect("bounce serve printed its HTTP address"),
-            grpc: grpc.expect("bounce serve printed its gRPC address"),
             dir,
         }
     }
 
-    /// SIGKILL: nothing of the server's shutdown runs, as in a crash.
-    pub fn kill(mut self) -> tempfile::TempDir {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-        let dir = tempfile::tempdir().expect("a temporary directory");
-        std::mem::replace(&mut self.dir, dir)
+    /// SIGKILL: nothing of the server's shutdown runs, as in a crash. The directory (scenes and
+    /// stored sessions) is kept for a restart.
+    pub fn kill(self) -> tempfile::TempDir {
+        let Serve { mut child, dir, .. } = self;
+        child.kill();
+        dir
     }
 
     pub fn port(&self) -> u16 {
@@ -163,13 +133,6 @@ impl Serve {
 
     pub fn page_url(&self, session: &str, extra: &str) -> String {
         format!("{}/?scene=box&session={session}{extra}", self.http)
-    }
-}
-
-impl Drop for Serve {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
     }
 }
 
