@@ -11,7 +11,6 @@
 
 use std::collections::{HashMap, VecDeque};
 use std::fmt;
-use std::io::{BufRead, BufReader};
 use std::os::unix::process::CommandExt;
 use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
@@ -538,19 +537,8 @@ impl Browser {
             .spawn()
             .map_err(|e| launch_err(format!("running {}: {e}", path.display()), &no_stderr))?;
 
-        let stderr = Arc::new(Mutex::new(VecDeque::new()));
-        let pipe = child.stderr.take().expect("stderr is piped");
-        let tail = stderr.clone();
-        let stderr_reader = std::thread::spawn(move || {
-            for line in BufReader::new(pipe).lines() {
-                let Ok(line) = line else { break };
-                let mut tail = tail.lock().unwrap();
-                tail.push_back(line);
-                if tail.len() > STDERR_LINES {
-                    tail.pop_front();
-                }
-            }
-        });
+        let (stderr, stderr_reader) =
+            crate::common::keep_tail(child.stderr.take().expect("stderr is piped"), STDERR_LINES);
 
         // Reap and clean up on every error path below.
         let fail = |mut child: Child, message: String| {

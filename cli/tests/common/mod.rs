@@ -56,6 +56,27 @@ pub fn refused(cmd: &mut Command, says: &str) {
     assert!(err.contains(says), "{cmd:?} should say '{says}':\n{err}");
 }
 
+/// The last `lines` lines read from `pipe`, read to its end on a thread of their own (which is
+/// finished once the writer has closed it).
+pub fn keep_tail(
+    pipe: impl std::io::Read + Send + 'static,
+    lines: usize,
+) -> (Arc<Mutex<VecDeque<String>>>, std::thread::JoinHandle<()>) {
+    let kept = Arc::new(Mutex::new(VecDeque::new()));
+    let tail = kept.clone();
+    let reader = std::thread::spawn(move || {
+        for line in BufReader::new(pipe).lines() {
+            let Ok(line) = line else { break };
+            let mut tail = tail.lock().unwrap();
+            tail.push_back(line);
+            if tail.len() > lines {
+                tail.pop_front();
+            }
+        }
+    });
+    (kept, reader)
+}
+
 /// `bounce serve` with the CPU engine on free loopback ports, scenes from `scenes`, sessions
 /// stored in `data`, no periodic reload: add options (`--token`) to it, then `ServeChild::spawn`.
 pub fn serve_command(scenes: &Path, data: &Path, http: &str) -> Command {
@@ -91,19 +112,7 @@ impl ServeChild {
             .spawn()
             .expect("bounce serve starts");
         // Drained all the time, not only on failure: a full pipe would stall the server's logging.
-        let stderr = Arc::new(Mutex::new(VecDeque::new()));
-        let pipe = child.stderr.take().expect("stderr is piped");
-        let tail = stderr.clone();
-        std::thread::spawn(move || {
-            for line in BufReader::new(pipe).lines() {
-                let Ok(line) = line else { break };
-                let mut tail = tail.lock().unwrap();
-                tail.push_back(line);
-                if tail.len() > STDERR_LINES {
-                    tail.pop_front();
-                }
-            }
-        });
+        let (stderr, _) = keep_tail(child.stderr.take().expect("stderr is piped"), STDERR_LINES);
         let stdout = child.stdout.take().expect("stdout is piped");
         let (mut grpc, mut http) = (None, None);
         for line in BufReader::new(stdout).lines() {
