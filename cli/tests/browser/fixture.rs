@@ -150,3 +150,56 @@ async fn send(mut request: reqwest::RequestBuilder, token: Option<&str>, what: &
         .await
         .unwrap_or_else(|e| panic!("{what}: not JSON: {e}"))
 }
+
+/// The Cornell box written into `dir` with every triangle's winding reversed and its normals
+/// removed: glTF then asks for flat normals from the winding, which now faces out of the box.
+/// Returns the new `scene.gltf`.
+pub fn cornell_reversed(dir: &Path) -> PathBuf {
+    let source = cornell();
+    let mut gltf: Value = serde_json::from_slice(&std::fs::read(&source).expect("read the box"))
+        .expect("the box is JSON");
+    let uri = gltf["buffers"][0]["uri"]
+        .as_str()
+        .expect("one external buffer")
+        .to_owned();
+    let mut bin = std::fs::read(source.with_file_name(&uri)).expect("read the buffer");
+    let mut reversed = std::collections::HashSet::new();
+    let meshes = gltf["meshes"].as_array().expect("meshes").len();
+    for m in 0..meshes {
+        let primitives = gltf["meshes"][m]["primitives"]
+            .as_array_mut()
+            .expect("primitives");
+        for p in primitives {
+            p["attributes"]
+                .as_object_mut()
+                .expect("attributes")
+                .remove("NORMAL");
+            // Swapped below, once per accessor however many primitives share it.
+            reversed.insert(p["indices"].as_u64().expect("indexed triangles") as usize);
+        }
+    }
+    for indices in reversed {
+        let accessor = &gltf["accessors"][indices];
+        let view = &gltf["bufferViews"][accessor["bufferView"].as_u64().expect("a view") as usize];
+        let offset = view["byteOffset"].as_u64().unwrap_or(0) as usize
+            + accessor["byteOffset"].as_u64().unwrap_or(0) as usize;
+        let size = match accessor["componentType"].as_u64() {
+            Some(5121) => 1,
+            Some(5123) => 2,
+            Some(5125) => 4,
+            other => panic!("index component type {other:?}"),
+        };
+        let count = accessor["count"].as_u64().expect("a count") as usize;
+        for t in 0..count / 3 {
+            let (b, c) = (offset + (3 * t + 1) * size, offset + (3 * t + 2) * size);
+            for k in 0..size {
+                bin.swap(b + k, c + k);
+            }
+        }
+    }
+    std::fs::create_dir_all(dir).expect("the model directory");
+    std::fs::write(dir.join(&uri), &bin).expect("write the buffer");
+    let path = dir.join("scene.gltf");
+    std::fs::write(&path, serde_json::to_vec(&gltf).expect("JSON")).expect("write the glTF");
+    path
+}

@@ -3,6 +3,7 @@
 //! session with other tabs and a gRPC subscriber, draws what `bounce render` draws, explains
 //! refusals, and rides out a server restart.
 
+use std::path::Path;
 use std::time::Duration;
 
 use bounce_client::layout::Layout;
@@ -359,29 +360,67 @@ async fn the_browser_draws_what_bounce_render_draws() {
     let serve = Serve::start(ServeOptions::default());
     let spot = json!([{"type": "spot", "position": [0.0, 1.9, 0.0], "direction": [0.0, -1.0, 0.0],
         "intensity": 15.0, "inner_cone_angle": 0.5, "outer_cone_angle": 0.9}]);
-    let session = serve.create_session(spot.clone(), None).await;
-    let page = open(&browser, &serve.page_url(&session, &picture_params())).await;
-    let drawn = wait_drawn(&page).await;
-    let browser_img = screenshot(&page).await;
+    assert_draws_as_native(&browser, &serve, &cornell(), spot).await;
+}
 
-    // The native renderer, with its indirect light from the same session's frame.
+/// pandora has no normals and its triangles face either way. Both viewers draw both sides, lit
+/// on the side that is seen; the page once offset its shadow lookups along the winding's normal,
+/// into the surface wherever that faced away, and such walls went black in direct light. The box
+/// here is the Cornell box with every triangle's winding reversed and its normals removed.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_scene_without_normals_facing_away_is_drawn_as_bounce_render_draws_it() {
+    let Some(browser) = crate::browser().await else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let gltf = crate::fixture::cornell_reversed(&dir.path().join("model"));
+    let scenes = dir.path().join("scenes");
+    std::fs::create_dir_all(&scenes).unwrap();
+    let out = bounce()
+        .args(["bake", "--patches", "600", "--rays", "512", "--quiet", "-o"])
+        .arg(scenes.join("box.bounce"))
+        .arg(&gltf)
+        .output()
+        .expect("bounce bake runs");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let serve = Serve::start(ServeOptions {
+        dir: Some(dir),
+        ..ServeOptions::default()
+    });
+    assert_draws_as_native(&browser, &serve, &gltf, ceiling_light()).await;
+    let spot = json!([{"type": "spot", "position": [0.3, 1.9, 0.2], "direction": [0.0, -1.0, 0.0],
+        "intensity": 15.0, "inner_cone_angle": 0.5, "outer_cone_angle": 0.9}]);
+    assert_draws_as_native(&browser, &serve, &gltf, spot).await;
+    // In through the open side, onto the back wall and the floor.
+    let sun = json!([{"type": "directional", "direction": [0.2, -0.5, -1.0], "intensity": 3.0}]);
+    assert_draws_as_native(&browser, &serve, &gltf, sun).await;
+}
+
+/// A session of `serve` with `lights`, drawn by the page and by `bounce render --server` (its
+/// indirect light from the same session's frame) from the test camera: the same picture, up to
+/// a small mean difference and a few pixels on edges.
+async fn assert_draws_as_native(browser: &Browser, serve: &Serve, gltf: &Path, lights: Value) {
+    let session = serve.create_session(lights.clone(), None).await;
+    let page = open(browser, &serve.page_url(&session, &picture_params())).await;
+    wait_drawn(&page).await;
+    let browser_img = screenshot(&page).await;
+    assert_no_errors(&page);
+
     let dir = tempfile::tempdir().unwrap();
     let png = dir.path().join("native.png");
-    let lights = dir.path().join("spot.json");
-    std::fs::write(&lights, json!({"lights": spot}).to_string()).unwrap();
+    let lights_file = dir.path().join("lights.json");
+    std::fs::write(&lights_file, json!({ "lights": lights }).to_string()).unwrap();
     let out = bounce()
         .arg("render")
-        .arg(cornell())
-        .args([
-            "--server",
-            &serve.grpc,
-            "--scene-name",
-            "box",
-            "--session",
-            &session,
-        ])
+        .arg(gltf)
+        .args(["--server", &serve.grpc, "--scene-name", "box"])
+        .args(["--session", &session])
         .arg("--lights")
-        .arg(&lights)
+        .arg(&lights_file)
         .args(["--camera", &camera_param(), "--width", &W.to_string()])
         .args(["--height", &H.to_string(), "--out"])
         .arg(&png)
@@ -395,7 +434,6 @@ async fn the_browser_draws_what_bounce_render_draws() {
     );
     let native = image::open(&png).expect("a PNG").to_rgba8();
     assert_eq!(native.dimensions(), browser_img.dimensions());
-    let _ = drawn;
 
     let diffs: Vec<u8> = native
         .pixels()
@@ -404,14 +442,20 @@ async fn the_browser_draws_what_bounce_render_draws() {
         .collect();
     let mean = diffs.iter().map(|&d| f64::from(d)).sum::<f64>() / diffs.len() as f64;
     let large = diffs.iter().filter(|&&d| d > 32).count() as f64 / diffs.len() as f64;
+    eprintln!(
+        "{} with {lights}: mean difference {mean:.2}/255, {:.2}% of pixels off by more than 32",
+        gltf.display(),
+        large * 100.0
+    );
     if mean > 4.0 || large > 0.03 {
         let _ = native.save(std::env::temp_dir().join("bounce-native.png"));
         let _ = browser_img.save(std::env::temp_dir().join("bounce-browser.png"));
     }
     assert!(
         mean <= 4.0 && large <= 0.03,
-        "browser against native: mean difference {mean:.2}/255, {:.2}% of pixels off by more \
-         than 32 (pictures saved in the temp dir)",
+        "{} with {lights}: browser against native: mean difference {mean:.2}/255, {:.2}% of \
+         pixels off by more than 32 (pictures saved in the temp dir)",
+        gltf.display(),
         large * 100.0
     );
 }

@@ -8,7 +8,7 @@
 // into its shader: the indirect irradiance is added where three adds ambient light, and the spot
 // cone uses glTF's squared linear falloff instead of three's smoothstep.
 
-import { DoubleSide, MeshLambertMaterial, Vector3 } from 'three';
+import { DoubleSide, MeshDepthMaterial, MeshDistanceMaterial, MeshLambertMaterial, Vector3 } from 'three';
 
 // The uniforms every converted material shares: one object, so updating it updates them all.
 export function volumeUniforms() {
@@ -42,6 +42,11 @@ export function bindVolume(uniforms, volume) {
 
 const VERTEX_DECL = /* glsl */ `
 varying vec3 vBounceWorld;
+// The normal turned to the side of the surface that faces the light, given the vector from the
+// light to the surface: what the shadow lookup offsets along (see installShadowOffset).
+vec3 bounceTowardLight(vec3 n, vec3 lightToSurface) {
+  return dot(n, lightToSurface) > 0.0 ? -n : n;
+}
 void main() {`;
 
 const VERTEX_WORLD = /* glsl */ `#include <project_vertex>
@@ -107,7 +112,8 @@ function patchShader(shader, uniforms) {
   Object.assign(shader.uniforms, uniforms);
   shader.vertexShader = shader.vertexShader
     .replace('void main() {', VERTEX_DECL)
-    .replace('#include <project_vertex>', VERTEX_WORLD);
+    .replace('#include <project_vertex>', VERTEX_WORLD)
+    .replace('#include <shadowmap_vertex>', THREE_SHADOWMAP_VERTEX_TOWARD_LIGHT);
   shader.fragmentShader = shader.fragmentShader
     .replace('void main() {', FRAGMENT_DECL)
     .replace('#include <lights_fragment_end>', FRAGMENT_INDIRECT)
@@ -123,6 +129,53 @@ export function installSpotFalloff(ShaderChunk) {
     throw new Error('three.js changed its spot falloff; shading.js must be updated');
   }
   THREE_LIGHTS_PARS_GLTF_SPOT = chunk.replace(SPOT_THREE, SPOT_GLTF);
+}
+
+// three offsets a surface's shadow lookup along the vertex normal, which on a back face (both
+// sides are drawn) points away from the light: the lookup then lands behind the surface's own
+// depth and the surface shadows itself. A scene whose winding does not face the light (pandora
+// has no normals and mixed winding) goes black. shade.wgsl offsets along the normal turned to the
+// side that is seen; here each light's offset is turned to the side that faces that light, which
+// is the same wherever the seen side is lit at all.
+const SHADOW_OFFSETS = [
+  [
+    'shadowWorldPosition = worldPosition + vec4( shadowWorldNormal * pointLightShadows[ i ].shadowNormalBias, 0 );',
+    // pointShadowMatrix is a translation by minus the light's position.
+    'shadowWorldPosition = worldPosition + vec4( bounceTowardLight( shadowWorldNormal, ( pointShadowMatrix[ i ] * worldPosition ).xyz ) * pointLightShadows[ i ].shadowNormalBias, 0 );',
+  ],
+  [
+    'shadowWorldPosition = worldPosition + vec4( shadowWorldNormal * directionalLightShadows[ i ].shadowNormalBias, 0 );',
+    // Shadow-map depth grows away from the light: along the normal it must not.
+    'shadowWorldPosition = worldPosition + vec4( ( ( directionalShadowMatrix[ i ] * vec4( shadowWorldNormal, 0.0 ) ).z > 0.0 ? - shadowWorldNormal : shadowWorldNormal ) * directionalLightShadows[ i ].shadowNormalBias, 0 );',
+  ],
+  [
+    'shadowWorldPosition.xyz += shadowWorldNormal * spotLightShadows[ i ].shadowNormalBias;',
+    // spotLightMatrix is a perspective: compare depths with and without the offset.
+    '{ vec3 bounceOffset = shadowWorldNormal * spotLightShadows[ i ].shadowNormalBias; vec4 bounceAt = spotLightMatrix[ i ] * shadowWorldPosition; vec4 bounceOff = spotLightMatrix[ i ] * ( shadowWorldPosition + vec4( bounceOffset, 0.0 ) ); shadowWorldPosition.xyz += bounceOff.z / bounceOff.w > bounceAt.z / bounceAt.w ? - bounceOffset : bounceOffset; }',
+  ],
+];
+
+let THREE_SHADOWMAP_VERTEX_TOWARD_LIGHT = '#include <shadowmap_vertex>';
+
+// Called once with three's ShaderChunk, so the patch fails loudly if three changes those lines.
+export function installShadowOffset(ShaderChunk) {
+  let chunk = ShaderChunk.shadowmap_vertex;
+  for (const [three, ours] of SHADOW_OFFSETS) {
+    if (!chunk.includes(three)) {
+      throw new Error("three.js changed its shadow normal offset; shading.js must be updated");
+    }
+    chunk = chunk.replace(three, ours);
+  }
+  THREE_SHADOWMAP_VERTEX_TOWARD_LIGHT = chunk;
+}
+
+// What the shadow maps are drawn with (for spot and directional lights, and for point lights):
+// three's own, plus the native renderer's slope-scaled depth bias (render/src/renderer.rs: constant
+// 2, slope 2), which three leaves out. Without it a surface lit at a grazing angle is speckled
+// with its own shadow (acne) where the native picture is clean.
+export function shadowDepthMaterials() {
+  const bias = { polygonOffset: true, polygonOffsetFactor: 2, polygonOffsetUnits: 2 };
+  return { depth: new MeshDepthMaterial(bias), distance: new MeshDistanceMaterial(bias) };
 }
 
 // The glTF's material as the native renderer draws it: base colour factor × COLOR_0 × base-colour
@@ -142,6 +195,6 @@ export function convertMaterial(source, uniforms) {
     m.emissiveMap = source.emissiveMap ?? null;
   }
   m.onBeforeCompile = (shader) => patchShader(shader, uniforms);
-  m.customProgramCacheKey = () => 'bounce-volume-v1';
+  m.customProgramCacheKey = () => 'bounce-volume-v2';
   return m;
 }

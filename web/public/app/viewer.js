@@ -22,11 +22,19 @@ import { ApiError, getSession, layoutOf, listScenes, modelUrl, putLights } from 
 import { Connection } from './connection.js';
 import { Bounds, Markers, buildLights, defaultLights, markerPosition, moveLight, scaleLight } from './lights.js';
 import { Overlay } from './overlay.js';
-import { bindVolume, convertMaterial, installSpotFalloff, volumeUniforms } from './shading.js';
+import {
+  bindVolume,
+  convertMaterial,
+  installShadowOffset,
+  installSpotFalloff,
+  shadowDepthMaterials,
+  volumeUniforms,
+} from './shading.js';
 import { Volume } from './volume.js';
 import { Xr } from './xr.js';
 
 installSpotFalloff(ShaderChunk);
+installShadowOffset(ShaderChunk);
 
 export const TERMS = {
   both: { direct: true, indirect: true },
@@ -147,6 +155,7 @@ export class Viewer {
     });
     for (const l of fileLights) l.parent.remove(l);
     const converted = new Map();
+    const shadowDepth = shadowDepthMaterials();
     model.traverse((o) => {
       if (!o.isMesh) return;
       const materials = Array.isArray(o.material) ? o.material : [o.material];
@@ -164,6 +173,8 @@ export class Viewer {
       }
       o.castShadow = true;
       o.receiveShadow = true;
+      o.customDepthMaterial = shadowDepth.depth;
+      o.customDistanceMaterial = shadowDepth.distance;
     });
     this.scene.add(model);
     model.updateMatrixWorld(true);
