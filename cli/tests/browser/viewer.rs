@@ -3,7 +3,7 @@
 //! session with other tabs and a gRPC subscriber, draws what `bounce render` draws, explains
 //! refusals, and rides out a server restart.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use bounce_client::layout::Layout;
@@ -38,10 +38,11 @@ pub(crate) fn camera_param() -> String {
 /// Page parameters for a picture comparable with `bounce render`: no overlay, buttons, light
 /// markers or antialiasing, one pixel per CSS pixel.
 fn picture_params() -> String {
-    format!(
-        "&camera={}&overlay=off&ui=off&markers=off&aa=off&pixel_ratio=1",
-        camera_param()
-    )
+    picture_params_from(&camera_param())
+}
+
+fn picture_params_from(camera: &str) -> String {
+    format!("&camera={camera}&overlay=off&ui=off&markers=off&aa=off&pixel_ratio=1")
 }
 
 pub(crate) async fn open(browser: &Browser, url: &str) -> Page {
@@ -405,10 +406,50 @@ async fn a_scene_without_normals_facing_away_is_drawn_as_bounce_render_draws_it(
 /// a small mean difference and a few pixels on edges.
 async fn assert_draws_as_native(browser: &Browser, serve: &Serve, gltf: &Path, lights: Value) {
     let session = serve.create_session(lights.clone(), None).await;
-    let page = open(browser, &serve.page_url(&session, &picture_params())).await;
-    wait_drawn(&page).await;
+    let picture = Picture {
+        camera: camera_param(),
+        width: W,
+        height: H,
+    };
+    let (mean, large) = difference_from_native(browser, serve, gltf, &session, &picture).await;
+    assert!(
+        mean <= 4.0 && large <= 0.03,
+        "{} with {lights}: browser against native: mean difference {mean:.2}/255, {:.2}% of \
+         pixels off by more than 32 (pictures saved in the temp dir)",
+        gltf.display(),
+        large * 100.0
+    );
+}
+
+/// What both viewers draw: from where, and how big.
+struct Picture {
+    camera: String,
+    width: u32,
+    height: u32,
+}
+
+/// The page's and `bounce render --server`'s pictures of `session`'s current frame: the mean of
+/// the per-pixel largest channel difference (of 255), and the share of pixels off by more than 32.
+/// Over 4/255 or 3%, both pictures are saved in the temp dir.
+async fn difference_from_native(
+    browser: &Browser,
+    serve: &Serve,
+    gltf: &Path,
+    session: &str,
+    picture: &Picture,
+) -> (f64, f64) {
+    let params = picture_params_from(&picture.camera);
+    let page = browser
+        .new_page(picture.width, picture.height)
+        .await
+        .expect("a page");
+    page.goto(&serve.page_url(session, &params))
+        .await
+        .expect("the page loads");
+    let drawn = wait_drawn(&page).await;
     let browser_img = screenshot(&page).await;
     assert_no_errors(&page);
+    let lights = serve.session(session).await["lights"].clone();
 
     let dir = tempfile::tempdir().unwrap();
     let png = dir.path().join("native.png");
@@ -418,11 +459,12 @@ async fn assert_draws_as_native(browser: &Browser, serve: &Serve, gltf: &Path, l
         .arg("render")
         .arg(gltf)
         .args(["--server", &serve.grpc, "--scene-name", "box"])
-        .args(["--session", &session])
+        .args(["--session", session])
         .arg("--lights")
         .arg(&lights_file)
-        .args(["--camera", &camera_param(), "--width", &W.to_string()])
-        .args(["--height", &H.to_string(), "--out"])
+        .args(["--camera", &picture.camera])
+        .args(["--width", &picture.width.to_string()])
+        .args(["--height", &picture.height.to_string(), "--out"])
         .arg(&png)
         .env("XDG_RUNTIME_DIR", dir.path())
         .output()
@@ -443,21 +485,17 @@ async fn assert_draws_as_native(browser: &Browser, serve: &Serve, gltf: &Path, l
     let mean = diffs.iter().map(|&d| f64::from(d)).sum::<f64>() / diffs.len() as f64;
     let large = diffs.iter().filter(|&&d| d > 32).count() as f64 / diffs.len() as f64;
     eprintln!(
-        "{} with {lights}: mean difference {mean:.2}/255, {:.2}% of pixels off by more than 32",
+        "{} with {lights} (frame {}): mean difference {mean:.2}/255, {:.2}% of pixels off by more \
+         than 32",
         gltf.display(),
+        drawn["sequence"],
         large * 100.0
     );
     if mean > 4.0 || large > 0.03 {
         let _ = native.save(std::env::temp_dir().join("bounce-native.png"));
         let _ = browser_img.save(std::env::temp_dir().join("bounce-browser.png"));
     }
-    assert!(
-        mean <= 4.0 && large <= 0.03,
-        "{} with {lights}: browser against native: mean difference {mean:.2}/255, {:.2}% of \
-         pixels off by more than 32 (pictures saved in the temp dir)",
-        gltf.display(),
-        large * 100.0
-    );
+    (mean, large)
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -667,12 +705,18 @@ async fn figures() {
     let baked = std::env::var("BOUNCE_FIGURES_BAKED").ok();
     let dir = tempfile::tempdir().unwrap();
     std::fs::create_dir_all(dir.path().join("scenes")).unwrap();
-    let source = baked.map_or_else(|| crate::fixture::baked_cornell().to_path_buf(), Into::into);
+    let source = baked
+        .clone()
+        .map_or_else(|| crate::fixture::baked_cornell().to_path_buf(), Into::into);
     std::fs::copy(&source, dir.path().join("scenes/box.bounce")).expect("copy the baked file");
-    // A file baked before models were kept: its model beside it.
-    if let Ok(model) = std::env::var("BOUNCE_FIGURES_MODEL") {
+    // A file baked before models were kept: its model beside it. `bounce render` needs it too.
+    let model = std::env::var("BOUNCE_FIGURES_MODEL")
+        .ok()
+        .map(PathBuf::from);
+    if let Some(model) = &model {
         std::fs::copy(model, dir.path().join("scenes/box.glb")).expect("copy the model");
     }
+    let model = model.or_else(|| baked.is_none().then(cornell));
     let serve = Serve::start(ServeOptions {
         dir: Some(dir),
         ..ServeOptions::default()
@@ -681,8 +725,10 @@ async fn figures() {
         .ok()
         .map(|l| serde_json::from_str(&l).expect("BOUNCE_FIGURES_LIGHTS is a JSON array"))
         .unwrap_or_else(ceiling_light);
-    let camera =
-        std::env::var("BOUNCE_FIGURES_CAMERA").map_or(String::new(), |c| format!("&camera={c}"));
+    let camera_value = std::env::var("BOUNCE_FIGURES_CAMERA").ok();
+    let camera = camera_value
+        .as_ref()
+        .map_or(String::new(), |c| format!("&camera={c}"));
     let moves: usize = std::env::var("BOUNCE_FIGURES_MOVES")
         .ok()
         .and_then(|m| m.parse().ok())
@@ -750,4 +796,23 @@ async fn figures() {
         latencies[0],
         latencies[latencies.len() - 1]
     );
+    match model {
+        Some(gltf) => {
+            let picture = Picture {
+                camera: camera_value.unwrap_or_else(camera_param),
+                width: 640,
+                height: 400,
+            };
+            let (mean, large) =
+                difference_from_native(&browser, &serve, &gltf, &session, &picture).await;
+            println!("page against bounce render 640x400 mean difference /255,{mean:.2}");
+            println!(
+                "page against bounce render 640x400 pixels off by more than 32 %,{:.2}",
+                large * 100.0
+            );
+        }
+        None => eprintln!(
+            "no comparison with bounce render: it needs the scene's file (BOUNCE_FIGURES_MODEL)"
+        ),
+    }
 }
