@@ -4,9 +4,11 @@
 //
 // three.js does the direct part: MeshLambertMaterial is per-fragment Lambert with physical light
 // units (point and spot in candela, directional in lux, glTF's inverse-square falloff with the
-// range window), which is KHR_lights_punctual and so bounce_core::direct. Two things are patched
-// into its shader: the indirect irradiance is added where three adds ambient light, and the spot
-// cone uses glTF's squared linear falloff instead of three's smoothstep.
+// range window), which is KHR_lights_punctual and so bounce_core::direct. Three things are patched
+// into its shader: the indirect irradiance is added where three adds ambient light, the spot cone
+// uses glTF's squared linear falloff instead of three's smoothstep, and the shadow lookup is
+// offset to the side of the surface that faces the light. The shadow maps are drawn with the
+// native renderer's slope-scaled depth bias.
 
 import { DoubleSide, MeshDepthMaterial, MeshDistanceMaterial, MeshLambertMaterial, Vector3 } from 'three';
 
