@@ -4,9 +4,9 @@
 //! Over gRPC every call is the `bounce.v1.Bounce` service's, on one HTTP/2 connection that
 //! tonic re-establishes by itself after a failure. Over WebSocket the one-shot calls are the
 //! server's HTTP JSON routes on the same port (`GET /v1/scenes/{name}/layout`,
-//! `POST /v1/sessions`), a subscription is a session socket (`GET /v1/sessions/{id}/ws`) and
-//! [`Client::set_lights`] opens one for its `set_lights` message and closes it after the answer:
-//! one handshake a change, a millisecond on a LAN.
+//! `POST /v1/sessions`, and `PUT /v1/sessions/{id}/lights` for [`Client::set_lights`]) and a
+//! subscription is a session socket (`GET /v1/sessions/{id}/ws`). A socket opened for a change
+//! would be sent the hello and the newest frame first (16 KB on pandora), on every step of a drag.
 
 mod address;
 mod grpc;

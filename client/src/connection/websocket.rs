@@ -1,5 +1,5 @@
-//! The WebSocket transport: session sockets for frames and light changes, the HTTP JSON routes
-//! for the rest.
+//! The WebSocket transport: session sockets for frames, the HTTP JSON routes for the rest (light
+//! changes included: a socket per change would cost its upgrade, hello and first frame).
 //!
 //! The socket protocol (`GET /v1/sessions/{id}/ws`, `?token=T` for writes):
 //! the server sends `{"type": "hello", "session_id", "scene", "lights_version", "patch_count"}`
@@ -144,53 +144,32 @@ impl WebSocket {
         })
     }
 
-    /// One socket for one change: hello, `set_lights`, the answer, close.
+    /// `PUT /v1/sessions/{id}/lights`. Not a session socket: opening one to send a change costs
+    /// an upgrade, the hello and the newest frame (16 KB on pandora), which a viewer dragging a
+    /// light would pay on every step, and it would count as a viewer of the session meanwhile.
     pub async fn set_lights(
         &self,
         session: &str,
         lights: &LightSet,
     ) -> Result<LightsChange, ClientError> {
-        let (mut socket, _hello) = self.open(session).await?;
-        let mut message = serde_json::json!({
-            "type": "set_lights",
-            "lights": lights::to_json(lights),
-        });
-        if let Some(t) = &self.token {
-            message["token"] = serde_json::Value::String(t.clone());
+        let path = format!("/v1/sessions/{}/lights", escape(session));
+        let request = serde_json::json!({ "lights": lights::to_json(lights) });
+        let body = self
+            .call(Method::PUT, path, Some(request.to_string().into_bytes()))
+            .send()
+            .await?;
+        #[derive(Deserialize)]
+        struct Answer {
+            lights_version: u64,
+            changed: bool,
         }
-        let answer = async {
-            send(&mut socket, Message::text(message.to_string())).await?;
-            loop {
-                match read(&mut socket).await? {
-                    // Frames keep coming on a session socket; this call only wants its answer.
-                    Incoming::Frame(_) | Incoming::Other => {}
-                    Incoming::Text(ServerMessage::Lights {
-                        lights_version,
-                        changed,
-                    }) => {
-                        return Ok(LightsChange {
-                            lights_version,
-                            changed,
-                        });
-                    }
-                    Incoming::Text(ServerMessage::Error { code, message }) => {
-                        return Err(refused(&code, message));
-                    }
-                    Incoming::Text(_) => {}
-                    Incoming::End(end) => return Err(end.error()),
-                }
-            }
-        };
-        let result = tokio::time::timeout(self.request_timeout, answer)
-            .await
-            .unwrap_or_else(|_| {
-                Err(ClientError::Timeout {
-                    what: "set_lights on the session socket".into(),
-                    after: self.request_timeout,
-                })
-            });
-        let _ = socket.close(None).await;
-        result
+        let answer: Answer = serde_json::from_slice(&body).map_err(|e| {
+            ClientError::Protocol(format!("PUT /v1/sessions/{{id}}/lights answered: {e}"))
+        })?;
+        Ok(LightsChange {
+            lights_version: answer.lights_version,
+            changed: answer.changed,
+        })
     }
 
     pub async fn subscribe(&self, session: &str) -> Result<Frames, ClientError> {
@@ -342,15 +321,12 @@ enum ServerMessage {
         session_id: String,
         patch_count: u64,
     },
-    Lights {
-        lights_version: u64,
-        changed: bool,
-    },
     Error {
         code: String,
         message: String,
     },
-    /// `pong`, and whatever a newer server adds.
+    /// `pong`, `lights` (answers to a socket's `set_lights`, which this client sends as a PUT),
+    /// and whatever a newer server adds.
     #[serde(other)]
     Other,
 }

@@ -62,6 +62,26 @@ impl BothServer {
         }
     }
 
+    /// `bounce_frames_sent_total{transport="websocket"}` from the server's `/metrics`.
+    async fn frames_sent_over_websocket(&self) -> u64 {
+        let http = self.http;
+        let text = tokio::task::spawn_blocking(move || {
+            use std::io::{Read, Write};
+            let mut stream = std::net::TcpStream::connect(http).expect("connect for /metrics");
+            stream
+                .write_all(b"GET /metrics HTTP/1.1\r\nHost: bounce\r\nConnection: close\r\n\r\n")
+                .expect("send GET /metrics");
+            let mut text = String::new();
+            stream.read_to_string(&mut text).expect("read /metrics");
+            text
+        })
+        .await
+        .expect("join");
+        text.lines()
+            .find_map(|l| l.strip_prefix(r#"bounce_frames_sent_total{transport="websocket"} "#))
+            .map_or(0, |n| n.trim().parse().expect("a count"))
+    }
+
     fn ws_url(&self) -> String {
         format!("ws://{}", self.http)
     }
@@ -122,10 +142,11 @@ async fn websocket_calls_answer_as_grpc_does() {
     let mut volume = Volume::new(&layout).expect("volume");
     volume.apply(&a).expect("apply");
 
+    let sent_before = server.frames_sent_over_websocket().await;
     let change = ws
         .set_lights(&session.id, &point(20.0))
         .await
-        .expect("set lights over the socket");
+        .expect("set lights over HTTP");
     assert_eq!(
         change,
         LightsChange {
@@ -141,6 +162,9 @@ async fn websocket_calls_answer_as_grpc_does() {
         .expect("set lights");
     assert!(!same.changed);
     assert_eq!(same.lights_version, 2);
+    // A change is one PUT, not a session socket of its own: the only frame sent over WebSocket
+    // meanwhile is the subscriber's new one (a socket would have been sent the newest at once).
+    assert_eq!(server.frames_sent_over_websocket().await, sent_before + 1);
 
     // A viewer joining the session reads its lights (for direct light) on either transport.
     let read_ws = ws
