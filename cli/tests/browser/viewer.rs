@@ -377,17 +377,7 @@ async fn a_scene_without_normals_facing_away_is_drawn_as_bounce_render_draws_it(
     let gltf = crate::fixture::cornell_reversed(&dir.path().join("model"));
     let scenes = dir.path().join("scenes");
     std::fs::create_dir_all(&scenes).unwrap();
-    let out = bounce()
-        .args(["bake", "--patches", "600", "--rays", "512", "--quiet", "-o"])
-        .arg(scenes.join("box.bounce"))
-        .arg(&gltf)
-        .output()
-        .expect("bounce bake runs");
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    crate::fixture::bake_small(&gltf, &scenes.join("box.bounce"));
     let serve = Serve::start(ServeOptions {
         dir: Some(dir),
         ..ServeOptions::default()
