@@ -3,7 +3,8 @@
 //! checked by `web/vendor.sh --check`; test-only, never served) installed in the page before its
 //! scripts run. The page's own XR code then runs as on a headset: three's VRButton offers the
 //! session, three renders both eyes, the frame loop keeps applying the streamed indirect light,
-//! and a controller grabs, carries and dims a light, which reaches the session on the server.
+//! and a controller grabs, carries, dims and recolours a light, which reaches the session on the
+//! server.
 
 use image::RgbaImage;
 use serde_json::{Value, json};
@@ -61,11 +62,17 @@ async fn place_controller(page: &Page, position: [f64; 3]) {
 }
 
 async fn trigger(page: &Page, value: f64) {
+    button(page, "trigger", value).await;
+}
+
+/// The right controller's `id` button ("trigger", "squeeze") pressed to `value`, then two
+/// animation frames so the session has reported it.
+async fn button(page: &Page, id: &str, value: f64) {
     page.eval(&format!(
-        "window.headset.controllers.right.updateButtonValue('trigger', {value})"
+        "window.headset.controllers.right.updateButtonValue('{id}', {value})"
     ))
     .await
-    .expect("the trigger");
+    .expect("the button");
     settle(page).await;
 }
 
@@ -81,7 +88,8 @@ async fn until_stored(serve: &Serve, session: &str, light: &Value) -> Value {
         let stored = serve.session(session).await;
         let l = &stored["lights"][0];
         let same = close(&l["intensity"], &light["intensity"])
-            && (0..3).all(|i| close(&l["position"][i], &light["position"][i]));
+            && (0..3).all(|i| close(&l["position"][i], &light["position"][i]))
+            && (0..3).all(|i| close(&l["color"][i], &light["color"][i]));
         if same {
             return stored;
         }
@@ -119,7 +127,7 @@ fn red_wall_x_per_eye(img: &RgbaImage) -> [f64; 2] {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn a_headset_enters_vr_and_its_controller_carries_and_dims_a_light() {
+async fn a_headset_enters_vr_and_its_controller_carries_dims_and_recolours_a_light() {
     let Some(browser) = crate::browser().await else {
         return;
     };
@@ -205,6 +213,15 @@ async fn a_headset_enters_vr_and_its_controller_carries_and_dims_a_light() {
     page.eval("window.headset.controllers.right.updateAxes('thumbstick', 0, 0)")
         .await
         .unwrap();
+    // The grip recolours it: white steps to the warm white.
+    button(&page, "squeeze", 1.0).await;
+    button(&page, "squeeze", 0.0).await;
+    page.wait_for(
+        "JSON.stringify(window.bounce.lights.lights[0].color) === '[1,0.75,0.5]'",
+        WAIT,
+    )
+    .await
+    .expect("the grip recolours the light");
     trigger(&page, 0.0).await;
     page.wait_for("window.bounce.xr.held.length === 0", WAIT)
         .await
@@ -222,6 +239,7 @@ async fn a_headset_enters_vr_and_its_controller_carries_and_dims_a_light() {
             && position[2].abs() < 1e-4,
         "the light the server holds: {light_now}"
     );
+    assert_eq!(light_now["color"], json!([1.0, 0.75, 0.5]), "{light_now}");
     let intensity = light_now["intensity"].as_f64().unwrap();
     assert!(
         (0.5..9.0).contains(&intensity),

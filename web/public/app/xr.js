@@ -1,7 +1,7 @@
 // WebXR: an "Enter VR" button where the browser offers immersive-vr (three's VRButton, which says
 // why where it cannot: no WebXR, not a secure context, no headset), stereo rendering of the same
 // scene by three's XR manager, and controllers that grab a light with the trigger and move it
-// (the thumbstick dims and brightens the light held).
+// (the thumbstick dims and brightens the light held, the grip steps through colours).
 
 import { BufferGeometry, Group, Line, LineBasicMaterial, Matrix4, Vector3 } from 'three';
 import { VRButton } from 'three/addons/webxr/VRButton.js';
@@ -12,6 +12,19 @@ const GRAB_REACH = 0.25; // metres from the controller's ray to a light marker t
 const STICK_DEAD_ZONE = 0.2;
 const DIM_RATE = Math.log(4); // a full push scales the light by 4× (or ¼) a second
 const MOVE_EPSILON = 1e-5; // of the scene's radius: closer than this is holding still
+// The colours the grip steps through, from white: warm and cool whites, then saturated ones.
+const PALETTE = [
+  [1, 1, 1],
+  [1, 0.75, 0.5],
+  [0.65, 0.8, 1],
+  [1, 0.25, 0.2],
+  [0.3, 1, 0.35],
+  [0.3, 0.45, 1],
+];
+
+function sameColour(a, b) {
+  return a.every((v, i) => Math.abs(v - b[i]) < 1e-6);
+}
 
 export class Xr {
   constructor(viewer) {
@@ -43,6 +56,7 @@ export class Xr {
     });
     c.addEventListener('selectstart', () => this.grab(c));
     c.addEventListener('selectend', () => this.grabbed.delete(c));
+    c.addEventListener('squeezestart', () => this.recolour(c));
     this.rig.add(c);
     return c;
   }
@@ -96,6 +110,20 @@ export class Xr {
     const inverse = new Matrix4().copy(c.matrixWorld).invert();
     const offset = markerPosition(v.lights.lights[best], v.bounds).applyMatrix4(inverse);
     this.grabbed.set(c, { index: best, offset });
+  }
+
+  // The grip, while a light is held: its next colour from PALETTE (the desktop has a colour
+  // picker; a headset has buttons).
+  recolour(c) {
+    const g = this.grabbed.get(c);
+    if (!g) return;
+    this.viewer.editLights((set) => {
+      const l = set.lights[g.index];
+      if (!l) return null;
+      const now = PALETTE.findIndex((p) => sameColour(p, l.color ?? [1, 1, 1]));
+      l.color = [...PALETTE[(now + 1) % PALETTE.length]];
+      return set;
+    });
   }
 
   // Called every animation frame with its length in seconds: the lights held follow their
