@@ -101,12 +101,7 @@ impl Baked {
             });
         }
         if let Some(model) = &self.model {
-            validate_model(model)?;
-            sections.push(Section {
-                kind: SectionKind::MODL,
-                flags: SECTION_OPTIONAL,
-                pieces: vec![Cow::Borrowed(model)],
-            });
+            sections.push(model_section(model)?);
         }
         Assembled::new(sections)
     }
@@ -442,6 +437,17 @@ pub(super) fn decode_occupancy(
         .collect();
     validate_occupancy(&occ, layout)?;
     Ok(occ)
+}
+
+/// The optional `MODL` section holding `model` (a GLB), checked as the reader will check it; the
+/// baked file and the shards write it alike.
+pub(crate) fn model_section(model: &[u8]) -> Result<Section<'_>, FormatError> {
+    validate_model(model)?;
+    Ok(Section {
+        kind: SectionKind::MODL,
+        flags: SECTION_OPTIONAL,
+        pieces: vec![Cow::Borrowed(model)],
+    })
 }
 
 /// The checks shared by writer and reader: a GLB 2.0 file whose header's length is the

@@ -28,7 +28,7 @@ use crate::shard::{Phase, ShardMeta, shard_rows};
 
 use super::FormatError;
 use super::baked::{
-    decode_layout, decode_occupancy, encode_layout, encode_occupancy, validate_model,
+    decode_layout, decode_occupancy, encode_layout, encode_occupancy, model_section, validate_model,
 };
 use super::container::{
     self, Assembled, Container, FieldReader, FileBytes, Flavour, SECTION_ALIGN, SECTION_OPTIONAL,
@@ -99,12 +99,7 @@ impl ShardFile {
         ];
         // Before the rows, which stay last as they are the bulk of the file.
         if let Some(model) = &self.model {
-            validate_model(model)?;
-            sections.push(Section {
-                kind: SectionKind::MODL,
-                flags: SECTION_OPTIONAL,
-                pieces: vec![Cow::Borrowed(model)],
-            });
+            sections.push(model_section(model)?);
         }
         sections.push(rows_section(ROWS, &h.meta, h.meta.channels, &self.rows));
         if let Some(f) = &self.form_factor_rows {
