@@ -17,6 +17,19 @@ fn client() -> reqwest::Client {
         .expect("HTTP client")
 }
 
+/// `GET url` with `headers`.
+async fn get(
+    http: &reqwest::Client,
+    url: &str,
+    headers: &[(reqwest::header::HeaderName, &str)],
+) -> reqwest::Response {
+    let mut request = http.get(url);
+    for (name, value) in headers {
+        request = request.header(name, *value);
+    }
+    request.send().await.expect("GET")
+}
+
 fn header(r: &reqwest::Response, name: reqwest::header::HeaderName) -> String {
     r.headers()
         .get(&name)
@@ -51,7 +64,7 @@ async fn the_model_route_gives_the_baked_model_cached_and_compressed() {
     let want = baked().model.expect("the test scene keeps its model");
     let url = server.url(&format!("/v1/scenes/{SCENE}/model"));
 
-    let r = http.get(&url).send().await.expect("GET");
+    let r = get(&http, &url, &[]).await;
     assert_eq!(r.status(), StatusCode::OK);
     assert_eq!(header(&r, CONTENT_TYPE), "model/gltf-binary");
     assert_eq!(header(&r, CACHE_CONTROL), "no-cache");
@@ -64,30 +77,15 @@ async fn the_model_route_gives_the_baked_model_cached_and_compressed() {
     assert!(r.bytes().await.expect("body").as_ref() == want.as_slice());
 
     // Revalidation: the same tag gets a 304 with no body; another tag the bytes.
-    let r = http
-        .get(&url)
-        .header(IF_NONE_MATCH, &etag)
-        .send()
-        .await
-        .expect("GET");
+    let r = get(&http, &url, &[(IF_NONE_MATCH, &etag)]).await;
     assert_eq!(r.status(), StatusCode::NOT_MODIFIED);
     assert_eq!(header(&r, ETAG), etag);
     assert!(r.bytes().await.expect("body").is_empty());
-    let r = http
-        .get(&url)
-        .header(IF_NONE_MATCH, "\"something-else\"")
-        .send()
-        .await
-        .expect("GET");
+    let r = get(&http, &url, &[(IF_NONE_MATCH, "\"something-else\"")]).await;
     assert_eq!(r.status(), StatusCode::OK);
 
     // gzip when accepted; the tag turns weak, and still revalidates.
-    let r = http
-        .get(&url)
-        .header(ACCEPT_ENCODING, "gzip")
-        .send()
-        .await
-        .expect("GET");
+    let r = get(&http, &url, &[(ACCEPT_ENCODING, "gzip")]).await;
     assert_eq!(r.status(), StatusCode::OK);
     assert_eq!(header(&r, CONTENT_ENCODING), "gzip");
     let weak = header(&r, ETAG);
@@ -95,22 +93,16 @@ async fn the_model_route_gives_the_baked_model_cached_and_compressed() {
     let body = r.bytes().await.expect("body");
     assert!(body.len() < want.len(), "compressed: {} bytes", body.len());
     assert!(gunzip(&body) == want);
-    let r = http
-        .get(&url)
-        .header(ACCEPT_ENCODING, "gzip")
-        .header(IF_NONE_MATCH, &weak)
-        .send()
-        .await
-        .expect("GET");
+    let r = get(
+        &http,
+        &url,
+        &[(ACCEPT_ENCODING, "gzip"), (IF_NONE_MATCH, &weak)],
+    )
+    .await;
     assert_eq!(r.status(), StatusCode::NOT_MODIFIED);
 
     // Brotli too.
-    let r = http
-        .get(&url)
-        .header(ACCEPT_ENCODING, "br")
-        .send()
-        .await
-        .expect("GET");
+    let r = get(&http, &url, &[(ACCEPT_ENCODING, "br")]).await;
     assert_eq!(header(&r, CONTENT_ENCODING), "br");
 
     // JSON answers are not compressed.
