@@ -10,7 +10,8 @@ use bounce_core::formfactor::MAX_RAYS;
 use bounce_core::import::pack_glb;
 use bounce_core::meta::{BakeStats, Bounces, StageTiming};
 use bounce_core::rays::Tracer;
-use bounce_core::voxel::{PatchOrder, Resolution};
+use bounce_core::surface::{DEFAULT_SURFACE_SAMPLES, MAX_SURFACE_SAMPLES};
+use bounce_core::voxel::{Geometry, PatchOrder, Resolution};
 use clap::{Args, Subcommand};
 use serde::{Deserialize, Serialize};
 
@@ -75,8 +76,19 @@ pub struct BakeArgs {
     /// Seed of the ray sequences; the same seed gives the same file on any thread count.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
-    /// Ray tracer for the form factors: `grid` walks the voxel grid (exact for voxel patches),
-    /// `bvh` uses an obvhs BVH over the patch quads. `bounce bench rays` compares them.
+    /// What patches stand for: `surface` (the pieces of real triangles in each voxel, grouped by
+    /// the direction they face; rays and shadows against the original triangles) or
+    /// `voxel-faces` (the thesis' method, kept as a baseline: patches are voxel faces, rays walk
+    /// the voxel occupancy).
+    #[arg(long, value_name = "surface|voxel-faces", default_value = "surface")]
+    pub geometry: Geometry,
+    /// Direct-light sample points stored per patch (surface geometry): where the server
+    /// evaluates each light, with shadow rays against the triangles.
+    #[arg(long, value_name = "N", default_value_t = DEFAULT_SURFACE_SAMPLES)]
+    pub direct_samples: u32,
+    /// Ray tracer for voxel-face form factors: `grid` walks the voxel grid (exact for voxel
+    /// patches), `bvh` uses an obvhs BVH over the patch quads. `bounce bench rays` compares
+    /// them. Surface geometry always traces a BVH over the triangles.
     #[arg(long, default_value = "grid")]
     pub tracer: Tracer,
     /// How the transport is stored: dense-f32 (exact), dense-f16, bc1 (the thesis codec), bc4,
@@ -115,6 +127,12 @@ impl BakeArgs {
         if self.rays == 0 || self.rays > MAX_RAYS {
             bail!("--rays must be from 1 to {MAX_RAYS}, got {}", self.rays);
         }
+        if !(1..=MAX_SURFACE_SAMPLES).contains(&self.direct_samples) {
+            bail!(
+                "--direct-samples must be from 1 to {MAX_SURFACE_SAMPLES}, got {}",
+                self.direct_samples
+            );
+        }
         Ok(BakeOptions {
             resolution: match self.voxel_size {
                 Some(s) => Resolution::VoxelSize(s),
@@ -134,6 +152,8 @@ impl BakeArgs {
             },
             sparse_share: self.sparse_share,
             patch_order: self.patch_order,
+            geometry: self.geometry,
+            direct_samples: self.direct_samples,
         })
     }
 }

@@ -219,6 +219,8 @@ fn bench_rays(args: &BenchRaysArgs) -> Result<()> {
     for &target in &args.patches {
         let options = BakeOptions {
             resolution: Resolution::TargetPatches(target),
+            // The tracers compared here are the voxel-face ones.
+            geometry: bounce_core::voxel::Geometry::VoxelFaces,
             ..BakeOptions::default()
         };
         let vox = simplify(&scene, &options)?;

@@ -4,6 +4,7 @@
 //! the caller decides how progress is shown and where the file goes.
 
 use std::path::Path;
+use std::sync::Arc;
 use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
@@ -12,7 +13,7 @@ use thiserror::Error;
 use crate::codec::error::{irradiance_errors, probe_light_sets};
 use crate::codec::{self, CodecError};
 use crate::format::Baked;
-use crate::formfactor::{self, FormFactorError, FormFactorStats, RayScene};
+use crate::formfactor::{self, FormFactorError, FormFactorStats, RayScene, RowTracer};
 use crate::import::{self, ImportError};
 use crate::light::Light;
 use crate::matrix::{DENSE_F32, DenseMatrix, EncodedMatrix};
@@ -20,8 +21,10 @@ use crate::meta::{BakeMeta, BakeSettings, BakeStats, Bounces, StageTiming};
 use crate::patch::PatchLayout;
 use crate::rays::Tracer;
 use crate::scene::{ImportReport, Scene};
+use crate::surface::{self, SurfaceData, SurfaceScene};
 use crate::transport::{self, TransportError};
-use crate::voxel::{self, Resolution, VoxelError};
+use crate::trimesh::TriMesh;
+use crate::voxel::{self, Geometry, Resolution, VoxelError};
 
 /// Rays per patch of the visibility probe that finds patches seeing nothing.
 pub const PROBE_RAYS: u32 = 64;
@@ -44,6 +47,10 @@ pub struct BakeOptions {
     pub sparse_share: Option<f64>,
     /// The order patches (rows and columns of `T`) are numbered in.
     pub patch_order: voxel::PatchOrder,
+    /// What patches stand for: real surface pieces, or the thesis' voxel faces.
+    pub geometry: voxel::Geometry,
+    /// Direct-light sample points stored per patch (surface geometry).
+    pub direct_samples: u32,
 }
 
 /// Which codec stores the transport.
@@ -70,6 +77,8 @@ impl Default for BakeOptions {
             codec: CodecRequest::Named(DENSE_F32.to_string()),
             sparse_share: None,
             patch_order: voxel::PatchOrder::Scan,
+            geometry: voxel::Geometry::Surface,
+            direct_samples: crate::surface::DEFAULT_SURFACE_SAMPLES,
         }
     }
 }
@@ -232,26 +241,46 @@ pub fn bake_scene(
     bake_with(scene, source, options, Timer::new(progress))
 }
 
-/// Voxelise `scene` into the patches a bake uses. Patches that see no other patch get no
+/// Simplify `scene` into the patches a bake uses. Patches that see no other patch get no
 /// indirect light and give none, so they are dropped while the voxel size is searched and
 /// `--patches` counts patches that matter.
 pub fn simplify(scene: &Scene, options: &BakeOptions) -> Result<voxel::Voxelization, BakeError> {
+    let mesh =
+        (options.geometry == Geometry::Surface).then(|| Arc::new(surface::scene_mesh(scene)));
+    simplify_with(scene, options, mesh.as_ref())
+}
+
+/// [`simplify`] with the scene's triangle BVH (surface geometry only) built by the caller, once
+/// for every candidate voxel size.
+fn simplify_with(
+    scene: &Scene,
+    options: &BakeOptions,
+    mesh: Option<&Arc<TriMesh>>,
+) -> Result<voxel::Voxelization, BakeError> {
     let drop_isolated = |mut v: voxel::Voxelization| {
-        let probe = RayScene::voxels(&v.layout, &v.occupied, &v.occluders, options.tracer);
-        let isolated = formfactor::isolated_patches(&probe, PROBE_RAYS, options.seed);
+        let isolated = match (&v.pieces, mesh) {
+            (Some(pieces), Some(mesh)) => {
+                let probe = SurfaceScene::new(scene, mesh.clone(), &v.layout, pieces);
+                formfactor::isolated_patches(&probe, PROBE_RAYS, options.seed)
+            }
+            _ => {
+                let probe = RayScene::voxels(&v.layout, &v.occupied, &v.occluders, options.tracer);
+                formfactor::isolated_patches(&probe, PROBE_RAYS, options.seed)
+            }
+        };
         v.drop_patches(&isolated);
         v
     };
-    let mut vox = voxel::voxelize_refined(scene, options.resolution, &drop_isolated).map_err(
-        |e| match e {
-            VoxelError::AllDropped { candidates, size } => BakeError::NoInterreflection {
-                patches: candidates,
-                voxel_size: size,
-            },
-            e => BakeError::Voxel(e),
-        },
-    )?;
-    vox.layout.reorder(options.patch_order);
+    let mut vox =
+        voxel::simplify_refined(scene, options.resolution, options.geometry, &drop_isolated)
+            .map_err(|e| match e {
+                VoxelError::AllDropped { candidates, size } => BakeError::NoInterreflection {
+                    patches: candidates,
+                    voxel_size: size,
+                },
+                e => BakeError::Voxel(e),
+            })?;
+    vox.reorder(options.patch_order);
     Ok(vox)
 }
 
@@ -302,11 +331,15 @@ fn encode_transport(
     }
 }
 
-/// The scene voxelised and ready to trace. Voxelisation and the isolated-patch probe are
+/// The scene simplified and ready to trace. Simplification and the isolated-patch probe are
 /// deterministic, so every shard of a sharded bake redoes this and gets the same bits.
 pub(crate) struct Prepared {
     pub vox: voxel::Voxelization,
-    pub rays: RayScene,
+    pub rays: Box<dyn RowTracer>,
+    /// What direct light needs at run time (surface geometry).
+    pub surface: Option<SurfaceData>,
+    /// The tracer recorded in the settings: the BVH over triangles for surface geometry.
+    pub tracer: Tracer,
 }
 
 pub(crate) fn prepare(
@@ -314,20 +347,53 @@ pub(crate) fn prepare(
     options: &BakeOptions,
     timer: &mut Timer<'_>,
 ) -> Result<Prepared, BakeError> {
-    let vox = timer.run(Stage::Voxelize, 0, || simplify(scene, options))?;
-    let rays = timer.run(Stage::RayScene, 0, || {
-        RayScene::voxels(&vox.layout, &vox.occupied, &vox.occluders, options.tracer)
-    });
-    Ok(Prepared { vox, rays })
+    let mesh = match options.geometry {
+        Geometry::Surface => Some(Arc::new(
+            timer.run(Stage::RayScene, 0, || surface::scene_mesh(scene)),
+        )),
+        Geometry::VoxelFaces => None,
+    };
+    let vox = timer.run(Stage::Voxelize, 0, || {
+        simplify_with(scene, options, mesh.as_ref())
+    })?;
+    match (mesh, &vox.pieces) {
+        (Some(mesh), Some(pieces)) => {
+            let surface = SurfaceData {
+                triangles: surface::occluder_triangles_of(&mesh),
+                per_patch: options.direct_samples,
+                points: surface::sample_points(pieces, options.direct_samples, options.seed),
+            };
+            let rays = SurfaceScene::new(scene, mesh, &vox.layout, pieces);
+            Ok(Prepared {
+                vox,
+                rays: Box::new(rays),
+                surface: Some(surface),
+                tracer: Tracer::Bvh,
+            })
+        }
+        _ => {
+            let rays = timer.run(Stage::RayScene, 0, || {
+                RayScene::voxels(&vox.layout, &vox.occupied, &vox.occluders, options.tracer)
+            });
+            let tracer = rays.tracer();
+            Ok(Prepared {
+                vox,
+                rays: Box::new(rays),
+                surface: None,
+                tracer,
+            })
+        }
+    }
 }
 
 /// The form-factor checks a bake records; refuses a scene where no patch sees another.
 pub(crate) fn check_form_factors(
     f: &DenseMatrix,
     layout: &PatchLayout,
+    geometry: Geometry,
 ) -> Result<FormFactorStats, BakeError> {
     let n = layout.len();
-    let ff = formfactor::stats(f, &vec![layout.patch_area(); n]);
+    let ff = formfactor::stats(f, &layout.areas(geometry));
     if ff.isolated == n {
         return Err(BakeError::NoInterreflection {
             patches: n,
@@ -367,6 +433,11 @@ pub(crate) fn settings(options: &BakeOptions, tracer: Tracer) -> BakeSettings {
         },
         sparse_share: options.sparse_share,
         patch_order: options.patch_order,
+        geometry: options.geometry,
+        direct_samples: match options.geometry {
+            Geometry::Surface => options.direct_samples,
+            Geometry::VoxelFaces => 0,
+        },
         max_error: match options.codec {
             CodecRequest::Auto { max_error } => Some(max_error),
             CodecRequest::Named(_) => None,
@@ -394,6 +465,8 @@ pub fn options_of(settings: &BakeSettings, keep_form_factors: bool) -> BakeOptio
         },
         sparse_share: settings.sparse_share,
         patch_order: settings.patch_order,
+        geometry: settings.geometry,
+        direct_samples: settings.direct_samples,
     }
 }
 
@@ -411,6 +484,8 @@ pub(crate) struct MetaParts {
     pub matrix_bytes: u64,
     pub codec_eind_rel_l2: f64,
     pub timings: Vec<StageTiming>,
+    pub surface_area: f64,
+    pub unassigned_area: f64,
 }
 
 pub(crate) fn build_meta(p: MetaParts) -> BakeMeta {
@@ -434,6 +509,8 @@ pub(crate) fn build_meta(p: MetaParts) -> BakeMeta {
             channels: p.channels,
             matrix_bytes: p.matrix_bytes,
             codec_eind_rel_l2: p.codec_eind_rel_l2,
+            surface_area: p.surface_area,
+            unassigned_area: p.unassigned_area,
         },
         settings: p.settings,
         timings: p.timings,
@@ -451,15 +528,19 @@ fn bake_with(
     let progress = timer.progress;
     let advance = |n: u64| progress.advance(n);
 
-    let Prepared { vox, rays } = prepare(scene, options, &mut timer)?;
+    let Prepared {
+        vox,
+        rays,
+        surface,
+        tracer,
+    } = prepare(scene, options, &mut timer)?;
     let layout = vox.layout;
     let n = layout.len();
-    let tracer = rays.tracer();
     let (f, tally) = timer.run(Stage::FormFactors, n as u64, || {
-        formfactor::form_factors(&rays, options.rays, options.seed, &advance)
+        formfactor::form_factors(rays.as_ref(), options.rays, options.seed, &advance)
     })?;
     drop(rays);
-    let ff = check_form_factors(&f, &layout)?;
+    let ff = check_form_factors(&f, &layout, options.geometry)?;
 
     let albedo: Vec<[f32; 3]> = layout.patches.iter().map(|p| p.albedo).collect();
     let channels = transport::channels_needed(&albedo, options.bounces);
@@ -486,15 +567,18 @@ fn bake_with(
         matrix_bytes: transport.payload.len() as u64,
         codec_eind_rel_l2: codec_err,
         timings: timer.timings,
+        surface_area: vox.total_area,
+        unassigned_area: vox.unassigned_area,
     });
     Ok(Baked {
         meta,
         layout,
         transport,
         form_factors,
-        // The runtime traces shadow rays against the voxels the form factors were traced
-        // against.
-        occupancy: Some(vox.occupied),
+        // The runtime traces shadow rays against what the form factors were traced against:
+        // the triangles (surface geometry) or the voxels (voxel faces).
+        occupancy: surface.is_none().then_some(vox.occupied),
+        surface,
         // The caller decides whether the file keeps the scene ([`crate::import::pack_glb`]).
         model: None,
     })

@@ -38,6 +38,8 @@ use rayon::prelude::*;
 use crate::light::{Light, LightSet, unit_vector};
 use crate::patch::{Face, PatchLayout, Quad};
 use crate::rays::{MAX_GRID_TRACER_CELLS, RayScene, Tracer};
+use crate::surface::{SamplePoint, SurfaceData};
+use crate::trimesh::TriMesh;
 
 /// Samples per patch unless asked otherwise: a 4 × 4 grid.
 pub const DEFAULT_SAMPLES: u32 = 16;
@@ -47,6 +49,8 @@ pub const MAX_SAMPLES_SIDE: u32 = 16;
 /// What shadow rays are traced against.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum ShadowSource {
+    /// The scene's original triangles (surface geometry): what the reference traces too.
+    Triangles,
     /// The occupied voxels of the bake: every solid blocks light.
     Occupancy,
     /// Only the patch quads, for a baked file without occupancy: light leaks through solids
@@ -56,11 +60,41 @@ pub enum ShadowSource {
 
 /// The geometry that shadow rays are traced against, built once per scene.
 pub struct ShadowScene {
-    rays: RayScene,
-    source: ShadowSource,
+    inner: Shadows,
+}
+
+enum Shadows {
+    Voxels {
+        rays: RayScene,
+        source: ShadowSource,
+    },
+    Surface {
+        mesh: TriMesh,
+        surface: SurfaceData,
+    },
 }
 
 impl ShadowScene {
+    /// The scene of a surface-geometry bake: shadow rays from its stored sample points against
+    /// its triangles (a BVH).
+    pub fn surface(surface: &SurfaceData) -> ShadowScene {
+        ShadowScene {
+            inner: Shadows::Surface {
+                mesh: surface.mesh(),
+                surface: surface.clone(),
+            },
+        }
+    }
+
+    /// The shadow geometry of a baked file: its triangles when it has surface geometry, else
+    /// its occupancy (or, lacking that, its patches).
+    pub fn of_baked(baked: &crate::format::Baked) -> ShadowScene {
+        match &baked.surface {
+            Some(surface) => ShadowScene::surface(surface),
+            None => ShadowScene::new(&baked.layout, baked.occupancy.as_deref()),
+        }
+    }
+
     /// The scene of `layout`, blocked by `occupancy` (ascending linear voxel indices, as
     /// [`crate::voxel::Voxelization::occupied`] and [`crate::format::Baked::occupancy`] hold
     /// them) where given, else by the patch quads alone (see [`ShadowScene::source`]). Indices
@@ -88,35 +122,53 @@ impl ShadowScene {
                     Vec::new()
                 };
                 ShadowScene {
-                    rays: RayScene::voxels(layout, occupied, &occluders, tracer),
-                    source: ShadowSource::Occupancy,
+                    inner: Shadows::Voxels {
+                        rays: RayScene::voxels(layout, occupied, &occluders, tracer),
+                        source: ShadowSource::Occupancy,
+                    },
                 }
             }
             None => ShadowScene {
-                rays: RayScene::new(&layout.quads(), &[]),
-                source: ShadowSource::PatchesOnly,
+                inner: Shadows::Voxels {
+                    rays: RayScene::new(&layout.quads(), &[]),
+                    source: ShadowSource::PatchesOnly,
+                },
             },
         }
     }
 
-    /// Whether shadows come from the occupancy or, lacking it, from the patches alone.
+    /// Whether shadows come from the triangles, the occupancy or, lacking both, the patches.
     pub fn source(&self) -> ShadowSource {
-        self.source
+        match &self.inner {
+            Shadows::Voxels { source, .. } => *source,
+            Shadows::Surface { .. } => ShadowSource::Triangles,
+        }
     }
 
     /// The tracer the rays go through.
     pub fn tracer(&self) -> Tracer {
-        self.rays.tracer()
+        match &self.inner {
+            Shadows::Voxels { rays, .. } => rays.tracer(),
+            Shadows::Surface { .. } => Tracer::Bvh,
+        }
     }
 
     pub fn patch_count(&self) -> usize {
-        self.rays.patch_count()
+        match &self.inner {
+            Shadows::Voxels { rays, .. } => rays.patch_count(),
+            Shadows::Surface { surface, .. } => {
+                surface.points.len() / (surface.per_patch.max(1) as usize)
+            }
+        }
     }
 
     /// Whether the segment from `origin` on patch `from` along unit `dir` is blocked before
     /// `max_t` (infinite: before leaving the scene).
     pub fn occluded(&self, from: usize, origin: Vec3, dir: Vec3, max_t: f32) -> bool {
-        self.rays.occluded(from, origin, dir, max_t)
+        match &self.inner {
+            Shadows::Voxels { rays, .. } => rays.occluded(from, origin, dir, max_t),
+            Shadows::Surface { mesh, .. } => mesh.occluded(origin, dir, max_t),
+        }
     }
 }
 
@@ -405,11 +457,50 @@ pub fn direct_irradiance(
         .iter()
         .filter_map(PreparedLight::new)
         .collect();
+    if let Shadows::Surface { mesh, surface } = &scene.inner {
+        let count = samples.clamp(1, surface.per_patch) as usize;
+        return (0..layout.len())
+            .into_par_iter()
+            .map(|i| surface_irradiance(mesh, &surface.samples(i)[..count], &prepared))
+            .collect();
+    }
     let side = samples_side(samples);
     (0..layout.len())
         .into_par_iter()
         .map(|i| patch_irradiance(scene, layout, i, &prepared, side))
         .collect()
+}
+
+/// How far short of a point light a shadow ray stops, relative to the light's distance: a light
+/// placed exactly on a surface (a bulb on its fixture) is not shadowed by that surface. Far less
+/// than any voxel: no light reaches through a wall.
+pub const SHADOW_END: f32 = 1.0 - 1e-5;
+
+/// One surface patch's mean over its sample points, each shadow ray traced against the
+/// triangles from the stored (already offset) point. Sums in sample order, then light order,
+/// as the GPU twin (`direct_surface.wgsl`) does.
+pub fn surface_irradiance(
+    mesh: &TriMesh,
+    samples: &[SamplePoint],
+    lights: &[PreparedLight],
+) -> [f32; 3] {
+    if lights.is_empty() || samples.is_empty() {
+        return [0.0; 3];
+    }
+    let mut sum = Vec3::ZERO;
+    for s in samples {
+        let (p, n) = (Vec3::from(s.position), Vec3::from(s.normal));
+        for light in lights {
+            if let Some(l) = light_sample(light, p, n)
+                && !mesh.occluded(p, l.dir, l.distance * SHADOW_END)
+            {
+                sum += l.irradiance;
+            }
+        }
+    }
+    (sum / samples.len() as f32)
+        .min(Vec3::splat(f32::MAX))
+        .to_array()
 }
 
 /// One patch's mean over its samples.

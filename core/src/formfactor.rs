@@ -32,7 +32,7 @@ pub enum FormFactorError {
 pub const MAX_RAYS: u32 = 1 << 16;
 
 /// Per-row seed: a hash of the bake seed and the row, so rows are independent streams.
-fn row_seed(seed: u64, row: usize) -> u32 {
+pub(crate) fn row_seed(seed: u64, row: usize) -> u32 {
     // SplitMix64 finaliser.
     let mut z = seed ^ (row as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15);
     z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
@@ -54,24 +54,52 @@ fn cosine_direction(quad: &Quad, u1: f32, u2: f32) -> Vec3 {
     d
 }
 
-/// Hit counts of one row: `counts[j]` rays from `row` reached patch `j`.
-fn trace_row(scene: &RayScene, row: usize, rays: u32, seed: u64, counts: &mut [u32]) -> RayTally {
-    let quad = scene.patch(row);
-    let s = row_seed(seed, row);
-    let mut tally = RayTally::default();
-    for k in 0..rays {
-        let [a, b, c, d] = sobol_burley::sample_4d(k, 0, s);
-        // The origin lies exactly on the patch's plane and intersections need t > 0, so the
-        // patch itself and coplanar neighbours are never hit: no epsilon offset to tune.
-        let origin = quad.point(a, b);
-        let dir = cosine_direction(quad, c, d);
-        let fate = scene.trace(row, origin, dir);
-        if let RayFate::Patch(j) = fate {
-            counts[j] += 1;
-        }
-        tally.count(fate);
+/// What form-factor rows are traced through: voxel faces ([`RayScene`]) or surface patches
+/// ([`crate::surface::SurfaceScene`]).
+pub trait RowTracer: Sync {
+    fn patch_count(&self) -> usize;
+    /// Shoot `rays` rays from patch `row`, adding to `counts[j]` each that reached patch `j`.
+    fn trace_row(&self, row: usize, rays: u32, seed: u64, counts: &mut [u32]) -> RayTally;
+    /// Whether any of `rays` probe rays (other samples than the row's) from `row` reaches a
+    /// patch.
+    fn sees_another(&self, row: usize, rays: u32, seed: u64) -> bool;
+}
+
+impl RowTracer for RayScene {
+    fn patch_count(&self) -> usize {
+        RayScene::patch_count(self)
     }
-    tally
+
+    fn trace_row(&self, row: usize, rays: u32, seed: u64, counts: &mut [u32]) -> RayTally {
+        let quad = self.patch(row);
+        let s = row_seed(seed, row);
+        let mut tally = RayTally::default();
+        for k in 0..rays {
+            let [a, b, c, d] = sobol_burley::sample_4d(k, 0, s);
+            // The origin lies exactly on the patch's plane and intersections need t > 0, so the
+            // patch itself and coplanar neighbours are never hit: no epsilon offset to tune.
+            let origin = quad.point(a, b);
+            let dir = cosine_direction(quad, c, d);
+            let fate = self.trace(row, origin, dir);
+            if let RayFate::Patch(j) = fate {
+                counts[j] += 1;
+            }
+            tally.count(fate);
+        }
+        tally
+    }
+
+    fn sees_another(&self, row: usize, rays: u32, seed: u64) -> bool {
+        let quad = self.patch(row);
+        let s = row_seed(seed, row);
+        (0..rays).any(|k| {
+            let [a, b, c, d] = sobol_burley::sample_4d(k, PROBE_DIMENSION_SET, s);
+            matches!(
+                self.trace(row, quad.point(a, b), cosine_direction(quad, c, d)),
+                RayFate::Patch(_)
+            )
+        })
+    }
 }
 
 /// Sobol dimension set of the visibility probe, apart from the one the form factors use, so the
@@ -82,27 +110,17 @@ const PROBE_DIMENSION_SET: u32 = 1;
 /// give indirect light (by reciprocity nothing sees it either), so a bake can drop it. A patch
 /// that sees others through less than about `1/rays` of its hemisphere may be dropped too; the
 /// light it would have exchanged is of that order.
-pub fn isolated_patches(scene: &RayScene, rays: u32, seed: u64) -> Vec<bool> {
+pub fn isolated_patches(scene: &dyn RowTracer, rays: u32, seed: u64) -> Vec<bool> {
     (0..scene.patch_count())
         .into_par_iter()
-        .map(|i| {
-            let quad = scene.patch(i);
-            let s = row_seed(seed, i);
-            !(0..rays).any(|k| {
-                let [a, b, c, d] = sobol_burley::sample_4d(k, PROBE_DIMENSION_SET, s);
-                matches!(
-                    scene.trace(i, quad.point(a, b), cosine_direction(quad, c, d)),
-                    RayFate::Patch(_)
-                )
-            })
-        })
+        .map(|i| !scene.sees_another(i, rays, seed))
         .collect()
 }
 
 /// Form-factor rows `rows` (row-major, `rows.len() × n`), with visibility. `progress` is called
 /// with the number of rows finished since the last call.
 pub fn form_factor_rows(
-    scene: &RayScene,
+    scene: &dyn RowTracer,
     rows: Range<usize>,
     rays: u32,
     seed: u64,
@@ -113,7 +131,7 @@ pub fn form_factor_rows(
 
 /// As [`form_factor_rows`], also telling where the rays that reached no patch went.
 pub fn form_factor_rows_tallied(
-    scene: &RayScene,
+    scene: &dyn RowTracer,
     rows: Range<usize>,
     rays: u32,
     seed: u64,
@@ -142,7 +160,7 @@ pub fn form_factor_rows_tallied(
             || vec![0u32; n],
             |counts, (k, row_out)| {
                 counts.fill(0);
-                let tally = trace_row(scene, rows.start + k, rays, seed, counts);
+                let tally = scene.trace_row(rows.start + k, rays, seed, counts);
                 for (o, &c) in row_out.iter_mut().zip(counts.iter()) {
                     *o = c as f32 * inv;
                 }
@@ -156,7 +174,7 @@ pub fn form_factor_rows_tallied(
 
 /// The whole single-bounce form-factor matrix.
 pub fn form_factors(
-    scene: &RayScene,
+    scene: &dyn RowTracer,
     rays: u32,
     seed: u64,
     progress: &(dyn Fn(u64) + Sync),

@@ -23,5 +23,7 @@ pub mod patch;
 pub mod rays;
 pub mod scene;
 pub mod shard;
+pub mod surface;
 pub mod transport;
+pub mod trimesh;
 pub mod voxel;

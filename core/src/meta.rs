@@ -88,6 +88,13 @@ pub struct BakeSettings {
     /// The order patches are numbered in.
     #[serde(default = "default_patch_order")]
     pub patch_order: crate::voxel::PatchOrder,
+    /// What patches stand for. Files from before surface patches were voxel faces.
+    #[serde(default = "crate::voxel::Geometry::voxel_faces")]
+    pub geometry: crate::voxel::Geometry,
+    /// Direct-light sample points stored per patch (surface geometry; 0 for voxel faces, whose
+    /// samples are drawn on the face at run time).
+    #[serde(default)]
+    pub direct_samples: u32,
 }
 
 fn default_patch_order() -> crate::voxel::PatchOrder {
@@ -124,6 +131,13 @@ pub struct BakeStats {
     /// sets of `codec::error::probe_light_sets` (0 for `dense-f32`).
     #[serde(default)]
     pub codec_eind_rel_l2: f64,
+    /// Surface area of the scene (both sides of double-sided triangles), world units².
+    #[serde(default)]
+    pub surface_area: f64,
+    /// Of that, the area that belongs to no patch (dropped patches, clipping slivers): light
+    /// reaching it is lost to the transport. Surface geometry only.
+    #[serde(default)]
+    pub unassigned_area: f64,
 }
 
 /// Wall time of one bake stage.

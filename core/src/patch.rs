@@ -171,9 +171,26 @@ impl PatchLayout {
         self.patches.is_empty()
     }
 
-    /// Area of every patch: one voxel face.
+    /// Area of a voxel face: every patch's area in voxel-face geometry.
     pub fn patch_area(&self) -> f32 {
         self.voxel_size * self.voxel_size
+    }
+
+    /// Each patch's area as its form factors see it: the true area of its surface pieces
+    /// (`source_area`) when it stands for them, else the voxel face's. Reciprocity
+    /// (`A_i F_ij = A_j F_ji`) holds with these.
+    pub fn areas(&self, geometry: crate::voxel::Geometry) -> Vec<f32> {
+        let surface = geometry == crate::voxel::Geometry::Surface;
+        self.patches
+            .iter()
+            .map(|p| {
+                if surface && p.source_area > 0.0 {
+                    p.source_area
+                } else {
+                    self.patch_area()
+                }
+            })
+            .collect()
     }
 
     /// The rectangle of a voxel face in world space.

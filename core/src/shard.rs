@@ -96,6 +96,11 @@ pub struct ShardMeta {
     pub source: SourceInfo,
     pub occupied_voxels: usize,
     pub dropped_patches: usize,
+    /// The scene's surface area and the part that belongs to no patch (see `BakeStats`).
+    #[serde(default)]
+    pub surface_area: f64,
+    #[serde(default)]
+    pub unassigned_area: f64,
     /// Where the rays ended: this shard's rows in phase 1, the whole bake's in phase 2.
     pub rays: RayTally,
     /// Phase 2: the form factors it was computed from.
@@ -249,13 +254,18 @@ pub fn form_factor_shard(
     bake::check_codec_options(options)?;
     let mut timer = Timer::new(progress);
     let (scene, source) = bake::import_timed(path, &mut timer)?;
-    let Prepared { vox, rays } = bake::prepare(&scene, options, &mut timer)?;
+    let Prepared {
+        vox,
+        rays,
+        surface,
+        tracer,
+    } = bake::prepare(&scene, options, &mut timer)?;
     drop(scene);
     let n = vox.layout.len();
     let rows = shard_rows(n, spec.index, spec.count);
     let traced = timer.run(Stage::FormFactors, rows.len() as u64, || {
         formfactor::form_factor_rows_tallied(
-            &rays,
+            rays.as_ref(),
             rows.clone(),
             options.rays,
             options.seed,
@@ -272,11 +282,13 @@ pub fn form_factor_shard(
         patches: n,
         channels: 1,
         tool_version: env!("CARGO_PKG_VERSION").to_string(),
-        settings: bake::settings(options, rays.tracer()),
+        settings: bake::settings(options, tracer),
         keep_form_factors: options.keep_form_factors,
         source,
         occupied_voxels: vox.occupied_voxels,
         dropped_patches: vox.dropped_patches,
+        surface_area: vox.total_area,
+        unassigned_area: vox.unassigned_area,
         rays: tally,
         form_factors: None,
         inherited_timings: Vec::new(),
@@ -287,6 +299,7 @@ pub fn form_factor_shard(
             meta,
             layout: vox.layout,
             occupancy: vox.occupied,
+            surface,
         },
         rows: f_rows,
         form_factor_rows: None,
@@ -310,7 +323,7 @@ pub fn transport_shard(
         assemble(&members, 1, false, progress)
     })?;
     let options = bake::options_of(&first.meta.settings, first.meta.keep_form_factors);
-    let stats = bake::check_form_factors(&f, &first.layout)?;
+    let stats = bake::check_form_factors(&f, &first.layout, first.meta.settings.geometry)?;
     let summary = FormFactorSummary {
         stats,
         crc32: crc32fast::hash(&crate::format::f32_le_bytes(&f.data)),
@@ -357,6 +370,7 @@ pub fn transport_shard(
             meta,
             layout: first.layout,
             occupancy: first.occupancy,
+            surface: first.surface,
         },
         rows: t_rows,
         form_factor_rows,
@@ -393,7 +407,7 @@ pub fn merge(inputs: &[PathBuf], progress: &dyn Progress) -> Result<Baked, Shard
             let (f, _) = timer.run(Stage::ReadShards, n as u64, || {
                 assemble(&members, 1, false, progress)
             })?;
-            let stats = bake::check_form_factors(&f, &first.layout)?;
+            let stats = bake::check_form_factors(&f, &first.layout, first.meta.settings.geometry)?;
             let albedo: Vec<[f32; 3]> = first.layout.patches.iter().map(|p| p.albedo).collect();
             let channels = transport::channels_needed(&albedo, options.bounces);
             let t = timer.run(Stage::Transport, (n * channels) as u64, || {
@@ -418,6 +432,8 @@ pub fn merge(inputs: &[PathBuf], progress: &dyn Progress) -> Result<Baked, Shard
         voxel_size: first.layout.voxel_size,
         occupied_voxels: m0.occupied_voxels,
         dropped_patches: m0.dropped_patches,
+        surface_area: m0.surface_area,
+        unassigned_area: m0.unassigned_area,
         patches: n,
         rays,
         form_factors: stats,
@@ -431,7 +447,8 @@ pub fn merge(inputs: &[PathBuf], progress: &dyn Progress) -> Result<Baked, Shard
         layout: first.layout,
         transport,
         form_factors,
-        occupancy: Some(first.occupancy),
+        occupancy: first.surface.is_none().then_some(first.occupancy),
+        surface: first.surface,
         model,
     })
 }
@@ -581,6 +598,7 @@ fn difference(a: &ShardHeader, b: &ShardHeader) -> Option<&'static str> {
     } else if a.occupancy != b.occupancy
         || x.occupied_voxels != y.occupied_voxels
         || x.dropped_patches != y.dropped_patches
+        || a.surface != b.surface
     {
         Some("voxelisations")
     } else if x.channels != y.channels {

@@ -82,23 +82,162 @@ pub struct Voxelization {
     pub occupied: Vec<u64>,
     /// Candidate patches dropped by a [`Refine`] step (e.g. because they see nothing).
     pub dropped_patches: usize,
+    /// Surface geometry ([`Geometry::Surface`]): per patch, the pieces of original triangles it
+    /// stands for. `None` for voxel faces.
+    pub pieces: Option<Pieces>,
+    /// Surface area (world units²) that belongs to no patch: pieces of patches that were dropped,
+    /// and clipping slivers too small to be geometry. Always 0 for voxel faces, whose patches
+    /// stand for projected rather than real area.
+    pub unassigned_area: f64,
+    /// Surface area of the scene's triangles (both sides of double-sided ones counted once).
+    pub total_area: f64,
 }
 
 impl Voxelization {
     /// Drop the patches marked in `drop`: their faces stay as occluders, so they still block
     /// light, but they carry no row or column of the transport.
     pub fn drop_patches(&mut self, drop: &[bool]) {
+        let dropped = |i: usize| drop.get(i).copied().unwrap_or(false);
         let mut kept = Vec::with_capacity(self.layout.patches.len());
         for (i, p) in self.layout.patches.iter().enumerate() {
-            if drop.get(i).copied().unwrap_or(false) {
-                self.occluders.push(self.layout.face_quad(p.voxel, p.face));
+            if dropped(i) {
+                if self.pieces.is_some() {
+                    // Surface geometry: the triangles still block rays; only their area now
+                    // belongs to no patch.
+                    self.unassigned_area += f64::from(p.source_area);
+                } else {
+                    self.occluders.push(self.layout.face_quad(p.voxel, p.face));
+                }
                 self.dropped_patches += 1;
             } else {
                 kept.push(*p);
             }
         }
         self.layout.patches = kept;
+        if let Some(pieces) = &mut self.pieces {
+            pieces.retain(|i| !dropped(i));
+        }
     }
+
+    /// Renumber the patches (and their pieces) in `order`.
+    pub fn reorder(&mut self, order: PatchOrder) {
+        let perm = self.layout.order_of(order);
+        self.layout.patches = perm.iter().map(|&i| self.layout.patches[i]).collect();
+        if let Some(pieces) = &mut self.pieces {
+            *pieces = pieces.permuted(&perm);
+        }
+    }
+}
+
+/// What geometry patches stand for and rays are traced against.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Geometry {
+    /// A patch is the pieces of original triangles in its voxel whose normal faces its direction
+    /// most; rays run between those pieces against the original triangles (docs/design.md §2).
+    #[default]
+    Surface,
+    /// The thesis' method: a patch is the exposed voxel face itself, and rays walk the voxel
+    /// occupancy. Kept as the baseline the surface method is measured against.
+    VoxelFaces,
+}
+
+impl Geometry {
+    /// What files from before the choice existed were baked with.
+    pub fn voxel_faces() -> Geometry {
+        Geometry::VoxelFaces
+    }
+}
+
+impl std::str::FromStr for Geometry {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "surface" => Ok(Geometry::Surface),
+            "voxel-faces" => Ok(Geometry::VoxelFaces),
+            _ => Err(format!(
+                "geometry must be 'surface' or 'voxel-faces', got '{s}'"
+            )),
+        }
+    }
+}
+
+impl std::fmt::Display for Geometry {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Geometry::Surface => "surface",
+            Geometry::VoxelFaces => "voxel-faces",
+        })
+    }
+}
+
+/// One triangle of a patch's surface: a fan triangle of a clipped piece of an original triangle,
+/// with the unit normal of the side the patch stands for.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PieceTri {
+    pub corners: [Vec3; 3],
+    pub normal: Vec3,
+    pub area: f32,
+    /// The original triangle (index into [`Scene::triangles`]).
+    pub triangle: u32,
+}
+
+/// Per patch, the triangles of real surface it stands for (compressed rows: patch `i` owns
+/// `tris[start[i]..start[i + 1]]`).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Pieces {
+    pub start: Vec<u32>,
+    pub tris: Vec<PieceTri>,
+}
+
+impl Pieces {
+    pub fn of(&self, patch: usize) -> &[PieceTri] {
+        &self.tris[self.start[patch] as usize..self.start[patch + 1] as usize]
+    }
+
+    pub fn patch_count(&self) -> usize {
+        self.start.len().saturating_sub(1)
+    }
+
+    fn retain(&mut self, keep: impl Fn(usize) -> bool) {
+        let mut out = Pieces {
+            start: vec![0],
+            tris: Vec::with_capacity(self.tris.len()),
+        };
+        for i in 0..self.patch_count() {
+            if keep(i) {
+                out.tris.extend_from_slice(self.of(i));
+                out.start.push(out.tris.len() as u32);
+            }
+        }
+        *self = out;
+    }
+
+    fn permuted(&self, perm: &[usize]) -> Pieces {
+        let mut out = Pieces {
+            start: vec![0],
+            tris: Vec::with_capacity(self.tris.len()),
+        };
+        for &i in perm {
+            out.tris.extend_from_slice(self.of(i));
+            out.start.push(out.tris.len() as u32);
+        }
+        out
+    }
+}
+
+/// The face direction a surface with unit normal `n` faces most: the axis of its largest
+/// component (the lower axis on a tie), signed as that component.
+pub fn dominant_face(n: Vec3) -> Face {
+    let a = n.abs();
+    let axis = if a.x >= a.y && a.x >= a.z {
+        0
+    } else if a.y >= a.z {
+        1
+    } else {
+        2
+    };
+    Face::from_axis_sign(axis, n[axis] >= 0.0)
 }
 
 /// The order patches are numbered in, which is the order of the transport's rows and columns.
@@ -152,16 +291,24 @@ pub fn morton(voxel: [u32; 3]) -> u64 {
 impl PatchLayout {
     /// Renumber the patches in `order`. Ties (the faces of one voxel) keep face-code order.
     pub fn reorder(&mut self, order: PatchOrder) {
+        let perm = self.order_of(order);
+        self.patches = perm.iter().map(|&i| self.patches[i]).collect();
+    }
+
+    /// The patch indices in `order`: entry `k` is the patch that becomes patch `k`.
+    pub fn order_of(&self, order: PatchOrder) -> Vec<usize> {
+        let mut perm: Vec<usize> = (0..self.patches.len()).collect();
+        let p = &self.patches;
         if order == PatchOrder::Morton {
-            self.patches
-                .sort_by_key(|p| (morton(p.voxel), p.face.code()));
+            perm.sort_by_key(|&i| (morton(p[i].voxel), p[i].face.code()));
         } else {
             let dims = self.dims.map(u64::from);
-            self.patches.sort_by_key(|p| {
-                let v = p.voxel.map(u64::from);
-                ((v[2] * dims[1] + v[1]) * dims[0] + v[0], p.face.code())
+            perm.sort_by_key(|&i| {
+                let v = p[i].voxel.map(u64::from);
+                ((v[2] * dims[1] + v[1]) * dims[0] + v[0], p[i].face.code())
             });
         }
+        perm
     }
 }
 
@@ -190,18 +337,39 @@ pub fn voxelize(scene: &Scene, resolution: Resolution) -> Result<Voxelization, V
     voxelize_refined(scene, resolution, &|v| v)
 }
 
-/// Voxelise `scene`, applying `refine` to every candidate before its patches are counted.
+/// Voxelise `scene` into voxel-face patches, applying `refine` to every candidate before its
+/// patches are counted.
 pub fn voxelize_refined(
     scene: &Scene,
     resolution: Resolution,
     refine: Refine<'_>,
 ) -> Result<Voxelization, VoxelError> {
+    simplify_refined(scene, resolution, Geometry::VoxelFaces, refine)
+}
+
+/// Cluster `scene` into surface patches at the requested resolution.
+pub fn cluster(scene: &Scene, resolution: Resolution) -> Result<Voxelization, VoxelError> {
+    simplify_refined(scene, resolution, Geometry::Surface, &|v| v)
+}
+
+/// Simplify `scene` into patches of `geometry`, applying `refine` to every candidate before its
+/// patches are counted.
+pub fn simplify_refined(
+    scene: &Scene,
+    resolution: Resolution,
+    geometry: Geometry,
+    refine: Refine<'_>,
+) -> Result<Voxelization, VoxelError> {
+    let at: At = match geometry {
+        Geometry::Surface => cluster_at,
+        Geometry::VoxelFaces => voxelize_at,
+    };
     match resolution {
         Resolution::VoxelSize(size) => {
             if !(size.is_finite() && size > 0.0) {
                 return Err(VoxelError::VoxelSize(size));
             }
-            let v = refine(voxelize_at(scene, size)?);
+            let v = refine(at(scene, size)?);
             if v.layout.is_empty() {
                 return Err(VoxelError::AllDropped {
                     candidates: v.dropped_patches,
@@ -220,10 +388,13 @@ pub fn voxelize_refined(
             if n == 0 || n > MAX_PATCHES {
                 return Err(VoxelError::PatchCount(n));
             }
-            search_voxel_size(scene, n, refine)
+            search_voxel_size(scene, n, at, refine)
         }
     }
 }
+
+/// Simplification at one voxel size.
+type At = fn(&Scene, f32) -> Result<Voxelization, VoxelError>;
 
 /// Patch count falls roughly as 1/size², so the first steps scale the size by
 /// `sqrt(count / target)`. The count is not monotonic (grid alignment; surfaces that merge into
@@ -233,6 +404,7 @@ pub fn voxelize_refined(
 fn search_voxel_size(
     scene: &Scene,
     target: u32,
+    at: At,
     refine: Refine<'_>,
 ) -> Result<Voxelization, VoxelError> {
     let area = scene.total_area();
@@ -251,7 +423,7 @@ fn search_voxel_size(
     let mut best_err = f64::INFINITY;
     let mut all_dropped = None;
     for _ in 0..16 {
-        let wanted = match voxelize_at(scene, size).map(refine) {
+        let wanted = match at(scene, size).map(refine) {
             Err(VoxelError::GridTooLarge { .. } | VoxelError::TooManyPatches { .. }) => {
                 too_fine = too_fine.max(size);
                 size * 2.0
@@ -304,42 +476,9 @@ fn search_voxel_size(
 
 /// Voxelise at one voxel size.
 pub fn voxelize_at(scene: &Scene, size: f32) -> Result<Voxelization, VoxelError> {
-    let (lo, hi) = scene.bounds().ok_or(VoxelError::EmptyScene)?;
-    // Refuse before clipping: a closed surface of area A makes about A/(2 s²) patches, and the
-    // clipping work and memory grow with that count. The margin leaves room for the candidates
-    // that a refinement step drops again.
-    let estimate = scene.total_area() / (2.0 * size as f64 * size as f64);
-    if estimate > 4.0 * MAX_PATCHES as f64 {
-        return Err(VoxelError::TooManyPatches {
-            size,
-            patches: estimate as usize,
-        });
-    }
-    let extent = hi - lo;
-    // One voxel of margin on each side keeps every surface strictly inside the grid, and
-    // centring the grid on the scene keeps axis-aligned walls off the grid planes in the common
-    // case of a scene whose extent is a whole number of voxels.
-    let dims_f = (extent / size).floor() + Vec3::splat(2.0);
-    let cells = dims_f.x as f64 * dims_f.y as f64 * dims_f.z as f64;
-    if !cells.is_finite()
-        || cells > MAX_GRID_CELLS as f64
-        || dims_f.max_element() > u32::MAX as f32 / 2.0
-    {
-        return Err(VoxelError::GridTooLarge {
-            size,
-            extent: extent.to_array(),
-            cells: if cells.is_finite() {
-                cells as u64
-            } else {
-                u64::MAX
-            },
-        });
-    }
-    let dims = [dims_f.x as u32, dims_f.y as u32, dims_f.z as u32];
-    let center = (lo + hi) * 0.5;
-    let origin = center - dims_f * size * 0.5;
-
-    let grid = Grid { origin, size, dims };
+    // A closed surface of area A makes about A/(2 s²) voxel-face patches.
+    let grid = grid_for(scene, size, scene.total_area() / 2.0)?;
+    let (origin, dims) = (grid.origin, grid.dims);
     let face_area = size as f64 * size as f64;
     let mut voxels: HashMap<u64, VoxelAccum> = HashMap::new();
     let mut stack = Vec::new();
@@ -440,6 +579,184 @@ pub fn voxelize_at(scene: &Scene, size: f32) -> Result<Voxelization, VoxelError>
         occupied_voxels: keys.len(),
         occupied: keys,
         dropped_patches: 0,
+        pieces: None,
+        unassigned_area: 0.0,
+        total_area: scene.total_area(),
+    })
+}
+
+/// The grid at voxel size `size` around `scene`, refused before any clipping work when a
+/// surface of `patch_area` (the area that makes patches: about one patch per `size²` of it)
+/// would make far more patches than a bake accepts, or when the grid is absurdly large.
+fn grid_for(scene: &Scene, size: f32, patch_area: f64) -> Result<Grid, VoxelError> {
+    let (lo, hi) = scene.bounds().ok_or(VoxelError::EmptyScene)?;
+    // The margin leaves room for the candidates that a refinement step drops again.
+    let estimate = patch_area / (size as f64 * size as f64);
+    if estimate > 4.0 * MAX_PATCHES as f64 {
+        return Err(VoxelError::TooManyPatches {
+            size,
+            patches: estimate as usize,
+        });
+    }
+    let extent = hi - lo;
+    // One voxel of margin on each side keeps every surface strictly inside the grid, and
+    // centring the grid on the scene keeps axis-aligned walls off the grid planes in the common
+    // case of a scene whose extent is a whole number of voxels.
+    let dims_f = (extent / size).floor() + Vec3::splat(2.0);
+    let cells = dims_f.x as f64 * dims_f.y as f64 * dims_f.z as f64;
+    if !cells.is_finite()
+        || cells > MAX_GRID_CELLS as f64
+        || dims_f.max_element() > u32::MAX as f32 / 2.0
+    {
+        return Err(VoxelError::GridTooLarge {
+            size,
+            extent: extent.to_array(),
+            cells: if cells.is_finite() {
+                cells as u64
+            } else {
+                u64::MAX
+            },
+        });
+    }
+    let dims = [dims_f.x as u32, dims_f.y as u32, dims_f.z as u32];
+    let center = (lo + hi) * 0.5;
+    Ok(Grid {
+        origin: center - dims_f * size * 0.5,
+        size,
+        dims,
+    })
+}
+
+/// Area of every surface side: a double-sided triangle is a surface on both sides.
+fn sided_area(scene: &Scene) -> f64 {
+    scene
+        .triangles
+        .iter()
+        .map(|t| t.area() as f64 * if t.double_sided { 2.0 } else { 1.0 })
+        .sum()
+}
+
+/// One (voxel, face) group of surface pieces while clustering.
+#[derive(Default)]
+struct Group {
+    acc: FaceAccum,
+    tris: Vec<PieceTri>,
+}
+
+/// Cluster `scene` into surface patches at one voxel size (docs/design.md §2, step 2).
+///
+/// Every triangle is clipped exactly against the grid planes. Each piece, on each of its
+/// surface sides (both for a double-sided triangle), joins the patch `(voxel, face)` of the voxel
+/// it lies in and the direction its side's normal faces most ([`dominant_face`]). So every piece
+/// of surface belongs to exactly one patch, whatever its neighbours; a patch's albedo, emission,
+/// centroid and normal are area-weighted over its pieces, and its `source_area` is their true
+/// area.
+pub fn cluster_at(scene: &Scene, size: f32) -> Result<Voxelization, VoxelError> {
+    let total_area = sided_area(scene);
+    let grid = grid_for(scene, size, total_area)?;
+    let face_area = size as f64 * size as f64;
+    let mut groups: HashMap<(u64, Face), Group> = HashMap::new();
+    let mut unassigned = 0.0f64;
+    let mut stack = Vec::new();
+    for (index, tri) in scene.triangles.iter().enumerate() {
+        let cross = tri.cross();
+        let len = cross.length();
+        if !(len > 0.0 && len.is_finite()) {
+            continue;
+        }
+        let n = (cross / len).as_dvec3();
+        let sides: &[f64] = if tri.double_sided {
+            &[1.0, -1.0]
+        } else {
+            &[1.0]
+        };
+        stack.clear();
+        stack.push(Poly::from_slice(&tri.positions));
+        while let Some(poly) = stack.pop() {
+            if let Some((a, b)) = grid.split(&poly) {
+                stack.push(a);
+                stack.push(b);
+                continue;
+            }
+            let (area, centroid) = poly.area_centroid(n);
+            if area.is_nan() || area <= 0.0 {
+                continue;
+            }
+            // Rounding-error slivers of clipping through a grid edge or corner are not
+            // geometry; their (negligible) area is reported as belonging to no patch.
+            if area <= MIN_PIECE_AREA * face_area {
+                unassigned += area * sides.len() as f64;
+                continue;
+            }
+            let key = grid.key(grid.cell_of(centroid));
+            let fan = poly.fan(n);
+            for &sign in sides {
+                let normal = n * sign;
+                let face = dominant_face(normal.as_vec3());
+                let g = groups.entry((key, face)).or_default();
+                g.acc.weight += area;
+                g.acc.albedo += tri.albedo.as_dvec3() * area;
+                g.acc.emission += tri.emission.as_dvec3() * area;
+                g.acc.centroid += centroid * area;
+                g.acc.normal += normal * area;
+                g.tris.extend(fan.iter().map(|&(corners, a)| PieceTri {
+                    corners,
+                    normal: normal.as_vec3(),
+                    area: a,
+                    triangle: index as u32,
+                }));
+            }
+        }
+    }
+    let mut keys: Vec<(u64, Face)> = groups.keys().copied().collect();
+    keys.sort_unstable();
+    let mut patches = Vec::with_capacity(keys.len());
+    let mut pieces = Pieces {
+        start: vec![0],
+        tris: Vec::new(),
+    };
+    for key in &keys {
+        let g = &groups[key];
+        let f = &g.acc;
+        let inv = 1.0 / f.weight;
+        patches.push(Patch {
+            voxel: grid.unkey(key.0),
+            face: key.1,
+            albedo: (f.albedo * inv)
+                .clamp(DVec3::ZERO, DVec3::ONE)
+                .as_vec3()
+                .to_array(),
+            centroid: (f.centroid * inv).as_vec3().to_array(),
+            normal: f
+                .normal
+                .normalize_or(key.1.normal().as_dvec3())
+                .as_vec3()
+                .to_array(),
+            source_area: f.weight as f32,
+            emission: (f.emission * inv).max(DVec3::ZERO).as_vec3().to_array(),
+        });
+        pieces.tris.extend_from_slice(&g.tris);
+        pieces.start.push(pieces.tris.len() as u32);
+    }
+    if patches.is_empty() {
+        return Err(VoxelError::NoPatches { size });
+    }
+    let mut occupied: Vec<u64> = keys.iter().map(|k| k.0).collect();
+    occupied.dedup();
+    Ok(Voxelization {
+        layout: PatchLayout {
+            origin: grid.origin.to_array(),
+            voxel_size: size,
+            dims: grid.dims,
+            patches,
+        },
+        occluders: Vec::new(),
+        occupied_voxels: occupied.len(),
+        occupied,
+        dropped_patches: 0,
+        pieces: Some(pieces),
+        unassigned_area: unassigned,
+        total_area,
     })
 }
 
@@ -573,6 +890,21 @@ impl Poly {
             }
         }
         (below, above)
+    }
+
+    /// The polygon as a fan of triangles (corners in f32) with their areas; triangles with no
+    /// area are left out.
+    fn fan(&self, n: DVec3) -> Vec<([Vec3; 3], f32)> {
+        let pts = self.points();
+        let mut out = Vec::with_capacity(pts.len().saturating_sub(2));
+        for k in 1..pts.len().saturating_sub(1) {
+            let (a, b, c) = (pts[0], pts[k], pts[k + 1]);
+            let area = 0.5 * (b - a).cross(c - a).dot(n);
+            if area > 0.0 {
+                out.push(([a.as_vec3(), b.as_vec3(), c.as_vec3()], area as f32));
+            }
+        }
+        out
     }
 
     /// Area and centroid of the (planar, convex) polygon with unit normal `n`.

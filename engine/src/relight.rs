@@ -143,13 +143,12 @@ impl Engine {
     /// On the GPU engine a grid too large for the direct kernel's bindings is lit on the CPU
     /// instead (see [`Scene::direct_fallback`]); any other GPU error is an error.
     pub fn load(&self, baked: &Baked) -> Result<Scene, EngineError> {
-        let cpu_direct = |why: Option<String>| {
-            DirectLight::Cpu(
-                Box::new(ShadowScene::new(&baked.layout, baked.occupancy.as_deref())),
-                why,
-            )
-        };
+        let cpu_direct =
+            |why: Option<String>| DirectLight::Cpu(Box::new(ShadowScene::of_baked(baked)), why);
         let direct = match (&self.gpu, baked.occupancy.as_deref()) {
+            (Some(_), _) if baked.surface.is_some() => cpu_direct(Some(
+                "surface geometry: shadows against the triangles, on the CPU".into(),
+            )),
             (Some(ctx), Some(occupied)) => match GpuDirect::upload(ctx, &baked.layout, occupied) {
                 Ok(d) => DirectLight::Gpu(Box::new(d)),
                 Err(e @ GpuError::TooLarge { .. }) => cpu_direct(Some(e.to_string())),
@@ -160,7 +159,9 @@ impl Engine {
             )),
             (None, _) => cpu_direct(None),
         };
-        let shadow_source = if baked.occupancy.is_some() {
+        let shadow_source = if baked.surface.is_some() {
+            ShadowSource::Triangles
+        } else if baked.occupancy.is_some() {
             ShadowSource::Occupancy
         } else {
             ShadowSource::PatchesOnly

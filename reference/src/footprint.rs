@@ -1,14 +1,17 @@
 //! What a patch stands for, as points: its footprint on the original surfaces.
 //!
-//! A patch's value is an average over the pieces of original triangles inside its voxel that
-//! face its direction (two-sided triangles on either side), each weighted by its area projected
-//! onto the face (`bounce_core::voxel`'s rule, restated here from its documentation, not called).
-//! One point cannot stand for that where the pieces lie at several depths (a ceiling and a
-//! panel a unit below it, in one 15-unit voxel): the pieces in a gap are dark, the others lit.
-//! So the reference samples the footprint: lines along the face's axis through uniform points of
-//! the voxel's cross-section, and every facing triangle piece they cross inside the voxel. A
-//! uniform point of the cross-section lands on a piece with probability ∝ its area projected
-//! onto the face, area × cos: the bake's weight.
+//! A patch's value is the area-weighted average over the pieces of original triangles inside its
+//! voxel whose surface side faces its direction more than any other axis direction (both sides
+//! of a double-sided triangle, each on its own; docs/design.md §2, restated here from the
+//! design, not called from `bounce_core::voxel`). That is what the patch's value means to a
+//! viewer, whatever geometry the bake used, so voxel-face bakes are measured against the same
+//! footprints. One point cannot stand for it where the pieces lie at several depths (a ceiling
+//! and a panel a unit below it, in one 15-unit voxel): the pieces in a gap are dark, the others
+//! lit. So the reference samples the footprint: lines along the face's axis through uniform
+//! points of the voxel's cross-section, and every such triangle piece they cross inside the
+//! voxel. A uniform point of the cross-section lands on a piece with probability ∝ its area
+//! projected onto the face, area × cos; keeping it with probability `(1/√3) / cos` (a dominant
+//! axis has cos ≥ 1/√3) makes the kept points uniform in true area.
 
 use std::collections::{HashMap, HashSet};
 
@@ -20,7 +23,24 @@ use crate::mesh::Mesh;
 use crate::rng::{Pcg32, mix};
 
 /// Lines per wanted point before a patch gives up (its pieces cover little of the voxel).
-const TRIES_PER_POINT: usize = 64;
+const TRIES_PER_POINT: usize = 128;
+
+/// The least cosine between a unit vector and the axis direction it faces most: 1/√3.
+const MIN_DOMINANT_COS: f32 = 0.577_350_26;
+
+/// Whether unit `n` faces the direction `sign` along `axis` more than any other axis direction
+/// (the lower axis wins a tie, as the bake's clustering rule says).
+fn faces_most(n: Vec3, axis: usize, sign: f32) -> bool {
+    let a = n.abs();
+    let most = if a.x >= a.y && a.x >= a.z {
+        0
+    } else if a.y >= a.z {
+        1
+    } else {
+        2
+    };
+    most == axis && n[axis] * sign >= 0.0 && n[axis] != 0.0
+}
 
 /// `count` points on each patch's footprint; an empty list for a patch none could be drawn for.
 pub(crate) fn footprints(
@@ -60,15 +80,14 @@ pub(crate) fn footprints(
             let dir = patch.face.normal();
             let lo = origin + Vec3::from(patch.voxel.map(|v| v as f32)) * size;
             let hi = lo + Vec3::splat(size);
-            // Facing triangles and the side that faces.
-            let mut candidates: Vec<(u32, Vec3)> = Vec::new();
+            // Triangle sides that face this direction most, with their cosine to it.
+            let mut candidates: Vec<(u32, Vec3, f32)> = Vec::new();
             for &i in by_voxel.get(&patch.voxel).into_iter().flatten() {
                 let t = &mesh.tris[i as usize];
-                let c = t.normal.dot(dir);
-                if c > 0.0 {
-                    candidates.push((i, t.normal));
-                } else if t.double_sided && c < 0.0 {
-                    candidates.push((i, -t.normal));
+                for (n, surface) in [(t.normal, true), (-t.normal, t.double_sided)] {
+                    if surface && faces_most(n, patch.face.axis(), patch.face.sign()) {
+                        candidates.push((i, n, n.dot(dir)));
+                    }
                 }
             }
             let mut points = Vec::with_capacity(count);
@@ -89,11 +108,13 @@ pub(crate) fn footprints(
                 start[axis] -= slack;
                 start[u] += rng.next_f32() * size;
                 start[v] += rng.next_f32() * size;
-                for &(i, n) in &candidates {
+                for &(i, n, cos) in &candidates {
                     let t = &mesh.tris[i as usize];
                     if let Some(d) = t.intersect(start, along, 0.0, size + 2.0 * slack) {
                         let p = start + along * d;
-                        if p.cmpge(lo).all() && p.cmplt(hi).all() && points.len() < count {
+                        let keep = rng.next_f32() * cos < MIN_DOMINANT_COS;
+                        if keep && p.cmpge(lo).all() && p.cmplt(hi).all() && points.len() < count
+                        {
                             points.push(Point {
                                 position: p.to_array(),
                                 normal: n.to_array(),

@@ -21,6 +21,13 @@
 //! grid, so a file has one encoding). Every patch's voxel is among them. Files without the
 //! section are valid; their readers get no occupancy and trace shadows against the patches alone.
 //!
+//! `SURF` (version 2, surface geometry only, required there): what direct light needs at run
+//! time. Triangle count u32, samples per patch u32, patch count u32, reserved u32 (0) (16 bytes),
+//! then per triangle its three corners f32×9 (36 bytes; every triangle blocks shadow rays from
+//! both sides), then `patches × samples per patch` sample points, position f32×3 and unit normal
+//! f32×3 (24 bytes), patch by patch. Positions are already pushed off their surface
+//! ([`crate::trimesh::offset_origin`]). Every value is finite; the patch count is the layout's.
+//!
 //! `MODL` (flagged [`SECTION_OPTIONAL`]): the scene the file was baked from, packed into one
 //! self-contained GLB 2.0 file ([`crate::import::pack_glb`]): every buffer and image inside its
 //! BIN chunk, the glTF JSON otherwise as the source had it. The section is exactly the GLB's
@@ -33,6 +40,8 @@ use std::path::Path;
 use crate::matrix::EncodedMatrix;
 use crate::meta::BakeMeta;
 use crate::patch::{Face, Patch, PatchLayout};
+use crate::surface::{MAX_SURFACE_SAMPLES, SamplePoint, SurfaceData};
+use crate::voxel::Geometry;
 
 use super::FormatError;
 use super::container::{
@@ -49,6 +58,10 @@ pub const MATRIX_HEADER_LEN: u64 = 56;
 const CODEC_NAME_LEN: usize = 32;
 /// Bytes of the `OCCU` fields before the indices.
 pub const OCCUPANCY_HEADER_LEN: u64 = 16;
+/// Bytes of the `SURF` fields before the triangles.
+pub const SURFACE_HEADER_LEN: u64 = 16;
+const TRIANGLE_RECORD_LEN: u64 = 36;
+const SAMPLE_RECORD_LEN: u64 = 24;
 
 /// Everything a baked file holds.
 #[derive(Debug, Clone, PartialEq)]
@@ -63,6 +76,9 @@ pub struct Baked {
     /// [`crate::voxel::Voxelization::occupied`]): what shadow rays are traced against. Absent in
     /// files from bakes that did not store it.
     pub occupancy: Option<Vec<u64>>,
+    /// Surface geometry: the triangles shadow rays are traced against and each patch's
+    /// direct-light sample points (the `SURF` section). `None` for voxel faces.
+    pub surface: Option<SurfaceData>,
     /// The scene baked, as one self-contained GLB (the `MODL` section): what a viewer draws.
     /// Absent in files baked without it (`bounce bake --no-model`, or an older bounce).
     pub model: Option<Vec<u8>>,
@@ -100,6 +116,13 @@ impl Baked {
                 pieces: vec![Cow::Owned(encode_occupancy(occ, &self.layout)?)],
             });
         }
+        check_geometry(&self.meta, self.surface.is_some())?;
+        if let Some(surface) = &self.surface {
+            sections.push(owned(
+                SectionKind::SURF,
+                encode_surface(surface, &self.layout)?,
+            ));
+        }
         if let Some(model) = &self.model {
             sections.push(model_section(model)?);
         }
@@ -118,6 +141,7 @@ impl Baked {
                 SectionKind::FFAC,
                 SectionKind::OCCU,
                 SectionKind::MODL,
+                SectionKind::SURF,
             ]
             .contains(&e.kind);
             if !known && !e.is_optional() {
@@ -147,6 +171,16 @@ impl Baked {
             Some(e) => Some(decode_occupancy(c.section(e)?, &layout)?),
             None => None,
         };
+        let surface = match c.entry(SectionKind::SURF) {
+            Some(_) if c.header.format_version < 2 => {
+                return Err(FormatError::Surface(
+                    "a version-1 file cannot hold surface geometry".to_string(),
+                ));
+            }
+            Some(e) => Some(decode_surface(c.section(e)?, &layout)?),
+            None => None,
+        };
+        check_geometry(&meta, surface.is_some())?;
         let model = match c.entry(SectionKind::MODL) {
             Some(e) => {
                 let bytes = c.section(e)?;
@@ -161,6 +195,7 @@ impl Baked {
             transport,
             form_factors,
             occupancy,
+            surface,
             model,
         })
     }
@@ -437,6 +472,143 @@ pub(super) fn decode_occupancy(
         .collect();
     validate_occupancy(&occ, layout)?;
     Ok(occ)
+}
+
+/// A surface bake must carry its `SURF` section (its direct light needs it) and a voxel-face
+/// bake must not.
+fn check_geometry(meta: &BakeMeta, has_surface: bool) -> Result<(), FormatError> {
+    match (meta.settings.geometry, has_surface) {
+        (Geometry::Surface, false) => Err(FormatError::MissingSection {
+            kind: SectionKind::SURF,
+        }),
+        (Geometry::VoxelFaces, true) => Err(FormatError::Surface(
+            "a voxel-face bake holds no surface geometry".to_string(),
+        )),
+        _ => Ok(()),
+    }
+}
+
+/// The checks shared by writer and reader.
+fn validate_surface(s: &SurfaceData, layout: &PatchLayout) -> Result<(), FormatError> {
+    let bad = |m: String| Err(FormatError::Surface(m));
+    if !(1..=MAX_SURFACE_SAMPLES).contains(&s.per_patch) {
+        return bad(format!(
+            "{} samples per patch (1 to {MAX_SURFACE_SAMPLES} are valid)",
+            s.per_patch
+        ));
+    }
+    if s.points.len() as u64 != layout.len() as u64 * u64::from(s.per_patch) {
+        return bad(format!(
+            "{} sample points for {} patches of {} samples",
+            s.points.len(),
+            layout.len(),
+            s.per_patch
+        ));
+    }
+    if let Some(i) = s
+        .triangles
+        .iter()
+        .position(|t| !t.iter().flatten().all(|v| v.is_finite()))
+    {
+        return bad(format!("triangle {i} has a non-finite corner"));
+    }
+    for (i, p) in s.points.iter().enumerate() {
+        let n = glam::Vec3::from(p.normal);
+        if !(p.position.iter().all(|v| v.is_finite()) && (n.length() - 1.0).abs() < 1e-3) {
+            return bad(format!(
+                "sample point {i} is not a finite point with a unit normal"
+            ));
+        }
+    }
+    Ok(())
+}
+
+pub(super) fn encode_surface(
+    s: &SurfaceData,
+    layout: &PatchLayout,
+) -> Result<Vec<u8>, FormatError> {
+    validate_surface(s, layout)?;
+    let count = u32::try_from(s.triangles.len()).map_err(|_| FormatError::TooLarge {
+        what: "triangle count",
+        value: s.triangles.len() as u64,
+        max: u64::from(u32::MAX),
+    })?;
+    let mut out = Vec::with_capacity(
+        SURFACE_HEADER_LEN as usize
+            + s.triangles.len() * TRIANGLE_RECORD_LEN as usize
+            + s.points.len() * SAMPLE_RECORD_LEN as usize,
+    );
+    for v in [count, s.per_patch, layout.len() as u32, 0] {
+        out.extend_from_slice(&v.to_le_bytes());
+    }
+    for x in s.triangles.iter().flatten().flatten() {
+        out.extend_from_slice(&x.to_le_bytes());
+    }
+    for p in &s.points {
+        for x in p.position.iter().chain(&p.normal) {
+            out.extend_from_slice(&x.to_le_bytes());
+        }
+    }
+    Ok(out)
+}
+
+pub(super) fn decode_surface(
+    bytes: &[u8],
+    layout: &PatchLayout,
+) -> Result<SurfaceData, FormatError> {
+    let kind = SectionKind::SURF;
+    let mut r = FieldReader::new(bytes, Some(kind));
+    let triangles = r.u32("triangle count")?;
+    let per_patch = r.u32("samples per patch")?;
+    let patches = r.u32("patch count")?;
+    if r.u32("reserved")? != 0 {
+        return Err(FormatError::Reserved {
+            what: format!("section '{kind}'"),
+        });
+    }
+    if patches as usize != layout.len() {
+        return Err(FormatError::Surface(format!(
+            "{patches} patches, but the layout has {}",
+            layout.len()
+        )));
+    }
+    if !(1..=MAX_SURFACE_SAMPLES).contains(&per_patch) {
+        return Err(FormatError::Surface(format!(
+            "{per_patch} samples per patch (1 to {MAX_SURFACE_SAMPLES} are valid)"
+        )));
+    }
+    let rest = r.remaining();
+    // Only counts the section's length accounts for may size an allocation.
+    let want = u64::from(triangles) * TRIANGLE_RECORD_LEN
+        + u64::from(patches) * u64::from(per_patch) * SAMPLE_RECORD_LEN;
+    if want != rest.len() as u64 {
+        return Err(FormatError::Surface(format!(
+            "{triangles} triangles and {patches} × {per_patch} samples need {want} bytes, the \
+             section holds {}",
+            rest.len()
+        )));
+    }
+    let floats: Vec<f32> = rest
+        .chunks_exact(4)
+        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect();
+    let (tri_floats, sample_floats) = floats.split_at(triangles as usize * 9);
+    let surface = SurfaceData {
+        triangles: tri_floats
+            .chunks_exact(9)
+            .map(|c| [[c[0], c[1], c[2]], [c[3], c[4], c[5]], [c[6], c[7], c[8]]])
+            .collect(),
+        per_patch,
+        points: sample_floats
+            .chunks_exact(6)
+            .map(|c| SamplePoint {
+                position: [c[0], c[1], c[2]],
+                normal: [c[3], c[4], c[5]],
+            })
+            .collect(),
+    };
+    validate_surface(&surface, layout)?;
+    Ok(surface)
 }
 
 /// The optional `MODL` section holding `model` (a GLB), checked as the reader will check it; the

@@ -43,6 +43,15 @@ impl Flavour {
         }
     }
 
+    /// The oldest version this build reads: baked files of version 1 (voxel faces, before
+    /// surface patches) still serve; shards are read only by the release that wrote them.
+    fn oldest(self) -> u32 {
+        match self {
+            Flavour::Baked => super::OLDEST_FORMAT_VERSION,
+            Flavour::Shard => SHARD_FORMAT_VERSION,
+        }
+    }
+
     /// The error for bytes that do not start with this flavour's magic: naming the other
     /// flavour when it is that, since handing a shard to `serve` (or a baked file to `merge`) is
     /// an easy mistake.
@@ -85,6 +94,7 @@ impl SectionKind {
     pub const FFAC: SectionKind = SectionKind(*b"FFAC");
     pub const OCCU: SectionKind = SectionKind(*b"OCCU");
     pub const MODL: SectionKind = SectionKind(*b"MODL");
+    pub const SURF: SectionKind = SectionKind(*b"SURF");
 }
 
 impl fmt::Display for SectionKind {
@@ -195,9 +205,10 @@ impl<'a> Container<'a> {
         let reserved = h.u32("reserved")?;
         let crc = h.u32("header checksum")?;
 
-        if format_version != flavour.version() {
+        if !(flavour.oldest()..=flavour.version()).contains(&format_version) {
             return Err(FormatError::UnsupportedVersion {
                 found: format_version,
+                oldest: flavour.oldest(),
                 supported: flavour.version(),
             });
         }

@@ -32,7 +32,7 @@ use thiserror::Error;
 
 pub use baked::{
     Baked, LAYOUT_HEADER_LEN, MATRIX_HEADER_LEN, OCCUPANCY_HEADER_LEN, PATCH_RECORD_LEN,
-    read_summary,
+    SURFACE_HEADER_LEN, read_summary,
 };
 pub use container::{
     ENTRY_LEN, FileSummary, HEADER_LEN, Header, MAGIC, SECTION_ALIGN, SECTION_OPTIONAL,
@@ -41,12 +41,16 @@ pub use container::{
 pub(crate) use shard::le_bytes as f32_le_bytes;
 pub use shard::{ROWS_HEADER_LEN, ShardFile, ShardHeader};
 
-/// The version this build writes, and the only one it reads.
-pub const FORMAT_VERSION: u32 = 1;
+/// The version this build writes. Version 2 added surface patches: the `SURF` section and the
+/// `geometry` setting in `META`.
+pub const FORMAT_VERSION: u32 = 2;
+/// The oldest version this build reads: a version-1 file is a voxel-face bake and is relit as
+/// one.
+pub const OLDEST_FORMAT_VERSION: u32 = 1;
 /// The bake-shard version this build writes, and the only one it reads. Shards are
 /// intermediate files of one bake, written and read by the same release, so there is no reason
 /// to read older ones.
-pub const SHARD_FORMAT_VERSION: u32 = 1;
+pub const SHARD_FORMAT_VERSION: u32 = 2;
 
 /// Everything that can go wrong reading or writing a baked file.
 ///
@@ -77,8 +81,17 @@ pub enum FormatError {
     Rows { kind: SectionKind, message: String },
     #[error("inconsistent shard: {0}")]
     BadShard(String),
-    #[error("unsupported format version {found} (this build reads {supported})")]
-    UnsupportedVersion { found: u32, supported: u32 },
+    #[error(
+        "unsupported format version {found} (this build reads versions {oldest} to {supported}); \
+         bake the scene again with this bounce"
+    )]
+    UnsupportedVersion {
+        found: u32,
+        oldest: u32,
+        supported: u32,
+    },
+    #[error("section 'SURF': {0}")]
+    Surface(String),
     #[error("file truncated: {what} ends at byte {end} but the file has {len} bytes")]
     Truncated { what: String, end: u64, len: u64 },
     #[error("file truncated: its header says it has {declared} bytes but it has {actual}")]

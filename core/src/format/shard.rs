@@ -8,6 +8,8 @@
 //!   settings, the source scene, ray tallies, timings.
 //! - `LAYT`, `OCCU`: the patch layout and occupied voxels, encoded as in a baked file. Every shard
 //!   carries them, so later steps need no scene file and can refuse shards of another layout.
+//! - `SURF` (surface geometry only): the triangles and direct-light sample points, as in a baked
+//!   file, carried to the merge.
 //! - `ROWS`: the shard's rows: patches u32, first row u32, end row u32, channels u32 (16 bytes),
 //!   zeros up to byte 64, then `channels × rows × patches` f32, channel-major then row-major.
 //!   Form-factor rows in phase 1, transport rows in phase 2.
@@ -28,12 +30,15 @@ use crate::shard::{Phase, ShardMeta, shard_rows};
 
 use super::FormatError;
 use super::baked::{
-    decode_layout, decode_occupancy, encode_layout, encode_occupancy, model_section, validate_model,
+    decode_layout, decode_occupancy, decode_surface, encode_layout, encode_occupancy,
+    encode_surface, model_section, validate_model,
 };
 use super::container::{
     self, Assembled, Container, FieldReader, FileBytes, Flavour, SECTION_ALIGN, SECTION_OPTIONAL,
     Section, SectionKind,
 };
+use crate::surface::SurfaceData;
+use crate::voxel::Geometry;
 
 /// Bytes of the `ROWS`/`FROW` fields before the (64-byte aligned) values.
 pub const ROWS_HEADER_LEN: u64 = 16;
@@ -49,6 +54,8 @@ pub struct ShardHeader {
     pub meta: ShardMeta,
     pub layout: PatchLayout,
     pub occupancy: Vec<u64>,
+    /// Surface geometry's triangles and sample points, for the baked file.
+    pub surface: Option<SurfaceData>,
 }
 
 /// A whole shard.
@@ -97,6 +104,15 @@ impl ShardFile {
                 encode_occupancy(&h.occupancy, &h.layout)?,
             ),
         ];
+        if h.meta.settings.geometry == Geometry::Surface && h.surface.is_none() {
+            return Err(bad("a surface bake's shard lacks its surface geometry"));
+        }
+        if let Some(surface) = &h.surface {
+            sections.push(owned(
+                SectionKind::SURF,
+                encode_surface(surface, &h.layout)?,
+            ));
+        }
         // Before the rows, which stay last as they are the bulk of the file.
         if let Some(model) = &self.model {
             sections.push(model_section(model)?);
@@ -166,7 +182,12 @@ impl ShardHeader {
     /// its rows (whose checksum [`ShardFile::read`] verifies).
     pub fn from_bytes(bytes: &[u8]) -> Result<ShardHeader, FormatError> {
         let c = Container::parse_as(bytes, Flavour::Shard)?;
-        for kind in [SHRD, SectionKind::LAYT, SectionKind::OCCU] {
+        for kind in [
+            SHRD,
+            SectionKind::LAYT,
+            SectionKind::OCCU,
+            SectionKind::SURF,
+        ] {
             if let Some(e) = c.entry(kind)
                 && !c.section_crc_ok(e)?
             {
@@ -204,7 +225,15 @@ fn model_of(c: &Container<'_>) -> Result<Option<Vec<u8>>, FormatError> {
 
 fn header_from(c: &Container<'_>) -> Result<ShardHeader, FormatError> {
     for e in &c.entries {
-        let known = [SHRD, SectionKind::LAYT, SectionKind::OCCU, ROWS, FROW].contains(&e.kind);
+        let known = [
+            SHRD,
+            SectionKind::LAYT,
+            SectionKind::OCCU,
+            SectionKind::SURF,
+            ROWS,
+            FROW,
+        ]
+        .contains(&e.kind);
         if e.kind == SectionKind::MODL {
             if e.flags != SECTION_OPTIONAL {
                 return Err(FormatError::UnknownFlags {
@@ -228,10 +257,23 @@ fn header_from(c: &Container<'_>) -> Result<ShardHeader, FormatError> {
     let layout = decode_layout(section(c, SectionKind::LAYT)?)?;
     check_meta(&meta, &layout)?;
     let occupancy = decode_occupancy(section(c, SectionKind::OCCU)?, &layout)?;
+    let surface = match (c.entry(SectionKind::SURF), meta.settings.geometry) {
+        (Some(e), Geometry::Surface) => Some(decode_surface(c.section(e)?, &layout)?),
+        (None, Geometry::VoxelFaces) => None,
+        (None, Geometry::Surface) => {
+            return Err(FormatError::MissingSection {
+                kind: SectionKind::SURF,
+            });
+        }
+        (Some(_), Geometry::VoxelFaces) => {
+            return Err(bad("a voxel-face bake's shard holds surface geometry"));
+        }
+    };
     Ok(ShardHeader {
         meta,
         layout,
         occupancy,
+        surface,
     })
 }
 

@@ -13,4 +13,5 @@ mod import;
 mod pack;
 mod shard;
 mod stress;
+mod surface;
 mod tracers;

@@ -1,0 +1,381 @@
+//! Surface patches (docs/design.md §2): clusters of real surface, form factors between them
+//! against Howell's catalogue and the white furnace, sidedness, and walls thinner than a voxel
+//! that must not let light or form factors through.
+
+use std::sync::Arc;
+
+use bounce_core::direct::{ShadowScene, direct_irradiance};
+use bounce_core::formfactor::{RowTracer, form_factors, isolated_patches, stats};
+use bounce_core::light::{Light, LightSet};
+use bounce_core::patch::Face;
+use bounce_core::scene::{Scene, Triangle};
+use bounce_core::surface::{
+    SurfaceData, SurfaceScene, occluder_triangles_of, sample_points, scene_mesh,
+};
+use bounce_core::voxel::{Geometry, Voxelization, cluster_at, dominant_face};
+use glam::Vec3;
+
+use crate::furnace::closed_box;
+
+fn no_progress(_: u64) {}
+
+/// Two triangles covering the rectangle `a b c d`, wound to face `normal`.
+fn rect(out: &mut Vec<Triangle>, corners: [Vec3; 4], normal: Vec3, double_sided: bool) {
+    let [a, b, c, d] = corners;
+    for mut tri in [[a, b, c], [a, c, d]] {
+        if (tri[1] - tri[0]).cross(tri[2] - tri[0]).dot(normal) < 0.0 {
+            tri.swap(1, 2);
+        }
+        out.push(Triangle {
+            positions: tri,
+            albedo: Vec3::splat(0.5),
+            emission: Vec3::ZERO,
+            double_sided,
+            material: 0,
+        });
+    }
+}
+
+fn scene(triangles: Vec<Triangle>) -> Scene {
+    Scene {
+        triangles,
+        ..Default::default()
+    }
+}
+
+fn surface_scene(scene: &Scene, vox: &Voxelization) -> SurfaceScene {
+    let pieces = vox.pieces.as_ref().expect("surface clusters have pieces");
+    SurfaceScene::new(scene, Arc::new(scene_mesh(scene)), &vox.layout, pieces)
+}
+
+#[test]
+fn every_piece_of_surface_belongs_to_exactly_one_patch() {
+    // A closed box, and a tilted double-sided plate inside it.
+    let mut box_ = closed_box(2.0, 0.5);
+    let v = Vec3::new;
+    rect(
+        &mut box_.triangles,
+        [
+            v(0.5, 0.4, 0.5),
+            v(1.4, 1.3, 0.5),
+            v(1.4, 1.3, 1.5),
+            v(0.5, 0.4, 1.5),
+        ],
+        v(1.0, -1.0, 0.0),
+        true,
+    );
+    let sided: f64 = box_
+        .triangles
+        .iter()
+        .map(|t| t.area() as f64 * if t.double_sided { 2.0 } else { 1.0 })
+        .sum();
+    for size in [0.13f32, 0.25, 0.6] {
+        let vox = cluster_at(&box_, size).unwrap();
+        let pieces = vox.pieces.as_ref().unwrap();
+        assert_eq!(pieces.patch_count(), vox.layout.len());
+        let assigned: f64 = vox
+            .layout
+            .patches
+            .iter()
+            .map(|p| p.source_area as f64)
+            .sum();
+        assert!(
+            ((assigned + vox.unassigned_area) / sided - 1.0).abs() < 1e-5,
+            "size {size}: {assigned} + {} of {sided}",
+            vox.unassigned_area
+        );
+        assert!(vox.unassigned_area < sided * 1e-5);
+        assert!((vox.total_area / sided - 1.0).abs() < 1e-6);
+        for (i, p) in vox.layout.patches.iter().enumerate() {
+            let mine = pieces.of(i);
+            assert!(!mine.is_empty());
+            let area: f64 = mine.iter().map(|t| t.area as f64).sum();
+            assert!((area / p.source_area as f64 - 1.0).abs() < 1e-4);
+            for t in mine {
+                // Each piece faces the patch's direction most, and lies in the patch's voxel.
+                assert_eq!(dominant_face(t.normal), p.face);
+                let lo =
+                    Vec3::from(vox.layout.origin) + Vec3::from(p.voxel.map(|c| c as f32)) * size;
+                for c in t.corners {
+                    let inside = (c - lo).cmpge(Vec3::splat(-1e-4)).all()
+                        && (c - lo - Vec3::splat(size)).cmple(Vec3::splat(1e-4)).all();
+                    assert!(inside, "corner {c} outside voxel at {lo}");
+                }
+            }
+        }
+        // The plate's two sides are patches of their own: its front faces +X or −Y, its back −X
+        // or +Y (45°: the tie goes to X).
+        let sides = |face: Face| {
+            vox.layout
+                .patches
+                .iter()
+                .filter(|p| p.face == face && p.voxel[0] > 0 && p.normal[1].abs() > 0.5)
+                .count()
+        };
+        assert!(
+            sides(Face::PosX) > 0 && sides(Face::NegX) > 0,
+            "size {size}"
+        );
+    }
+}
+
+/// The floor and ceiling of a box with a wall down its middle that is far thinner than a voxel:
+/// two single-sided faces back to back, 0.02 apart, with voxels of 0.3.
+fn two_rooms() -> Scene {
+    let mut tris = closed_box(3.0, 0.5).triangles;
+    let v = Vec3::new;
+    for (x, n) in [(1.49f32, Vec3::NEG_X), (1.51, Vec3::X)] {
+        rect(
+            &mut tris,
+            [
+                v(x, 0.0, 0.0),
+                v(x, 3.0, 0.0),
+                v(x, 3.0, 3.0),
+                v(x, 0.0, 3.0),
+            ],
+            n,
+            false,
+        );
+    }
+    scene(tris)
+}
+
+#[test]
+fn a_wall_thinner_than_a_voxel_keeps_both_sides_and_lets_nothing_through() {
+    let scene = two_rooms();
+    let vox = cluster_at(&scene, 0.3).unwrap();
+    // Both faces of the wall are patches, though they share voxels.
+    let wall = |face: Face| {
+        vox.layout
+            .patches
+            .iter()
+            .filter(|p| p.face == face && (p.centroid[0] - 1.5).abs() < 0.1)
+            .count()
+    };
+    assert!(wall(Face::PosX) >= 90 && wall(Face::NegX) >= 90);
+    let rays = surface_scene(&scene, &vox);
+    let (f, tally) = form_factors(&rays, 256, 3, &no_progress).unwrap();
+    // Closed rooms: nothing escapes or meets unowned surface. Back faces are met only from the
+    // strips of floor and ceiling inside the wall (between its two faces).
+    assert_eq!(tally.escaped + tally.occluder, 0, "{tally:?}");
+    assert!(tally.back_face * 100 < tally.total(), "{tally:?}");
+    // Which room each patch's pieces lie in: the floor and ceiling patches of the voxels the
+    // wall runs through hold pieces of both rooms (a patch is a voxel's worth of surface facing
+    // one way), and are left out of the checks.
+    let pieces = vox.pieces.as_ref().unwrap();
+    let room = |i: usize| {
+        let xs = pieces.of(i).iter().flat_map(|t| t.corners.map(|c| c.x));
+        let (lo, hi) = xs.fold((f32::MAX, f32::MIN), |(l, h), x| (l.min(x), h.max(x)));
+        if hi <= 1.49 + 1e-4 {
+            Some(true)
+        } else if lo >= 1.51 - 1e-4 {
+            Some(false)
+        } else {
+            None
+        }
+    };
+    let n = vox.layout.len();
+    let straddling = (0..n).filter(|&i| room(i).is_none()).count();
+    // One column of voxels across floor, ceiling, front and back: a tenth of the patches.
+    assert!(
+        straddling <= n / 10,
+        "{straddling} of {n} patches straddle the wall"
+    );
+    let mut across = 0.0f64;
+    for i in 0..n {
+        for j in 0..n {
+            if let (Some(a), Some(b)) = (room(i), room(j))
+                && a != b
+            {
+                across += f.channel(0)[i * n + j] as f64;
+            }
+        }
+    }
+    assert_eq!(across, 0.0, "form factors cross the wall");
+    let left = |i: usize| room(i) == Some(true);
+    // A point light in the left room lights nothing in the right one.
+    let data = SurfaceData {
+        triangles: occluder_triangles_of(&scene_mesh(&scene)),
+        per_patch: 16,
+        points: sample_points(vox.pieces.as_ref().unwrap(), 16, 1),
+    };
+    let light = LightSet {
+        lights: vec![Light::Point {
+            position: [0.75, 1.5, 1.5],
+            color: [1.0; 3],
+            intensity: 10.0,
+            range: None,
+            name: None,
+        }],
+    };
+    let e = direct_irradiance(&ShadowScene::surface(&data), &vox.layout, &light, 16);
+    for (i, e) in e.iter().enumerate() {
+        if left(i) {
+            assert!(e[0] > 0.0, "left patch {i} unlit");
+        } else if room(i) == Some(false) {
+            assert_eq!(e[0], 0.0, "right patch {i} lit through the wall");
+        }
+    }
+}
+
+#[test]
+fn closed_box_rows_sum_to_one_and_are_reciprocal() {
+    let scene = closed_box(1.0, 0.5);
+    let vox = cluster_at(&scene, 0.26).unwrap();
+    let rays = surface_scene(&scene, &vox);
+    assert_eq!(rays.patch_count(), vox.layout.len());
+    let (f, tally) = form_factors(&rays, 4096, 5, &no_progress).unwrap();
+    // Möller–Trumbore is not watertight: a ray through a shared edge or corner of two
+    // triangles may slip between them (measured: 1 of 743,424 here).
+    assert!(tally.patch * 100_000 >= tally.total() * 99_999, "{tally:?}");
+    let st = stats(&f, &vox.layout.areas(Geometry::Surface));
+    assert!(
+        st.row_sum_min > 0.999999 && st.row_sum_max < 1.000001,
+        "{st:?}"
+    );
+    // About 40 hits an entry: reciprocity holds to the noise of that.
+    assert!(st.reciprocity_error < 0.1, "{st:?}");
+    assert!(isolated_patches(&rays, 16, 1).iter().all(|&x| !x));
+}
+
+/// `F` from the patches of one surface to those of another, area-weighted: what the catalogue
+/// gives for the two surfaces whole.
+fn surface_to_surface(scene: &Scene, size: f32, rays: u32, from: Face, to: Face) -> f64 {
+    let vox = cluster_at(scene, size).unwrap();
+    let tracer = surface_scene(scene, &vox);
+    let (f, _) = form_factors(&tracer, rays, 9, &no_progress).unwrap();
+    let n = vox.layout.len();
+    let p = &vox.layout.patches;
+    let (mut num, mut den) = (0.0f64, 0.0f64);
+    for i in (0..n).filter(|&i| p[i].face == from) {
+        let a = p[i].source_area as f64;
+        den += a;
+        for j in (0..n).filter(|&j| p[j].face == to) {
+            num += a * f.channel(0)[i * n + j] as f64;
+        }
+    }
+    num / den
+}
+
+#[test]
+fn catalogue_form_factors_between_real_surfaces() {
+    let v = Vec3::new;
+    // Parallel unit squares one apart; the 1 × 1.5 rectangles 0.5 apart; perpendicular squares
+    // sharing an edge. Voxel sizes that cut them at odd places.
+    let mut parallel = Vec::new();
+    rect(
+        &mut parallel,
+        [v(0., 0., 0.), v(1., 0., 0.), v(1., 0., 1.), v(0., 0., 1.)],
+        Vec3::Y,
+        false,
+    );
+    rect(
+        &mut parallel,
+        [v(0., 1., 0.), v(1., 1., 0.), v(1., 1., 1.), v(0., 1., 1.)],
+        Vec3::NEG_Y,
+        false,
+    );
+    let mut rects = Vec::new();
+    rect(
+        &mut rects,
+        [v(0., 0., 0.), v(1., 0., 0.), v(1., 0., 1.5), v(0., 0., 1.5)],
+        Vec3::Y,
+        false,
+    );
+    rect(
+        &mut rects,
+        [
+            v(0., 0.5, 0.),
+            v(1., 0.5, 0.),
+            v(1., 0.5, 1.5),
+            v(0., 0.5, 1.5),
+        ],
+        Vec3::NEG_Y,
+        false,
+    );
+    let mut perpendicular = Vec::new();
+    rect(
+        &mut perpendicular,
+        [v(0., 0., 0.), v(1., 0., 0.), v(1., 0., 1.), v(0., 0., 1.)],
+        Vec3::Y,
+        false,
+    );
+    rect(
+        &mut perpendicular,
+        [v(0., 0., 0.), v(0., 1., 0.), v(0., 1., 1.), v(0., 0., 1.)],
+        Vec3::X,
+        false,
+    );
+    let cases = [
+        ("parallel unit squares", scene(parallel), Face::NegY, 0.1998),
+        (
+            "1 × 1.5 rectangles 0.5 apart",
+            scene(rects),
+            Face::NegY,
+            0.4756,
+        ),
+        (
+            "perpendicular unit squares",
+            scene(perpendicular),
+            Face::PosX,
+            0.2000,
+        ),
+    ];
+    for (name, s, to, want) in cases {
+        for size in [0.23f32, 0.4] {
+            let got = surface_to_surface(&s, size, 8192, Face::PosY, to);
+            assert!(
+                (got / want - 1.0).abs() < 0.01,
+                "{name} at voxel {size}: {got:.4}, want {want}"
+            );
+        }
+    }
+}
+
+#[test]
+fn the_back_of_a_single_sided_surface_blocks_and_reflects_nothing() {
+    // A floor facing up, and above it a single-sided panel facing up too: the floor sees only its
+    // back, which carries nothing; made double-sided, its underside is a patch the floor reaches.
+    let v = Vec3::new;
+    for double_sided in [false, true] {
+        let mut tris = Vec::new();
+        rect(
+            &mut tris,
+            [v(0., 0., 0.), v(1., 0., 0.), v(1., 0., 1.), v(0., 0., 1.)],
+            Vec3::Y,
+            false,
+        );
+        rect(
+            &mut tris,
+            [
+                v(-5., 0.5, -5.),
+                v(6., 0.5, -5.),
+                v(6., 0.5, 6.),
+                v(-5., 0.5, 6.),
+            ],
+            Vec3::Y,
+            double_sided,
+        );
+        let s = scene(tris);
+        let vox = cluster_at(&s, 0.37).unwrap();
+        let tracer = surface_scene(&s, &vox);
+        let floor: Vec<usize> = (0..vox.layout.len())
+            .filter(|&i| vox.layout.patches[i].centroid[1] < 0.25)
+            .collect();
+        let mut tally_sum = bounce_core::rays::RayTally::default();
+        for &i in &floor {
+            let mut counts = vec![0u32; vox.layout.len()];
+            tally_sum = tally_sum + tracer.trace_row(i, 512, 1, &mut counts);
+        }
+        if double_sided {
+            assert_eq!(tally_sum.back_face, 0);
+            assert!(
+                tally_sum.patch as f64 > 0.95 * tally_sum.total() as f64,
+                "{tally_sum:?}"
+            );
+        } else {
+            assert_eq!(tally_sum.patch, 0, "{tally_sum:?}");
+            assert!(tally_sum.back_face as f64 > 0.95 * tally_sum.total() as f64);
+        }
+    }
+}
