@@ -1,7 +1,8 @@
 //! `bounce bench tradeoff`: run time against error across patch counts, ray counts and codecs,
 //! each error measured against the path-traced reference (averaged over each patch's footprint,
 //! as `bounce verify` does by default), so a setting can be chosen by what it costs and what it
-//! gets wrong.
+//! gets wrong. Both geometries (surface patches and the thesis' voxel faces) run in one
+//! invocation, so the chart shows what the surface method gains at what cost.
 
 use std::fmt::Write as _;
 use std::path::PathBuf;
@@ -14,7 +15,7 @@ use bounce_core::format::Baked;
 use bounce_core::import::import_path;
 use bounce_core::matrix::{DENSE_F32, EncodedMatrix};
 use bounce_core::meta::Bounces;
-use bounce_core::voxel::Resolution;
+use bounce_core::voxel::{Geometry, Resolution};
 use bounce_engine::{Engine, EngineChoice};
 use bounce_reference::{Options, Reference};
 use clap::Args;
@@ -43,6 +44,9 @@ pub struct BenchTradeoffArgs {
         default_value = "dense-f32,dense-f16,bc1,bc1-resid"
     )]
     pub codecs: Vec<String>,
+    /// Patch geometries, comma separated: `surface` and/or `voxel-faces`.
+    #[arg(long, value_delimiter = ',', default_value = "surface,voxel-faces")]
+    pub geometries: Vec<Geometry>,
     #[arg(long, default_value = "3")]
     pub bounces: Bounces,
     /// Reference sample paths per patch.
@@ -63,6 +67,7 @@ pub struct BenchTradeoffArgs {
 }
 
 struct Row {
+    geometry: Geometry,
     patches: usize,
     rays: u32,
     codec: String,
@@ -89,71 +94,76 @@ pub fn run(args: &BenchTradeoffArgs) -> Result<()> {
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default();
     let mut rows = Vec::new();
-    for &target in &args.patches {
-        // The layout does not depend on the ray count (isolated patches are found with a fixed
-        // probe), so one reference serves every ray count of a patch count; checked below.
-        let mut traced: Option<(bounce_core::patch::PatchLayout, Vec<[f64; 3]>, f64)> = None;
-        for &rays in &args.rays {
-            let options = BakeOptions {
-                resolution: Resolution::TargetPatches(target),
-                rays,
-                bounces: args.bounces,
-                codec: CodecRequest::Named(DENSE_F32.to_string()),
-                ..BakeOptions::default()
-            };
-            let start = Instant::now();
-            let exact = bake_scene(&scene, &name, &options, &NoProgress)?;
-            let bake_s = start.elapsed().as_secs_f64();
-            if !matches!(&traced, Some((layout, ..)) if *layout == exact.layout) {
-                let options = Options {
-                    spp: args.spp,
+    for &geometry in &args.geometries {
+        for &target in &args.patches {
+            // The layout does not depend on the ray count (isolated patches are found with a fixed
+            // probe), so one reference serves every ray count of a patch count; checked below.
+            let mut traced: Option<(bounce_core::patch::PatchLayout, Vec<[f64; 3]>, f64)> = None;
+            for &rays in &args.rays {
+                let options = BakeOptions {
+                    resolution: Resolution::TargetPatches(target),
+                    rays,
                     bounces: args.bounces,
-                    seed: 1,
+                    geometry,
+                    codec: CodecRequest::Named(DENSE_F32.to_string()),
+                    ..BakeOptions::default()
                 };
-                let t = trace_footprints(&reference, &lights, &exact.layout, 16, &options, false)?;
-                let values = t.estimates.iter().map(|e| e.mean).collect();
-                traced = Some((exact.layout.clone(), values, t.rel_stderr()));
-            }
-            let Some((_, reference_e, stderr)) = &traced else {
-                unreachable!("set just above")
-            };
-            let dense = codec::decode(&exact.transport)?.to_dense();
-            let (exact_e, _) = relight(&engine, &exact, &lights, 1)?;
-            for name in &args.codecs {
                 let start = Instant::now();
-                let encoded = if name == DENSE_F32 {
-                    EncodedMatrix::encode_dense_f32(&dense)
-                } else {
-                    codec::configured(name, None)?.encode(&dense)?
+                let exact = bake_scene(&scene, &name, &options, &NoProgress)?;
+                let bake_s = start.elapsed().as_secs_f64();
+                if !matches!(&traced, Some((layout, ..)) if *layout == exact.layout) {
+                    let options = Options {
+                        spp: args.spp,
+                        bounces: args.bounces,
+                        seed: 1,
+                    };
+                    let t =
+                        trace_footprints(&reference, &lights, &exact.layout, 16, &options, false)?;
+                    let values = t.estimates.iter().map(|e| e.mean).collect();
+                    traced = Some((exact.layout.clone(), values, t.rel_stderr()));
+                }
+                let Some((_, reference_e, stderr)) = &traced else {
+                    unreachable!("set just above")
                 };
-                let encode_s = start.elapsed().as_secs_f64();
-                let bytes = encoded.payload.len();
-                let variant = Baked {
-                    transport: encoded,
-                    ..exact.clone()
-                };
-                let (e, relight_ms) = relight(&engine, &variant, &lights, args.repeat)?;
-                let row = Row {
-                    patches: exact.layout.len(),
-                    rays,
-                    codec: name.clone(),
-                    bake_s,
-                    encode_s,
-                    bytes,
-                    relight_ms,
-                    codec_rel_l2: rel_l2(&e, &exact_e),
-                    method_rel_l2: rel_l2(&exact_e, reference_e),
-                    total_rel_l2: rel_l2(&e, reference_e),
-                    reference_rel_stderr: *stderr,
-                };
-                eprintln!(
-                    "{} patches, {} rays, {}: total error {:.2}%",
-                    row.patches,
-                    rays,
-                    name,
-                    row.total_rel_l2 * 100.0
-                );
-                rows.push(row);
+                let dense = codec::decode(&exact.transport)?.to_dense();
+                let (exact_e, _) = relight(&engine, &exact, &lights, 1)?;
+                for name in &args.codecs {
+                    let start = Instant::now();
+                    let encoded = if name == DENSE_F32 {
+                        EncodedMatrix::encode_dense_f32(&dense)
+                    } else {
+                        codec::configured(name, None)?.encode(&dense)?
+                    };
+                    let encode_s = start.elapsed().as_secs_f64();
+                    let bytes = encoded.payload.len();
+                    let variant = Baked {
+                        transport: encoded,
+                        ..exact.clone()
+                    };
+                    let (e, relight_ms) = relight(&engine, &variant, &lights, args.repeat)?;
+                    let row = Row {
+                        geometry,
+                        patches: exact.layout.len(),
+                        rays,
+                        codec: name.clone(),
+                        bake_s,
+                        encode_s,
+                        bytes,
+                        relight_ms,
+                        codec_rel_l2: rel_l2(&e, &exact_e),
+                        method_rel_l2: rel_l2(&exact_e, reference_e),
+                        total_rel_l2: rel_l2(&e, reference_e),
+                        reference_rel_stderr: *stderr,
+                    };
+                    eprintln!(
+                        "{geometry}, {} patches, {} rays, {}: total error {:.2}%",
+                        row.patches,
+                        rays,
+                        name,
+                        row.total_rel_l2 * 100.0
+                    );
+                    rows.push(row);
+                }
             }
         }
     }
@@ -167,7 +177,7 @@ pub fn run(args: &BenchTradeoffArgs) -> Result<()> {
             .iter()
             .map(|r| Point {
                 label: format!("{}p/{}r", r.patches, r.rays),
-                series: r.codec.clone(),
+                series: format!("{} {}", r.geometry, r.codec),
                 x: [r.bake_s + r.encode_s, r.relight_ms],
                 rel_l2: r.total_rel_l2,
             })
@@ -205,7 +215,8 @@ fn relight(
     Ok((widen(&last), times[times.len() / 2]))
 }
 
-const HEADER: [&str; 11] = [
+const HEADER: [&str; 12] = [
+    "geometry",
     "patches",
     "rays",
     "codec",
@@ -219,8 +230,9 @@ const HEADER: [&str; 11] = [
     "reference_rel_stderr",
 ];
 
-fn fields(r: &Row) -> [String; 11] {
+fn fields(r: &Row) -> [String; 12] {
     [
+        r.geometry.to_string(),
         r.patches.to_string(),
         r.rays.to_string(),
         r.codec.clone(),

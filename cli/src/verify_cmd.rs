@@ -66,6 +66,8 @@ const FLOOR: f64 = 0.05;
 #[derive(Debug, Serialize)]
 pub(crate) struct Report {
     pub patches: usize,
+    /// What the patches stand for: `surface` or `voxel-faces`.
+    pub geometry: String,
     pub codec: String,
     pub spp: u32,
     pub bounces: String,
@@ -86,6 +88,10 @@ pub(crate) struct Report {
     pub method_rel_l2_without_noise: f64,
     /// `‖stderr‖ / ‖reference‖`.
     pub reference_rel_stderr: f64,
+    /// Light where there should be almost none: the share of the summed `E_ind` (exact `T`, all
+    /// channels) that falls on patches whose reference is below a tenth of the median
+    /// reference. Light crossing walls shows here.
+    pub leak_share: f64,
     /// Largest per-patch error of the compressed `T` against the reference, relative to the
     /// patch's reference value (floored at 5% of the RMS value).
     pub worst_patch_rel: f64,
@@ -190,6 +196,7 @@ pub fn run(args: &VerifyArgs) -> Result<()> {
         &reference_e,
         traced.rel_stderr(),
         Meta {
+            geometry: baked.meta.settings.geometry.to_string(),
             codec: baked.transport.codec.clone(),
             spp: args.spp,
             bounces: baked.meta.settings.bounces.to_string(),
@@ -279,6 +286,7 @@ fn exact_transport(
 }
 
 pub(crate) struct Meta {
+    pub geometry: String,
     pub codec: String,
     pub spp: u32,
     pub bounces: String,
@@ -346,6 +354,7 @@ pub(crate) fn compare(
     }
     Report {
         patches: reference.len(),
+        geometry: meta.geometry,
         codec: meta.codec,
         spp: meta.spp,
         bounces: meta.bounces,
@@ -359,6 +368,7 @@ pub(crate) fn compare(
             .max(0.0)
             .sqrt(),
         reference_rel_stderr,
+        leak_share: leak_share(&exact, reference),
         worst_patch_rel: worst,
         worst_patch,
         patch_rel_p50: q(0.5),
@@ -372,11 +382,36 @@ pub(crate) fn compare(
     }
 }
 
+/// See [`Report::leak_share`].
+pub(crate) fn leak_share(pipeline: &[[f64; 3]], reference: &[[f64; 3]]) -> f64 {
+    let sum = |c: &[f64; 3]| c[0] + c[1] + c[2];
+    let mut refs: Vec<f64> = reference.iter().map(sum).collect();
+    refs.sort_by(f64::total_cmp);
+    let Some(&median) = refs.get(refs.len() / 2) else {
+        return 0.0;
+    };
+    let total: f64 = pipeline.iter().map(sum).sum();
+    let dark: f64 = pipeline
+        .iter()
+        .zip(reference)
+        .filter(|(_, r)| sum(r) < 0.1 * median)
+        .map(|(p, _)| sum(p))
+        .sum();
+    if total > 0.0 { dark / total } else { 0.0 }
+}
+
 fn print_table(r: &Report) {
     let pct = |v: f64| format!("{:.2}%", v * 100.0);
     println!(
-        "{} patches, codec {}, {} bounces; reference {} spp in {:.1} s ({}); exact T: {}",
-        r.patches, r.codec, r.bounces, r.spp, r.reference_seconds, r.reference_points, r.exact_from
+        "{} patches ({}), codec {}, {} bounces; reference {} spp in {:.1} s ({}); exact T: {}",
+        r.patches,
+        r.geometry,
+        r.codec,
+        r.bounces,
+        r.spp,
+        r.reference_seconds,
+        r.reference_points,
+        r.exact_from
     );
     println!("| error (relative L2 of E_ind) | value |");
     println!("|---|---:|");
@@ -389,11 +424,11 @@ fn print_table(r: &Report) {
         pct(r.method_rel_l2)
     );
     println!(
-        "| · of which lighting voxel patches, not the surfaces | {} |",
+        "| · of which direct light at the patches' samples, not the reference's | {} |",
         pct(r.direct_at_patches_rel_l2)
     );
     println!(
-        "| · of which transport (voxels, form-factor noise) | {} |",
+        "| · of which transport (geometry, form-factor noise) | {} |",
         pct(r.transport_rel_l2)
     );
     println!(
@@ -407,6 +442,10 @@ fn print_table(r: &Report) {
     println!(
         "| reference's own standard error | {} |",
         pct(r.reference_rel_stderr)
+    );
+    println!(
+        "| leak: share of E_ind on patches the reference leaves under a tenth of its median | {} |",
+        pct(r.leak_share)
     );
     println!(
         "per patch (total, relative to the patch's reference): p50 {}, p90 {}, p99 {}, worst {} (patch {})",
@@ -434,6 +473,7 @@ mod tests {
 
     fn meta() -> Meta {
         Meta {
+            geometry: "surface".into(),
             codec: "bc1".into(),
             spp: 4,
             bounces: "3".into(),
@@ -459,6 +499,11 @@ mod tests {
         assert!((r.worst_patch_rel - dark.max(first)).abs() < 1e-6);
         assert_eq!(r.histogram.iter().sum::<usize>(), 3);
         assert_eq!(r.histogram[0], 1, "the exact patch");
+        // The dark patch (reference 0, below a tenth of the median sum 3) gets nothing from the
+        // exact T, and 0.03 of 9.33 from the compressed one.
+        assert_eq!(r.leak_share, 0.0);
+        let leak = leak_share(&widen(&compressed), &reference);
+        assert!((leak - 0.03 / 9.33).abs() < 1e-9, "{leak}");
         // Noise removal never goes below zero.
         let noisy = compare(&compressed, &exact, &exact, &reference, 1.0, meta());
         assert_eq!(noisy.method_rel_l2_without_noise, 0.0);

@@ -24,7 +24,7 @@ use obvhs::{Boundable, BvhBuildParams};
 /// One triangle as the tracer reads it: a corner and two edges. `#[repr(C)]` and 48 bytes, the
 /// layout `direct_surface.wgsl`'s `Tri` has (checked by a naga test in the engine).
 #[repr(C)]
-#[derive(Debug, Clone, Copy, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct MeshTri {
     pub p0: [f32; 3],
     /// The triangle's index in the list the mesh was built from.
@@ -40,7 +40,7 @@ pub struct MeshTri {
 /// an inner node when `prim_count` is 0, with children at `first_index` and `first_index + 1`,
 /// else a leaf over triangles `first_index..first_index + prim_count`.
 #[repr(C)]
-#[derive(Debug, Clone, Copy, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct MeshNode {
     pub min: [f32; 3],
     pub prim_count: u32,

@@ -101,6 +101,8 @@ fn sample_meta() -> BakeMeta {
             sparse_share: Some(0.04),
             max_error: Some(0.02),
             patch_order: bounce_core::voxel::PatchOrder::Morton,
+            geometry: bounce_core::voxel::Geometry::VoxelFaces,
+            direct_samples: 0,
         },
         stats: BakeStats {
             patches: 5,
@@ -122,6 +124,8 @@ fn sample_meta() -> BakeMeta {
             channels: 3,
             matrix_bytes: 300,
             codec_eind_rel_l2: 1.5e-3,
+            surface_area: 12.5,
+            unassigned_area: 0.25,
         },
         timings: vec![StageTiming {
             stage: "form factors".into(),
@@ -183,6 +187,7 @@ fn sample(channels: usize, with_form_factors: bool) -> Baked {
         transport: EncodedMatrix::encode_dense_f32(&dense(n, channels, 1.0)),
         form_factors: with_form_factors.then(|| EncodedMatrix::encode_dense_f32(&dense(n, 1, 2.0))),
         occupancy: Some(SAMPLE_OCCUPANCY.to_vec()),
+        surface: None,
         model: None,
     }
 }
@@ -385,7 +390,7 @@ fn layout_on_disk_matches_the_documentation() {
     let baked = sample(3, true);
     let b = baked.to_bytes().unwrap();
     assert_eq!(&b[..8], b"BOUNCE\0B");
-    assert_eq!(get_u32(&b, 8), 1);
+    assert_eq!(get_u32(&b, 8), 2);
     assert_eq!(get_u32(&b, 12), 5);
     assert_eq!(get_u64(&b, 16), b.len() as u64);
     let kinds: Vec<&[u8]> = (0..5).map(|i| &b[entry_at(i)..entry_at(i) + 4]).collect();
@@ -640,15 +645,96 @@ fn future_version() {
             err,
             FormatError::UnsupportedVersion {
                 found: 7,
-                supported: 1
+                oldest: 1,
+                supported: 2
             }
         ),
         "{err:?}"
     );
     assert_eq!(
         err.to_string(),
-        "unsupported format version 7 (this build reads 1)"
+        "unsupported format version 7 (this build reads versions 1 to 2); bake the scene again \
+         with this bounce"
     );
+}
+
+/// The sample as a surface bake: its `SURF` section with two triangles and two sample points a
+/// patch.
+fn surface_sample() -> Baked {
+    let mut b = sample(3, false);
+    b.meta.settings.geometry = bounce_core::voxel::Geometry::Surface;
+    b.meta.settings.direct_samples = 2;
+    b.occupancy = None;
+    b.surface = Some(bounce_core::surface::SurfaceData {
+        triangles: vec![
+            [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
+            [[0.0, 0.0, 1.0], [1.0, 0.0, 1.0], [0.0, 1.0, 1.0]],
+        ],
+        per_patch: 2,
+        points: (0..10)
+            .map(|k| bounce_core::surface::SamplePoint {
+                position: [k as f32 * 0.1, 0.5, 0.25],
+                normal: [0.0, 0.0, 1.0],
+            })
+            .collect(),
+    });
+    b
+}
+
+#[test]
+fn surface_geometry_round_trips_and_is_checked() {
+    let b = surface_sample();
+    let bytes = b.to_bytes().expect("a surface sample encodes");
+    assert_eq!(get_u32(&bytes, 8), 2, "written as version 2");
+    assert_eq!(Baked::from_bytes(&bytes).unwrap(), b);
+    // A surface bake without its section, or a voxel-face bake with one, is refused both ways.
+    let mut missing = b.clone();
+    missing.surface = None;
+    assert!(matches!(
+        missing.to_bytes(),
+        Err(FormatError::MissingSection { .. })
+    ));
+    let mut extra = sample(3, false);
+    extra.surface = b.surface.clone();
+    assert!(matches!(extra.to_bytes(), Err(FormatError::Surface(_))));
+    // Counts that do not fit the layout, and non-unit normals, are refused.
+    let mut short = b.clone();
+    if let Some(s) = &mut short.surface {
+        s.points.pop();
+    }
+    assert!(matches!(short.to_bytes(), Err(FormatError::Surface(_))));
+    let mut tilted = b.clone();
+    if let Some(s) = &mut tilted.surface {
+        s.points[3].normal = [0.0, 0.0, 2.0];
+    }
+    assert!(matches!(tilted.to_bytes(), Err(FormatError::Surface(_))));
+    // Every truncation of the file is refused without a panic.
+    for cut in (0..bytes.len()).step_by(97) {
+        assert!(Baked::from_bytes(&bytes[..cut]).is_err());
+    }
+}
+
+#[test]
+fn a_version_1_file_is_still_read_as_voxel_faces() {
+    // A voxel-face bake written as version 1 (what bounce wrote before surface patches), its
+    // META without the geometry fields.
+    let mut b = sample_bytes();
+    put_u32(&mut b, 8, 1);
+    reseal(&mut b);
+    let read = Baked::from_bytes(&b).expect("version 1 is read");
+    assert_eq!(
+        read.meta.settings.geometry,
+        bounce_core::voxel::Geometry::VoxelFaces
+    );
+    let json = r#"{"target_patches":500,"requested_voxel_size":null,"rays_per_patch":256,"seed":7,"bounces":"all","tracer":"grid"}"#;
+    let old: BakeSettings = serde_json::from_str(json).expect("old settings parse");
+    assert_eq!(old.geometry, bounce_core::voxel::Geometry::VoxelFaces);
+    assert_eq!(old.direct_samples, 0);
+    // A version-1 file cannot hold surface geometry.
+    let mut s = surface_sample().to_bytes().unwrap();
+    put_u32(&mut s, 8, 1);
+    reseal(&mut s);
+    assert!(matches!(Baked::from_bytes(&s), Err(FormatError::Surface(_))));
 }
 
 #[test]
@@ -1363,6 +1449,7 @@ fn arb_baked() -> impl Strategy<Value = Baked> {
                 transport,
                 form_factors,
                 occupancy,
+                surface: None,
                 model: None,
             })
     })
