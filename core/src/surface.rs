@@ -20,7 +20,7 @@ use crate::formfactor::{RowTracer, row_seed};
 use crate::patch::{Face, PatchLayout};
 use crate::rays::{RayFate, RayTally};
 use crate::scene::Scene;
-use crate::trimesh::{TriMesh, offset_origin};
+use crate::trimesh::{TriMesh, extent_of, offset_origin};
 use crate::voxel::{PieceTri, Pieces, dominant_face};
 
 /// Direct-light sample points per patch a bake stores unless asked otherwise.
@@ -145,6 +145,7 @@ fn cosine_direction(n: Vec3, u1: f32, u2: f32) -> Vec3 {
 /// its piece's normal, pushed off the surface.
 pub fn sample_points(pieces: &Pieces, per_patch: u32, seed: u64) -> Vec<SamplePoint> {
     let cdf = piece_cdf(pieces);
+    let extent = extent_of(pieces.tris.iter().flat_map(|t| &t.corners));
     let mut out = Vec::with_capacity(pieces.patch_count() * per_patch as usize);
     for i in 0..pieces.patch_count() {
         let range = pieces.start[i] as usize..pieces.start[i + 1] as usize;
@@ -154,7 +155,7 @@ pub fn sample_points(pieces: &Pieces, per_patch: u32, seed: u64) -> Vec<SamplePo
             let [u, v, _, _] = sobol_burley::sample_4d(k, SAMPLE_DIMENSION_SET, s);
             let (p, n) = point_on(tris, c, u, v);
             out.push(SamplePoint {
-                position: offset_origin(p, n).to_array(),
+                position: offset_origin(p, n, extent).to_array(),
                 normal: n.to_array(),
             });
         }
@@ -173,6 +174,8 @@ pub struct SurfaceScene {
     origin: Vec3,
     size: f32,
     dims: [u32; 3],
+    /// The scene's size, for [`offset_origin`].
+    extent: f32,
     /// `linear voxel index · 6 + face code` → patch.
     patches: HashMap<u64, u32>,
 }
@@ -211,6 +214,7 @@ impl SurfaceScene {
             origin: Vec3::from(layout.origin),
             size: layout.voxel_size,
             dims,
+            extent: extent_of(scene.triangles.iter().flat_map(|t| &t.positions)),
             patches,
         }
     }
@@ -272,7 +276,7 @@ impl SurfaceScene {
         let range = self.pieces.start[row] as usize..self.pieces.start[row + 1] as usize;
         let [a, b, c, d] = sobol_burley::sample_4d(k, set, seed);
         let (p, n) = point_on(&self.pieces.tris[range.clone()], &self.cdf[range], a, b);
-        (offset_origin(p, n), cosine_direction(n, c, d))
+        (offset_origin(p, n, self.extent), cosine_direction(n, c, d))
     }
 }
 

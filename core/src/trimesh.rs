@@ -11,9 +11,11 @@
 //! was met.
 //!
 //! Rays start on surfaces. Rather than an epsilon in world units (which depends on the scene's
-//! scale), origins are pushed off their surface by [`offset_origin`] (Wächter and Binder, "A Fast
-//! and Robust Method for Avoiding Self-Intersection", Ray Tracing Gems, 2019): a few hundred ulps
-//! of the coordinates along the normal, so the surface the ray leaves is behind it at any scale.
+//! scale), origins are pushed off their surface by [`offset_origin`]: a fixed share of the
+//! coordinates' and the scene's magnitude, so the surface the ray leaves is behind it at any
+//! scale (the idea of Wächter and Binder, "A Fast and Robust Method for Avoiding
+//! Self-Intersection", Ray Tracing Gems, 2019, made relative to the scene's size as well, since
+//! their fixed offset near the origin is a visible distance in a millimetre-sized scene).
 
 use glam::{Vec3, Vec3A};
 use obvhs::aabb::Aabb;
@@ -216,29 +218,22 @@ pub fn intersect(tri: &MeshTri, origin: Vec3, dir: Vec3, t_max: f32) -> Option<f
 }
 
 /// `p`, a point on a surface, pushed off it along unit `n` (the side rays leave by) far enough
-/// that the surface is behind any ray from it: 256 ulps of each coordinate, or 1/65536 of a unit
-/// near the origin where ulps vanish (Ray Tracing Gems, ch. 6).
+/// that the surface is behind any ray from it, at any scale: by `2⁻¹⁷` (about 64 ulps) of the
+/// larger of `p`'s largest coordinate and `extent`, the scene's size. Intersection rounding grows
+/// with both (the coordinates, and the edge lengths a triangle test multiplies), so neither a
+/// scene far from the origin nor one a millimetre wide gets too small or too large a push.
 #[inline]
-pub fn offset_origin(p: Vec3, n: Vec3) -> Vec3 {
-    const ORIGIN: f32 = 1.0 / 32.0;
-    const FLOAT_SCALE: f32 = 1.0 / 65536.0;
-    const INT_SCALE: f32 = 256.0;
-    let mut out = p;
-    for a in 0..3 {
-        out[a] = if p[a].abs() < ORIGIN {
-            p[a] + FLOAT_SCALE * n[a]
-        } else {
-            let of = (INT_SCALE * n[a]) as i32;
-            let bits = p[a].to_bits() as i32;
-            let moved = if p[a] < 0.0 {
-                bits.wrapping_sub(of)
-            } else {
-                bits.wrapping_add(of)
-            };
-            f32::from_bits(moved as u32)
-        };
-    }
-    out
+pub fn offset_origin(p: Vec3, n: Vec3, extent: f32) -> Vec3 {
+    let magnitude = p.abs().max_element().max(extent);
+    p + n * (magnitude * (1.0 / 131_072.0))
+}
+
+/// The size of a set of triangles for [`offset_origin`]: the largest extent of their bounds.
+pub fn extent_of<'a>(corners: impl IntoIterator<Item = &'a Vec3>) -> f32 {
+    let (lo, hi) = corners
+        .into_iter()
+        .fold((Vec3::MAX, Vec3::MIN), |(lo, hi), &c| (lo.min(c), hi.max(c)));
+    (hi - lo).max_element().max(0.0)
 }
 
 #[cfg(test)]
@@ -300,7 +295,7 @@ mod tests {
 
     #[test]
     fn offset_origins_leave_their_surface_at_any_scale() {
-        for scale in [1e-3f32, 1.0, 1e3, 1e5] {
+        for scale in [1e-6f32, 1e-3, 1.0, 1e3, 1e5] {
             // A tilted plate far from the origin; rays leave it at grazing angles.
             let c = Vec3::new(0.37, 0.61, -0.23) * scale * 3.0;
             let (a, b) = (Vec3::new(1.0, 0.2, 0.0), Vec3::new(0.0, 0.3, 1.0));
@@ -317,7 +312,10 @@ mod tests {
                 let p = tri[0] + (tri[1] - tri[0]) * s + (tri[2] - tri[0]) * t;
                 let tangent = (tri[1] - tri[0]).normalize();
                 let dir = (tangent + n * 1e-3 * (1 + k % 7) as f32).normalize();
-                if mesh.occluded(offset_origin(p, n), dir, f32::INFINITY) {
+                let o = offset_origin(p, n, extent_of(&tri));
+                // Pushed off by a hair of the scene's size, never a visible distance.
+                assert!((o - p).length() < scale * 1e-4);
+                if mesh.occluded(o, dir, f32::INFINITY) {
                     blocked += 1;
                 }
             }

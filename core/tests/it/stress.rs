@@ -181,14 +181,13 @@ fn a_single_patch_or_an_open_plate_is_a_clear_error() {
 
 /// Two patches facing each other: `F = [[0, f01], [f10, 0]]`, whose transport has a closed
 /// form, `T_∞ = F (I − ρF)^{-1} = [[ρ f01 f10, f01], [f10, ρ f10 f01]] / (1 − ρ² f01 f10)`,
-/// checked at ρ = 0.999; and `f` itself against the analytic parallel unit squares at unit
-/// distance (0.1998, DESIGN.md §1).
+/// checked at ρ = 0.999; and `f` itself against Howell's parallel squares (C-11): surface
+/// patches are the plates themselves, 0.5 squares 0.75 apart, `F = 0.1107`.
 #[test]
 fn two_patches_match_the_two_by_two_closed_form() {
     let rho = 0.999f32;
     // Plates 0.5 wide, 0.75 apart, voxels of 0.5: the grid (centred, one voxel of margin) puts
-    // each plate in its own voxel, with one empty voxel between their facing sides, so the two
-    // patches are 0.5 squares 0.5 apart.
+    // each plate in its own voxel, so each plate is one patch.
     let mut triangles = square_z(0.0, 0.0, 0.0, 0.5, Vec3::Z, rho);
     triangles.extend(square_z(0.0, 0.0, 0.75, 0.5, -Vec3::Z, rho));
     let scene = Scene {
@@ -202,10 +201,10 @@ fn two_patches_match_the_two_by_two_closed_form() {
     let t = baked.transport.decode().unwrap();
     let (f01, f10) = (f64::from(f.get(0, 0, 1)), f64::from(f.get(0, 1, 0)));
     assert_eq!((f.get(0, 0, 0), f.get(0, 1, 1)), (0.0, 0.0));
-    // 1,024 rays: a standard error of √(0.2·0.8/1024) = 0.0125 per row.
+    // 1,024 rays: a standard error of √(0.11·0.89/1024) = 0.0098 per row.
     for fij in [f01, f10] {
         assert!(
-            (fij - 0.1998).abs() < 0.05,
+            (fij - 0.1107).abs() < 0.04,
             "F = {:?}, patch gap {gap}",
             f.data
         );
@@ -443,9 +442,12 @@ fn the_box_at_a_thousandth_and_ten_thousand_units_gives_the_same_irradiance() {
             sum(&i),
             sum(&i1)
         );
-        // Same seed, same patches: only f32 rounding differs (measured ~1e-7).
+        // Same seed, same patches: only f32 rounding differs. Direct light measured ~1e-7; the
+        // form-factor rays that pass through a triangle edge or corner land on one side or the
+        // other as rounding differs at each scale, which moves E_ind by ~2e-4 (measured 1.7e-4
+        // at 1e-3 units), far below the bake's own noise.
         assert!(ed < 1e-4, "scale {s}: E_direct rel L2 {ed}");
-        assert!(ei < 1e-4, "scale {s}: E_ind rel L2 {ei}");
+        assert!(ei < 1e-3, "scale {s}: E_ind rel L2 {ei}");
     }
 }
 
