@@ -270,6 +270,19 @@ pub fn print_summary(baked: &Baked, out: &Path, file_bytes: u64, total_s: f64) {
         s.occupied_voxels,
         s.dropped_patches
     );
+    if m.settings.geometry == Geometry::Surface {
+        println!(
+            "  surface       {} geometry: {:.4} of {:.4} units² ({:.2}%) belongs to no patch; {} \
+             direct-light samples a patch",
+            m.settings.geometry,
+            s.unassigned_area,
+            s.surface_area,
+            100.0 * s.unassigned_area / s.surface_area.max(f64::MIN_POSITIVE),
+            m.settings.direct_samples
+        );
+    } else {
+        println!("  surface       {} geometry (the thesis' baseline)", m.settings.geometry);
+    }
     let share = |k: u64| 100.0 * k as f64 / s.rays.total().max(1) as f64;
     println!(
         "  rays          {} per patch, {} in all: {:.1}% reach a patch, {:.1}% escape, \

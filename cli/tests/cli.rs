@@ -36,7 +36,9 @@ fn bake_then_inspect_the_cornell_box() {
     assert!(summary.contains("patches"), "{summary}");
 
     let j = inspect_json(&file);
-    assert_eq!(j["format_version"], 1);
+    assert_eq!(j["format_version"], 2);
+    assert_eq!(j["geometry"], "surface", "surface patches are the default");
+    assert_eq!(j["surface_samples"], 16);
     assert_eq!(j["bounces"], 3);
     assert_eq!(j["channels"], 3, "the Cornell box has coloured walls");
     assert_eq!(j["codec"], "dense-f32");

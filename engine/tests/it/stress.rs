@@ -306,7 +306,14 @@ fn the_furnace_at_albedo_0999_stays_finite_on_both_engines() {
         let scene = engine.load(&baked).unwrap();
         let lit = engine.relight(&scene, &sets).unwrap();
         let (_, max_indirect) = check(engine, &sets, &lit);
-        let sum = |v: &[[f32; 3]]| v.iter().map(|x| f64::from(x[0])).sum::<f64>();
+        // Energy balance holds for power, not irradiance: surface patches differ in area.
+        let areas = baked.layout.areas(baked.meta.settings.geometry);
+        let sum = |v: &[[f32; 3]]| {
+            v.iter()
+                .zip(&areas)
+                .map(|(x, a)| f64::from(x[0]) * f64::from(*a))
+                .sum::<f64>()
+        };
         let albedo = f64::from(baked.layout.patches[0].albedo[0].min(0.999));
         let gain = sum(&lit[0].indirect) / sum(&lit[0].direct);
         let want = albedo / (1.0 - albedo);
