@@ -281,7 +281,10 @@ pub fn print_summary(baked: &Baked, out: &Path, file_bytes: u64, total_s: f64) {
             m.settings.direct_samples
         );
     } else {
-        println!("  surface       {} geometry (the thesis' baseline)", m.settings.geometry);
+        println!(
+            "  surface       {} geometry (the thesis' baseline)",
+            m.settings.geometry
+        );
     }
     let share = |k: u64| 100.0 * k as f64 / s.rays.total().max(1) as f64;
     println!(

@@ -232,7 +232,9 @@ pub fn offset_origin(p: Vec3, n: Vec3, extent: f32) -> Vec3 {
 pub fn extent_of<'a>(corners: impl IntoIterator<Item = &'a Vec3>) -> f32 {
     let (lo, hi) = corners
         .into_iter()
-        .fold((Vec3::MAX, Vec3::MIN), |(lo, hi), &c| (lo.min(c), hi.max(c)));
+        .fold((Vec3::MAX, Vec3::MIN), |(lo, hi), &c| {
+            (lo.min(c), hi.max(c))
+        });
     (hi - lo).max_element().max(0.0)
 }
 

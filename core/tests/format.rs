@@ -734,7 +734,10 @@ fn a_version_1_file_is_still_read_as_voxel_faces() {
     let mut s = surface_sample().to_bytes().unwrap();
     put_u32(&mut s, 8, 1);
     reseal(&mut s);
-    assert!(matches!(Baked::from_bytes(&s), Err(FormatError::Surface(_))));
+    assert!(matches!(
+        Baked::from_bytes(&s),
+        Err(FormatError::Surface(_))
+    ));
 }
 
 #[test]

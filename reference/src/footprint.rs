@@ -113,8 +113,7 @@ pub(crate) fn footprints(
                     if let Some(d) = t.intersect(start, along, 0.0, size + 2.0 * slack) {
                         let p = start + along * d;
                         let keep = rng.next_f32() * cos < MIN_DOMINANT_COS;
-                        if keep && p.cmpge(lo).all() && p.cmplt(hi).all() && points.len() < count
-                        {
+                        if keep && p.cmpge(lo).all() && p.cmplt(hi).all() && points.len() < count {
                             points.push(Point {
                                 position: p.to_array(),
                                 normal: n.to_array(),
