@@ -82,9 +82,12 @@ impl TriMesh {
         for (source, ([a, b, c], double_sided)) in triangles.into_iter().enumerate() {
             let (e1, e2) = (b - a, c - a);
             let cross = e1.cross(e2);
-            if !(a.is_finite() && b.is_finite() && c.is_finite())
-                || !(cross.length_squared() > 0.0 && cross.is_finite())
-            {
+            let usable = a.is_finite()
+                && b.is_finite()
+                && c.is_finite()
+                && cross.length_squared() > 0.0
+                && cross.is_finite();
+            if !usable {
                 continue;
             }
             kept.push(MeshTri {
