@@ -2,12 +2,14 @@
 //!
 //! [`GpuContext`] picks an adapter and opens a device; [`GpuMatrix`] uploads one encoded matrix
 //! (`dense-f32`, `dense-f16`, `bc1`, `bc1-resid`, `bc4`, `log8`) and multiplies batches against it, blocking until the
-//! result is read back. [`GpuDirect`] computes direct light with voxel-grid shadows, the twin of
-//! `bounce_core::direct::direct_irradiance`. Kernels live in `gpu/shaders/*.wgsl`.
+//! result is read back. [`GpuDirect`] computes direct light with voxel-grid shadows and
+//! [`GpuSurfaceDirect`] with shadows against the triangles of a surface-geometry bake, both twins
+//! of `bounce_core::direct::direct_irradiance`. Kernels live in `gpu/shaders/*.wgsl`.
 
 mod context;
 mod dense;
 mod direct;
+mod direct_surface;
 mod error;
 mod kernel;
 mod logblock;
@@ -16,6 +18,9 @@ mod sparse;
 
 pub use context::{AdapterSummary, GpuContext};
 pub use direct::{DIRECT_WG, DirectParams, GpuDirect, GpuLight, GpuPatch};
+pub use direct_surface::{
+    GpuSample, GpuSurfaceDirect, RAYS_PER_PIECE, SURFACE_STACK, SURFACE_WG, SurfaceParams,
+};
 pub use error::GpuError;
 pub use kernel::{CHUNK, Params, ROWS};
 pub use matrix::GpuMatrix;
@@ -24,5 +29,6 @@ pub use matrix::GpuMatrix;
 /// layout tests.
 pub mod sources {
     pub use super::direct::direct_source;
+    pub use super::direct_surface::direct_surface_source;
     pub use super::kernel::{dense_source, logblock_source, sparse_source};
 }

@@ -6,10 +6,14 @@
 //! `B0 = L_e + ρ ⊙ E_direct`, then `E_ind = T · B0` for the whole batch in one product, on the GPU
 //! or the CPU. The batch is where a GPU wins: one pass over the matrix serves every light set.
 //!
-//! Direct light runs where its shadows can: the GPU engine computes it with
-//! [`GpuDirect`] (shadow rays walk the voxel occupancy, the twin of `bounce_core::direct`) when the
-//! baked file has occupancy; a file without it (shadows from the patches alone, a BVH the GPU
-//! kernel does not have) is lit on the CPU on either engine. [`Scene::direct_engine`] says which.
+//! Direct light runs where its shadows can. The GPU engine computes it with
+//! [`GpuSurfaceDirect`] for a surface-geometry bake (shadow rays from the stored sample points
+//! through a BVH of the original triangles) and with [`GpuDirect`] for a voxel-face bake with
+//! occupancy (shadow rays walk the voxel grid); both are twins of `bounce_core::direct`. A scene
+//! over a kernel's limits (a binding, the BVH traversal stack) and a file without occupancy or
+//! surface geometry (shadows from the patches alone, a BVH of quads the GPU kernels do not have)
+//! are lit on the CPU on either engine. [`Scene::direct_engine`] says which, and
+//! [`Scene::direct_fallback`] why.
 
 use std::fmt;
 use std::str::FromStr;
@@ -24,7 +28,7 @@ use bounce_core::light::LightSet;
 use bounce_core::patch::PatchLayout;
 
 use crate::EngineError;
-use crate::gpu::{GpuContext, GpuDirect, GpuError, GpuMatrix};
+use crate::gpu::{GpuContext, GpuDirect, GpuError, GpuMatrix, GpuSurfaceDirect};
 
 /// Which engine a user asks for.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -137,27 +141,33 @@ impl Engine {
         self.fallback.as_deref()
     }
 
-    /// Make a baked scene ready: shadow geometry built (CPU) or patches and occupancy uploaded
-    /// (GPU), the transport decoded (CPU) or uploaded (GPU).
+    /// Make a baked scene ready: shadow geometry built (CPU) or uploaded (GPU: the triangles'
+    /// BVH and sample points of a surface bake, else patches and occupancy), the transport
+    /// decoded (CPU) or uploaded (GPU).
     ///
-    /// On the GPU engine a grid too large for the direct kernel's bindings is lit on the CPU
-    /// instead (see [`Scene::direct_fallback`]); any other GPU error is an error.
+    /// On the GPU engine a scene too large for the direct kernel (its bindings, or for surface
+    /// geometry a BVH deeper than its traversal stack) is lit on the CPU instead (see
+    /// [`Scene::direct_fallback`]); any other GPU error is an error.
     pub fn load(&self, baked: &Baked) -> Result<Scene, EngineError> {
         let cpu_direct =
             |why: Option<String>| DirectLight::Cpu(Box::new(ShadowScene::of_baked(baked)), why);
-        let direct = match (&self.gpu, baked.occupancy.as_deref()) {
-            (Some(_), _) if baked.surface.is_some() => cpu_direct(Some(
-                "surface geometry: shadows against the triangles, on the CPU".into(),
-            )),
-            (Some(ctx), Some(occupied)) => match GpuDirect::upload(ctx, &baked.layout, occupied) {
-                Ok(d) => DirectLight::Gpu(Box::new(d)),
+        let direct = match (&self.gpu, &baked.surface, baked.occupancy.as_deref()) {
+            (Some(ctx), Some(surface), _) => match GpuSurfaceDirect::upload(ctx, surface) {
+                Ok(d) => DirectLight::GpuSurface(Box::new(d)),
                 Err(e @ GpuError::TooLarge { .. }) => cpu_direct(Some(e.to_string())),
                 Err(e) => return Err(e.into()),
             },
-            (Some(_), None) => cpu_direct(Some(
+            (Some(ctx), None, Some(occupied)) => {
+                match GpuDirect::upload(ctx, &baked.layout, occupied) {
+                    Ok(d) => DirectLight::Gpu(Box::new(d)),
+                    Err(e @ GpuError::TooLarge { .. }) => cpu_direct(Some(e.to_string())),
+                    Err(e) => return Err(e.into()),
+                }
+            }
+            (Some(_), None, None) => cpu_direct(Some(
                 "no occupancy in the baked file: shadows from the patches alone, on the CPU".into(),
             )),
-            (None, _) => cpu_direct(None),
+            (None, ..) => cpu_direct(None),
         };
         let shadow_source = if baked.surface.is_some() {
             ShadowSource::Triangles
@@ -203,6 +213,7 @@ impl Engine {
         let start = Instant::now();
         let direct: Vec<Vec<[f32; 3]>> = match &scene.direct {
             DirectLight::Gpu(gpu) => gpu.irradiance(lights, self.samples)?,
+            DirectLight::GpuSurface(gpu) => gpu.irradiance(lights, self.samples)?,
             DirectLight::Cpu(shadow, _) => lights
                 .iter()
                 .map(|set| direct_irradiance(shadow, &scene.layout, set, self.samples))
@@ -299,16 +310,18 @@ impl Scene {
         self.matrix_bytes
     }
 
-    /// Whether shadows come from the voxel occupancy or, for old files, the patches alone.
+    /// Whether shadows come from the triangles (surface geometry), the voxel occupancy or, for
+    /// old files, the patches alone.
     pub fn shadow_source(&self) -> ShadowSource {
         self.shadow_source
     }
 
-    /// Where direct light is computed: the GPU kernel (voxel occupancy on a GPU engine) or the
-    /// CPU (the CPU engine, a file without occupancy, or a grid over the kernel's limits).
+    /// Where direct light is computed: a GPU kernel (surface geometry or voxel occupancy on a
+    /// GPU engine) or the CPU (the CPU engine, a file with neither, or a scene over a kernel's
+    /// limits).
     pub fn direct_engine(&self) -> EngineKind {
         match self.direct {
-            DirectLight::Gpu(_) => EngineKind::Gpu,
+            DirectLight::Gpu(_) | DirectLight::GpuSurface(_) => EngineKind::Gpu,
             DirectLight::Cpu(..) => EngineKind::Cpu,
         }
     }
@@ -317,7 +330,7 @@ impl Scene {
     pub fn direct_fallback(&self) -> Option<&str> {
         match &self.direct {
             DirectLight::Cpu(_, why) => why.as_deref(),
-            DirectLight::Gpu(_) => None,
+            DirectLight::Gpu(_) | DirectLight::GpuSurface(_) => None,
         }
     }
 
@@ -337,6 +350,9 @@ enum DirectLight {
     Cpu(Box<ShadowScene>, Option<String>),
     /// [`GpuDirect`]: the scene's patches and occupancy resident on the device.
     Gpu(Box<GpuDirect>),
+    /// [`GpuSurfaceDirect`]: the scene's triangles (a BVH) and sample points resident on the
+    /// device.
+    GpuSurface(Box<GpuSurfaceDirect>),
 }
 
 enum Transport {

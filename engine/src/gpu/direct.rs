@@ -93,8 +93,11 @@ impl From<&PreparedLight> for GpuLight {
     }
 }
 
+/// What the direct-light kernels share: the prepared light and `light_sample`.
+pub(super) const LIGHT: &str = include_str!("shaders/light.wgsl");
+
 pub fn direct_source() -> String {
-    include_str!("shaders/direct.wgsl").to_string()
+    [LIGHT, include_str!("shaders/direct.wgsl")].concat()
 }
 
 /// The start voxel of a shadow walk from `patch`, from the CPU walk's own function.

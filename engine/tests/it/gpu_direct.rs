@@ -28,10 +28,10 @@ use glam::Vec3;
 
 use crate::common::context;
 
-const SIZE: f32 = 4.0;
+pub(crate) const SIZE: f32 = 4.0;
 
 /// Two one-sided triangles covering the rectangle `a b c d`, facing `normal`.
-fn rect(out: &mut Vec<Triangle>, corners: [Vec3; 4], normal: Vec3) {
+pub(crate) fn rect(out: &mut Vec<Triangle>, corners: [Vec3; 4], normal: Vec3) {
     let [a, b, c, d] = corners;
     for mut tri in [[a, b, c], [a, c, d]] {
         if (tri[1] - tri[0]).cross(tri[2] - tri[0]).dot(normal) < 0.0 {
@@ -47,7 +47,13 @@ fn rect(out: &mut Vec<Triangle>, corners: [Vec3; 4], normal: Vec3) {
     }
 }
 
-fn horizontal(out: &mut Vec<Triangle>, y: f32, [x0, x1]: [f32; 2], [z0, z1]: [f32; 2], up: bool) {
+pub(crate) fn horizontal(
+    out: &mut Vec<Triangle>,
+    y: f32,
+    [x0, x1]: [f32; 2],
+    [z0, z1]: [f32; 2],
+    up: bool,
+) {
     let n = if up { Vec3::Y } else { Vec3::NEG_Y };
     rect(
         out,
@@ -63,7 +69,7 @@ fn horizontal(out: &mut Vec<Triangle>, y: f32, [x0, x1]: [f32; 2], [z0, z1]: [f3
 
 /// The box `[0, SIZE]³` with inward-facing walls, optionally a square hole `[lo, hi]²` in its
 /// ceiling, and optionally an outward-facing pillar `[lo, hi]` in x and z from the floor to `top`.
-fn room(hole: Option<[f32; 2]>, pillar: Option<([f32; 2], f32)>) -> Scene {
+pub(crate) fn room(hole: Option<[f32; 2]>, pillar: Option<([f32; 2], f32)>) -> Scene {
     let s = SIZE;
     let c = |x: f32, y: f32, z: f32| Vec3::new(x, y, z) * s;
     let mut t = Vec::new();
@@ -129,7 +135,7 @@ fn room(hole: Option<[f32; 2]>, pillar: Option<([f32; 2], f32)>) -> Scene {
 }
 
 /// The voxel size of `core/tests/direct.rs`: walls 3/4 of a voxel inside their voxels.
-const VOXEL: f32 = SIZE / 10.5;
+pub(crate) const VOXEL: f32 = SIZE / 10.5;
 
 fn voxelize(scene: &Scene, size: f32) -> Voxelization {
     voxelize_at(scene, size).expect("the room voxelises")
@@ -152,13 +158,13 @@ fn room_with_pillar() -> Voxelization {
     voxelize(&room(None, Some(([1.4, 2.2], 2.5))), SIZE / 18.5)
 }
 
-fn set(lights: Vec<Light>) -> LightSet {
+pub(crate) fn set(lights: Vec<Light>) -> LightSet {
     let set = LightSet { lights };
     set.validate().expect("test lights are valid");
     set
 }
 
-fn point(position: [f32; 3], intensity: f32, range: Option<f32>) -> Light {
+pub(crate) fn point(position: [f32; 3], intensity: f32, range: Option<f32>) -> Light {
     Light::Point {
         position,
         color: [1.0, 0.5, 0.25],
@@ -168,7 +174,7 @@ fn point(position: [f32; 3], intensity: f32, range: Option<f32>) -> Light {
     }
 }
 
-fn spot(position: [f32; 3], direction: [f32; 3]) -> Light {
+pub(crate) fn spot(position: [f32; 3], direction: [f32; 3]) -> Light {
     Light::Spot {
         position,
         direction,
@@ -181,7 +187,7 @@ fn spot(position: [f32; 3], direction: [f32; 3]) -> Light {
     }
 }
 
-fn sun(direction: [f32; 3]) -> Light {
+pub(crate) fn sun(direction: [f32; 3]) -> Light {
     Light::Directional {
         direction,
         color: [1.0, 0.9, 0.8],
@@ -192,26 +198,31 @@ fn sun(direction: [f32; 3]) -> Light {
 
 /// What a comparison found.
 #[derive(Debug, Default)]
-struct Agreement {
-    patches: usize,
+pub(crate) struct Agreement {
+    pub(crate) patches: usize,
     /// Largest relative difference over the patches within `1e-4`.
-    worst_rel: f32,
+    pub(crate) worst_rel: f32,
     /// Patches beyond `1e-4` (taken as flipped shadow rays).
-    flipped: usize,
-    /// Largest difference of a flipped patch, in units of its unshadowed value / side².
-    worst_flip: f32,
+    pub(crate) flipped: usize,
+    /// Largest difference of a flipped patch, in units of its unshadowed value / samples.
+    pub(crate) worst_flip: f32,
 }
 
 /// Per patch and channel, GPU against CPU with the tolerance of the module doc; `open` is the
-/// unshadowed CPU result (the same lights through an empty grid).
-fn compare(gpu: &[[f32; 3]], cpu: &[[f32; 3]], open: &[[f32; 3]], side: u32) -> Agreement {
+/// unshadowed CPU result (the same lights through an empty grid), `count` the samples per patch.
+pub(crate) fn compare(
+    gpu: &[[f32; 3]],
+    cpu: &[[f32; 3]],
+    open: &[[f32; 3]],
+    count: u32,
+) -> Agreement {
     assert_eq!(gpu.len(), cpu.len());
     let mut a = Agreement {
         patches: cpu.len(),
         ..Agreement::default()
     };
     let floor = cpu.iter().flatten().fold(0.0f32, |m, v| m.max(*v)) * 1e-7;
-    let share = 1.0 / (side * side) as f32;
+    let share = 1.0 / count as f32;
     for (i, ((g, c), o)) in gpu.iter().zip(cpu).zip(open).enumerate() {
         let mut flip = false;
         for ch in 0..3 {
@@ -264,7 +275,7 @@ fn check(
     for (k, s) in sets.iter().enumerate() {
         let want = direct_irradiance(&shadow, layout, s, samples);
         let open = direct_irradiance(&empty, layout, s, samples);
-        let a = compare(&got[k], &want, &open, samples_side(samples));
+        let a = compare(&got[k], &want, &open, samples_side(samples).pow(2));
         eprintln!("{name} set {k} ({samples} samples): {a:?}");
         assert!(
             want.iter().flatten().any(|v| *v > 0.0),
@@ -329,7 +340,7 @@ fn spot_light_matches_the_cpu() {
 }
 
 /// Every kind at once, shadows cast by a pillar at every angle: the case where grazing rays flip.
-fn pillar_sets() -> Vec<LightSet> {
+pub(crate) fn pillar_sets() -> Vec<LightSet> {
     vec![
         set(vec![
             point([0.7, 3.0, 0.8], 12.0, None),
@@ -414,7 +425,7 @@ fn no_sets_no_lights_no_patches_and_a_single_patch() {
         let want = direct_irradiance(&shadow, &single, &lit[0], samples);
         let open = direct_irradiance(&empty_grid, &single, &lit[0], samples);
         assert!(want[0][0] > 0.0);
-        let a = compare(&got[0], &want, &open, samples_side(samples));
+        let a = compare(&got[0], &want, &open, samples_side(samples).pow(2));
         assert_eq!(a.flipped, 0, "{a:?}");
     }
 }

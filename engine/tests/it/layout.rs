@@ -172,3 +172,83 @@ fn direct_structs_match_wgsl() {
 
     assert_eq!(constant(&parse("direct", &source), "WG"), DIRECT_WG);
 }
+
+#[test]
+fn direct_surface_structs_match_wgsl() {
+    use bounce_core::trimesh::{MeshNode, MeshTri};
+    use bounce_engine::gpu::{GpuLight, GpuSample, SURFACE_STACK, SURFACE_WG, SurfaceParams};
+    use std::mem::{offset_of, size_of};
+    let source = sources::direct_surface_source();
+
+    let (size, members) = wgsl_struct("direct_surface", &source, "SurfaceParams");
+    assert_eq!(size, size_of::<SurfaceParams>(), "SurfaceParams size");
+    assert_eq!(
+        members,
+        named(&[
+            ("n", offset_of!(SurfaceParams, n)),
+            ("per_patch", offset_of!(SurfaceParams, per_patch)),
+            ("count", offset_of!(SurfaceParams, count)),
+            ("lights", offset_of!(SurfaceParams, lights)),
+            ("first", offset_of!(SurfaceParams, first)),
+            ("patches", offset_of!(SurfaceParams, patches)),
+            ("sets", offset_of!(SurfaceParams, sets)),
+            ("nodes", offset_of!(SurfaceParams, nodes)),
+        ])
+    );
+
+    let (size, members) = wgsl_struct("direct_surface", &source, "Tri");
+    assert_eq!(size, size_of::<MeshTri>(), "Tri size (the array stride)");
+    assert_eq!(
+        members,
+        named(&[
+            ("p0", offset_of!(MeshTri, p0)),
+            ("source", offset_of!(MeshTri, source)),
+            ("e1", offset_of!(MeshTri, e1)),
+            ("double_sided", offset_of!(MeshTri, double_sided)),
+            ("e2", offset_of!(MeshTri, e2)),
+            ("pad", offset_of!(MeshTri, pad)),
+        ])
+    );
+
+    let (size, members) = wgsl_struct("direct_surface", &source, "Node");
+    assert_eq!(size, size_of::<MeshNode>(), "Node size (the array stride)");
+    assert_eq!(
+        members,
+        named(&[
+            ("min", offset_of!(MeshNode, min)),
+            ("prim_count", offset_of!(MeshNode, prim_count)),
+            ("max", offset_of!(MeshNode, max)),
+            ("first_index", offset_of!(MeshNode, first_index)),
+        ])
+    );
+
+    let (size, members) = wgsl_struct("direct_surface", &source, "GpuSample");
+    assert_eq!(
+        size,
+        size_of::<GpuSample>(),
+        "GpuSample size (the array stride)"
+    );
+    assert_eq!(
+        members,
+        named(&[
+            ("position", offset_of!(GpuSample, position)),
+            ("pad0", offset_of!(GpuSample, pad0)),
+            ("normal", offset_of!(GpuSample, normal)),
+            ("pad1", offset_of!(GpuSample, pad1)),
+        ])
+    );
+
+    // The light is the shared prelude's, as `GpuDirect` uploads it.
+    let (size, members) = wgsl_struct("direct_surface", &source, "GpuLight");
+    assert_eq!(size, size_of::<GpuLight>(), "GpuLight size");
+    assert_eq!(
+        members,
+        wgsl_struct("direct", &sources::direct_source(), "GpuLight").1
+    );
+
+    let module = parse("direct_surface", &source);
+    assert_eq!(constant(&module, "WG"), SURFACE_WG);
+    assert_eq!(constant(&module, "STACK"), SURFACE_STACK);
+    // One `shadow` workgroup writes whole words of visibility bits.
+    assert_eq!(constant(&module, "WORDS") * 32, SURFACE_WG);
+}

@@ -3,6 +3,7 @@
 mod common;
 mod gpu;
 mod gpu_direct;
+mod gpu_direct_surface;
 mod layout;
 mod relight;
 mod stress;

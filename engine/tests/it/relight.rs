@@ -159,13 +159,13 @@ fn gpu_engine_agrees_with_cpu_engine() {
         assert_eq!(
             gpu.direct_engine(&scene),
             EngineKind::Gpu,
-            "occupancy: GPU direct"
+            "surface geometry: GPU direct"
         );
         let b = relight(&cpu, &baked, &sets);
         for (x, y) in a.iter().zip(&b) {
             // Direct light: the GPU kernel against its CPU twin, with the tolerance of
-            // engine/tests/gpu_direct.rs (1e-4 relative per patch, at most 1% of patches off
-            // by a flipped grazing shadow ray).
+            // engine/tests/it/gpu_direct_surface.rs (1e-4 relative per patch, at most 1% of
+            // patches off by a flipped grazing shadow ray).
             direct_agrees(&x.direct, &y.direct);
             let err = rel_l2(&x.indirect, &y.indirect);
             assert!(
@@ -178,8 +178,9 @@ fn gpu_engine_agrees_with_cpu_engine() {
 }
 
 /// GPU against CPU direct light per patch: relative `1e-4`, except for at most 1% of the
-/// patches, where a shadow ray grazing a voxel edge may flip (each sample is 1/16 of a patch
-/// here, so such a patch may move by up to about a quarter of its value, never more than half).
+/// patches, where a shadow ray grazing a triangle (or voxel) edge may flip (each sample is 1/16
+/// of a patch here, so such a patch may move by up to about a quarter of its value, never more
+/// than half).
 fn direct_agrees(gpu: &[[f32; 3]], cpu: &[[f32; 3]]) {
     assert_eq!(gpu.len(), cpu.len());
     let floor = cpu.iter().flatten().fold(0.0f32, |m, v| m.max(*v)) * 1e-7;
@@ -209,9 +210,10 @@ fn cpu_engine_computes_direct_light_on_the_cpu() {
     assert_eq!(cpu.direct_engine(&scene), EngineKind::Cpu);
     assert_eq!(scene.direct_fallback(), None);
     let Some(gpu) = gpu_engine() else { return };
-    // A file without occupancy casts shadows from its patches alone: the CPU's BVH, on either
-    // engine, saying why.
+    // A file without surface geometry or occupancy casts shadows from its patches alone: the
+    // CPU's BVH, on either engine, saying why.
     let mut old = baked().clone();
+    old.surface = None;
     old.occupancy = None;
     let scene = gpu.load(&old).unwrap();
     assert_eq!(gpu.direct_engine(&scene), EngineKind::Cpu);

@@ -51,6 +51,8 @@ fn cornell() -> &'static Cornell {
         let options = BakeOptions {
             resolution: Resolution::TargetPatches(500),
             rays: 512,
+            // The golden image was drawn from this voxel-face bake.
+            geometry: bounce_core::voxel::Geometry::VoxelFaces,
             ..BakeOptions::default()
         };
         Cornell {

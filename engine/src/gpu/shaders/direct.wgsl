@@ -6,6 +6,8 @@
 // sample, the set's lights in order, so a patch sums in the same order as on the CPU. The rest
 // of the difference is f32 rounding (division, sqrt, fused multiply-adds the driver may form),
 // which can flip a shadow ray that grazes a voxel edge.
+//
+// `light.wgsl` (the prepared light, `light_sample`, `BIG`) is prepended.
 
 struct DirectParams {
     // Patches.
@@ -36,24 +38,7 @@ struct GpuPatch {
     cell_z: i32,
 }
 
-// `bounce_core::direct::PreparedLight`.
-struct GpuLight {
-    position: vec3<f32>,
-    // 0 directional, 1 point, 2 spot.
-    kind: u32,
-    axis: vec3<f32>,
-    inv_range: f32,
-    radiant: vec3<f32>,
-    angle_scale: f32,
-    angle_offset: f32,
-    pad0: u32,
-    pad1: u32,
-    pad2: u32,
-}
-
 const WG: u32 = 64u;
-// Stands for the CPU's infinity: WGSL has no infinite literal, and drivers may assume none occur.
-const BIG: f32 = 3.4028235e38;
 
 @group(0) @binding(0) var<uniform> params: DirectParams;
 @group(0) @binding(1) var<storage, read> patches: array<GpuPatch>;
@@ -100,17 +85,6 @@ fn quad_point(q: GpuPatch, s: f32, t: f32) -> vec3<f32> {
     return p;
 }
 
-fn range_window(d: f32, inv_range: f32) -> f32 {
-    let x = d * inv_range;
-    let w = clamp(1.0 - x * x * x * x, 0.0, 1.0);
-    return w * w;
-}
-
-fn spot_attenuation(cd: f32, scale: f32, offset: f32) -> f32 {
-    let a = clamp(cd * scale + offset, 0.0, 1.0);
-    return a * a;
-}
-
 // `bounce_core::direct::shadow_length`: a shadow ray towards a point or spot light stops where it
 // comes within one voxel of the light (the light's own voxel never shadows it).
 fn shadow_length(p: vec3<f32>, dir: vec3<f32>, distance: f32, light: vec3<f32>, size: f32) -> f32 {
@@ -128,43 +102,6 @@ fn shadow_length(p: vec3<f32>, dir: vec3<f32>, distance: f32, light: vec3<f32>, 
         }
     }
     return min(distance, max(enter - size * 1e-3, 0.0));
-}
-
-struct Sample {
-    lit: bool,
-    dir: vec3<f32>,
-    distance: f32,
-    irradiance: vec3<f32>,
-}
-
-fn light_sample(l: GpuLight, p: vec3<f32>, n: vec3<f32>) -> Sample {
-    var s: Sample;
-    s.lit = false;
-    var scale = 1.0;
-    if l.kind == 0u {
-        s.dir = -l.axis;
-        s.distance = BIG;
-    } else {
-        let to = l.position - p;
-        let d2 = dot(to, to);
-        let d = sqrt(d2);
-        if !(d > 0.0 && d < BIG) {
-            return s;
-        }
-        s.dir = to / d;
-        s.distance = d;
-        scale = range_window(d, l.inv_range) / d2;
-        if l.kind == 2u {
-            scale *= spot_attenuation(dot(l.axis, -s.dir), l.angle_scale, l.angle_offset);
-        }
-    }
-    let c = dot(n, s.dir);
-    if !(c > 0.0 && scale > 0.0) {
-        return s;
-    }
-    s.lit = true;
-    s.irradiance = l.radiant * (c * scale);
-    return s;
 }
 
 fn occupied(c: vec3<i32>) -> bool {

@@ -1,0 +1,490 @@
+//! [`GpuSurfaceDirect`]: direct irradiance with shadows against the scene's triangles on the GPU,
+//! the twin of `bounce_core::direct::direct_irradiance` on a surface-geometry scene
+//! (`ShadowScene::surface`, `surface_irradiance`).
+//!
+//! Uploaded once per scene: the triangles' BVH as `bounce_core::trimesh::TriMesh` builds it (its
+//! nodes, and the triangles in primitive order, so a leaf indexes them directly) and every
+//! patch's stored sample points. Per call: the prepared lights of a whole batch of light sets,
+//! flattened with per-set offsets, then two passes (`shaders/direct_surface.wgsl`):
+//!
+//! 1. `shadow`, one thread per (light, patch, sample): one shadow ray from the sample point,
+//!    traced through the BVH (iterative, a fixed stack in private memory, near child first, any
+//!    hit ends it), recorded as one bit, whether the light reaches the sample;
+//! 2. `gather`, one thread per (patch, light set): the patch's samples in order and, per sample,
+//!    the set's lights in order, adding the irradiance of every ray whose bit is set, then
+//!    dividing by the sample count.
+//!
+//! So the rays, which are the work, get `patches × samples × lights` threads even for a single
+//! light set (a 2,000-patch scene at 16 samples and one light is 32,000 rays), while each patch
+//! still sums **in the CPU's order**: the GPU result differs from the CPU's only by f32 rounding,
+//! not by a reordered sum. What remains: f32 division and `sqrt` may round differently on a GPU
+//! and drivers may fuse multiply-adds, so values agree to a few ulps, and a shadow ray that grazes
+//! a triangle's edge (or a BVH box's face) may flip, moving its patch by that sample's share, at
+//! most `1/count` of the patch's unshadowed value (`engine/tests/it/gpu_direct_surface.rs` bounds
+//! both: relative `1e-4` per patch, at most 1% of the patches off by up to `1.5/count` of their
+//! unshadowed value).
+//!
+//! Measured on lavapipe (software Vulkan, 2 cores) on a 2,624-patch room with a pillar, 16
+//! samples (`surface_direct_timing` in `engine/tests/it/gpu_direct_surface.rs`): 1 set of 1 light
+//! 6.0 ms (CPU twin 2.4 ms), 8 sets of 14 lights in all 61 ms (22 ms). At one set lavapipe's fixed
+//! cost of two passes, a submission and a readback (about 5 ms) dominates; at eight about half is
+//! the traversal and half lavapipe's cost per invocation of 590,000 threads (with a traversal
+//! that returns at once: 34 ms). `auto` never takes lavapipe; no hardware GPU was measured. On
+//! lavapipe the results are bit-identical to the CPU's on every scene of the tests.
+//!
+//! Large batches go in slices (each light set's output within a storage binding, thread indices
+//! within u32), and within a slice the patches go in pieces of at most [`RAYS_PER_PIECE`] rays,
+//! so the visibility bits stay small whatever the batch.
+
+use std::sync::mpsc;
+
+use bounce_core::direct::{PreparedLight, SHADOW_END};
+use bounce_core::light::LightSet;
+use bounce_core::surface::SurfaceData;
+use bounce_core::trimesh::MeshNode;
+use bytemuck::{Pod, Zeroable};
+use wgpu::util::DeviceExt;
+
+use super::direct::{GpuLight, LIGHT};
+use super::kernel::{check_binding, pipeline, storage};
+use super::{GpuContext, GpuError};
+
+/// Threads per workgroup (mirrors `WG` in `direct_surface.wgsl`).
+pub const SURFACE_WG: u32 = 64;
+/// Entries of the traversal stack (mirrors `STACK` in `direct_surface.wgsl`): a BVH deeper than
+/// this is refused ([`GpuError::TooLarge`]) and lit on the CPU.
+pub const SURFACE_STACK: u32 = 64;
+/// The most shadow rays (visibility bits) one pass of the `shadow` kernel covers: 4 MiB of bits.
+pub const RAYS_PER_PIECE: u64 = 1 << 25;
+
+/// The uniform of the surface direct kernels (`SurfaceParams` in `direct_surface.wgsl`).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Pod, Zeroable)]
+pub struct SurfaceParams {
+    /// Patches in the scene.
+    pub n: u32,
+    /// Sample points stored per patch.
+    pub per_patch: u32,
+    /// Samples per patch used (the first of each patch's points).
+    pub count: u32,
+    /// Lights in this dispatch, every light set together.
+    pub lights: u32,
+    /// The piece of patches this pass covers: `first..first + patches`.
+    pub first: u32,
+    pub patches: u32,
+    /// Light sets in this dispatch.
+    pub sets: u32,
+    /// BVH nodes, 0 when there is no triangle.
+    pub nodes: u32,
+}
+
+/// One sample point as the kernel reads it (`GpuSample` in `direct_surface.wgsl`):
+/// `bounce_core::surface::SamplePoint` padded to vec4 alignment.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Pod, Zeroable)]
+pub struct GpuSample {
+    pub position: [f32; 3],
+    pub pad0: u32,
+    pub normal: [f32; 3],
+    pub pad1: u32,
+}
+
+pub fn direct_surface_source() -> String {
+    [LIGHT, include_str!("shaders/direct_surface.wgsl")].concat()
+}
+
+/// The depth of the tree (nodes on its longest root-to-leaf path), which bounds the traversal
+/// stack (it holds at most one entry per inner node on the current path). `None` for a tree
+/// whose indices leave the node or triangle arrays or that revisits nodes: not what obvhs
+/// builds, and not for the kernel to walk.
+fn tree_depth(nodes: &[MeshNode], triangles: usize) -> Option<usize> {
+    let mut deepest = 0;
+    let mut todo = vec![(0usize, 1usize)];
+    let mut visited = 0usize;
+    while let Some((i, depth)) = todo.pop() {
+        visited += 1;
+        if visited > nodes.len() {
+            return None;
+        }
+        let node = nodes.get(i)?;
+        deepest = deepest.max(depth);
+        let first = node.first_index as usize;
+        if node.prim_count > 0 {
+            if first + node.prim_count as usize > triangles {
+                return None;
+            }
+        } else {
+            if first == 0 || first + 1 >= nodes.len() {
+                return None;
+            }
+            todo.push((first, depth + 1));
+            todo.push((first + 1, depth + 1));
+        }
+    }
+    Some(deepest)
+}
+
+/// A storage buffer of `items`, with one zeroed element when there is none (a binding of an
+/// array holds at least one element).
+fn storage_of<T: Pod>(
+    device: &wgpu::Device,
+    label: &'static str,
+    items: &[T],
+) -> Result<wgpu::Buffer, GpuError> {
+    if items.is_empty() {
+        storage(device, label, bytemuck::bytes_of(&T::zeroed()))
+    } else {
+        storage(device, label, bytemuck::cast_slice(items))
+    }
+}
+
+/// A dispatch grid of `groups` workgroups along x, folded into y past the per-dimension limit.
+fn grid(device: &wgpu::Device, groups: u64) -> Result<(u32, u32), GpuError> {
+    let max = device.limits().max_compute_workgroups_per_dimension.max(1);
+    let gx = groups.clamp(1, u64::from(max));
+    let gy = groups.div_ceil(gx).max(1);
+    let gy = u32::try_from(gy)
+        .ok()
+        .filter(|&y| y <= max)
+        .ok_or(GpuError::TooLarge {
+            what: "workgroups of one surface direct-light pass",
+            needed: groups,
+            limit: u64::from(max) * u64::from(max),
+        })?;
+    // At most `max`, a u32.
+    Ok((gx as u32, gy))
+}
+
+/// A surface scene's triangles (as a BVH) and sample points resident on the GPU, ready for
+/// batches of light sets.
+pub struct GpuSurfaceDirect {
+    device: wgpu::Device,
+    queue: wgpu::Queue,
+    shadow: wgpu::ComputePipeline,
+    gather: wgpu::ComputePipeline,
+    nodes: wgpu::Buffer,
+    tris: wgpu::Buffer,
+    points: wgpu::Buffer,
+    n: u32,
+    per_patch: u32,
+    /// BVH nodes, 0 when there is no triangle to trace.
+    node_count: u32,
+    /// The most rays one `shadow` pass covers.
+    rays_per_piece: u64,
+}
+
+impl GpuSurfaceDirect {
+    /// Build `surface`'s BVH ([`SurfaceData::mesh`], as the CPU does) and upload it with the
+    /// sample points. A scene whose arrays exceed a storage binding, or whose BVH is deeper than
+    /// the kernel's stack ([`SURFACE_STACK`]), is refused with [`GpuError::TooLarge`].
+    pub fn upload(ctx: &GpuContext, surface: &SurfaceData) -> Result<GpuSurfaceDirect, GpuError> {
+        let per_patch = surface.per_patch;
+        let n = surface.points.len() / (per_patch.max(1) as usize);
+        let n = u32::try_from(n).map_err(|_| GpuError::TooLarge {
+            what: "patch count",
+            needed: n as u64,
+            limit: u64::from(u32::MAX),
+        })?;
+        let device = &ctx.device;
+        let stored = u64::from(n) * u64::from(per_patch);
+        check_binding(
+            device,
+            "sample points",
+            stored * std::mem::size_of::<GpuSample>() as u64,
+        )?;
+        let mesh = surface.mesh();
+        let mut node_count = 0;
+        let nodes = if mesh.is_empty() {
+            Vec::new()
+        } else {
+            let nodes = mesh.nodes();
+            let depth = tree_depth(&nodes, mesh.len()).unwrap_or(usize::MAX);
+            if depth > SURFACE_STACK as usize {
+                return Err(GpuError::TooLarge {
+                    what: "triangle BVH depth (traversal stack entries)",
+                    needed: depth as u64,
+                    limit: u64::from(SURFACE_STACK),
+                });
+            }
+            node_count = u32::try_from(nodes.len()).map_err(|_| GpuError::TooLarge {
+                what: "triangle BVH nodes",
+                needed: nodes.len() as u64,
+                limit: u64::from(u32::MAX),
+            })?;
+            nodes
+        };
+        // Within a binding, so it fits in memory.
+        let points: Vec<GpuSample> = surface.points[..stored as usize]
+            .iter()
+            .map(|p| GpuSample {
+                position: p.position,
+                pad0: 0,
+                normal: p.normal,
+                pad1: 0,
+            })
+            .collect();
+        let constants = [("SHADOW_END", f64::from(SHADOW_END))];
+        let source = direct_surface_source();
+        Ok(GpuSurfaceDirect {
+            shadow: pipeline(
+                device,
+                "direct_surface shadow",
+                &source,
+                "shadow",
+                &constants,
+            )?,
+            gather: pipeline(
+                device,
+                "direct_surface gather",
+                &source,
+                "gather",
+                &constants,
+            )?,
+            nodes: storage_of(device, "triangle BVH nodes", &nodes)?,
+            tris: storage_of(device, "triangles", mesh.triangles())?,
+            points: storage_of(device, "sample points", &points)?,
+            device: device.clone(),
+            queue: ctx.queue.clone(),
+            n,
+            per_patch,
+            node_count,
+            rays_per_piece: RAYS_PER_PIECE,
+        })
+    }
+
+    /// At most `rays` shadow rays per `shadow` pass instead of [`RAYS_PER_PIECE`] (at least one
+    /// patch's worth for a light set): the same result from more slices and passes. For tests
+    /// of that splitting.
+    #[doc(hidden)]
+    pub fn with_rays_per_piece(mut self, rays: u64) -> GpuSurfaceDirect {
+        self.rays_per_piece = rays.max(1);
+        self
+    }
+
+    pub fn patch_count(&self) -> usize {
+        self.n as usize
+    }
+
+    /// `E_direct` per patch for every light set of the batch from the first
+    /// `samples.clamp(1, per_patch)` sample points of each patch, as
+    /// `bounce_core::direct::direct_irradiance` takes them; lights that fail validation or are
+    /// dark are skipped, as on the CPU. Blocks until the result is back on the host.
+    pub fn irradiance(
+        &self,
+        sets: &[LightSet],
+        samples: u32,
+    ) -> Result<Vec<Vec<[f32; 3]>>, GpuError> {
+        let n = self.n as usize;
+        if n == 0 || sets.is_empty() {
+            return Ok(vec![vec![[0.0; 3]; n]; sets.len()]);
+        }
+        let count = samples.max(1).min(self.per_patch);
+        let prepared: Vec<Vec<GpuLight>> = sets
+            .iter()
+            .map(|set| {
+                set.lights
+                    .iter()
+                    .filter_map(PreparedLight::new)
+                    .map(|l| GpuLight::from(&l))
+                    .collect()
+            })
+            .collect();
+        // Slices of the batch: each one's output within a binding, its gather thread indices
+        // within u32, and one patch's rays within a piece.
+        let limits = self.device.limits();
+        let binding = limits
+            .max_storage_buffer_binding_size
+            .min(limits.max_buffer_size);
+        let set_bytes = n as u64 * 12;
+        let by_binding = binding / set_bytes;
+        let by_index = u64::from(u32::MAX / 2) / n as u64;
+        let max_sets = by_binding.min(by_index);
+        if max_sets == 0 {
+            return Err(GpuError::TooLarge {
+                what: "one light set's direct irradiance",
+                needed: set_bytes,
+                limit: binding,
+            });
+        }
+        let ray_cap = self.rays_per_piece.min(binding.saturating_mul(8));
+        let mut out = Vec::with_capacity(sets.len());
+        let mut start = 0;
+        while start < sets.len() {
+            let (mut end, mut lights) = (start, 0u64);
+            while end < sets.len() && ((end - start) as u64) < max_sets {
+                let more = lights + prepared[end].len() as u64;
+                if more * u64::from(count) > ray_cap {
+                    break;
+                }
+                lights = more;
+                end += 1;
+            }
+            if end == start {
+                return Err(GpuError::TooLarge {
+                    what: "one light set's shadow rays per patch",
+                    needed: prepared[start].len() as u64 * u64::from(count),
+                    limit: ray_cap,
+                });
+            }
+            let flat = self.run(&prepared[start..end], count, ray_cap)?;
+            out.extend(flat.chunks(n).map(<[[f32; 3]]>::to_vec));
+            start = end;
+        }
+        Ok(out)
+    }
+
+    /// One slice of the batch: `count × lights` rays per patch fit in `ray_cap`, and the sets'
+    /// output in a binding.
+    fn run(
+        &self,
+        sets: &[Vec<GpuLight>],
+        count: u32,
+        ray_cap: u64,
+    ) -> Result<Vec<[f32; 3]>, GpuError> {
+        let mut lights: Vec<GpuLight> = Vec::new();
+        let mut offsets: Vec<u32> = vec![0];
+        for set in sets {
+            lights.extend_from_slice(set);
+            // Below `ray_cap`, so within u32.
+            offsets.push(lights.len() as u32);
+        }
+        let light_count = lights.len() as u32;
+        let sets_n = sets.len() as u32;
+        let rays_per_patch = u64::from(count) * u64::from(light_count);
+        let n = u64::from(self.n);
+        // Patches a piece holds: every patch when there is no ray to trace.
+        let piece = ray_cap
+            .checked_div(rays_per_patch)
+            .map_or(n, |p| p.clamp(1, n));
+        let device = &self.device;
+        use wgpu::BufferUsages as U;
+        // Two words per `shadow` workgroup; every word a gather reads was written by the shadow
+        // pass of its piece.
+        let words = (piece * rays_per_patch).div_ceil(u64::from(SURFACE_WG)) * 2;
+        let bits_bytes = words.max(1) * 4;
+        check_binding(device, "visibility bits", bits_bytes)?;
+        let bits = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("visibility bits"),
+            size: bits_bytes,
+            usage: U::STORAGE,
+            mapped_at_creation: false,
+        });
+        let lights_buf = storage_of(device, "prepared lights", &lights)?;
+        let offsets_buf = storage(device, "light offsets", bytemuck::cast_slice(&offsets))?;
+        let bytes = n * u64::from(sets_n) * 12;
+        let out = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("surface direct irradiance"),
+            size: bytes,
+            usage: U::STORAGE | U::COPY_SRC,
+            mapped_at_creation: false,
+        });
+        let readback = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("surface direct readback"),
+            size: bytes,
+            usage: U::MAP_READ | U::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let bind = |pipeline: &wgpu::ComputePipeline, entries: &[(u32, &wgpu::Buffer)]| {
+            let entries: Vec<wgpu::BindGroupEntry> = entries
+                .iter()
+                .map(|&(binding, buffer)| wgpu::BindGroupEntry {
+                    binding,
+                    resource: buffer.as_entire_binding(),
+                })
+                .collect();
+            device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("direct_surface"),
+                layout: &pipeline.get_bind_group_layout(0),
+                entries: &entries,
+            })
+        };
+        let mut encoder =
+            device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
+        let mut first = 0u64;
+        while first < n {
+            let patches = piece.min(n - first);
+            let params = SurfaceParams {
+                n: self.n,
+                per_patch: self.per_patch,
+                count,
+                lights: light_count,
+                // Both below `n`, a u32.
+                first: first as u32,
+                patches: patches as u32,
+                sets: sets_n,
+                nodes: self.node_count,
+            };
+            let params_buf = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("direct_surface params"),
+                contents: bytemuck::bytes_of(&params),
+                usage: U::UNIFORM,
+            });
+            if rays_per_patch > 0 {
+                let group = bind(
+                    &self.shadow,
+                    &[
+                        (0, &params_buf),
+                        (1, &self.nodes),
+                        (2, &self.tris),
+                        (3, &self.points),
+                        (4, &lights_buf),
+                        (6, &bits),
+                    ],
+                );
+                let (gx, gy) = grid(
+                    device,
+                    (patches * rays_per_patch).div_ceil(u64::from(SURFACE_WG)),
+                )?;
+                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
+                pass.set_pipeline(&self.shadow);
+                pass.set_bind_group(0, &group, &[]);
+                pass.dispatch_workgroups(gx, gy, 1);
+            }
+            let group = bind(
+                &self.gather,
+                &[
+                    (0, &params_buf),
+                    (3, &self.points),
+                    (4, &lights_buf),
+                    (5, &offsets_buf),
+                    (6, &bits),
+                    (7, &out),
+                ],
+            );
+            let (gx, gy) = grid(
+                device,
+                (patches * u64::from(sets_n)).div_ceil(u64::from(SURFACE_WG)),
+            )?;
+            {
+                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
+                pass.set_pipeline(&self.gather);
+                pass.set_bind_group(0, &group, &[]);
+                pass.dispatch_workgroups(gx, gy, 1);
+            }
+            first += patches;
+        }
+        encoder.copy_buffer_to_buffer(&out, 0, &readback, 0, bytes);
+        self.queue.submit([encoder.finish()]);
+        let slice = readback.slice(..);
+        let (tx, rx) = mpsc::channel();
+        slice.map_async(wgpu::MapMode::Read, move |r| {
+            // The receiver outlives the poll below; a send can only fail after it gave up.
+            let _ = tx.send(r);
+        });
+        device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map_err(|e| GpuError::Readback(e.to_string()))?;
+        rx.recv()
+            .map_err(|e| GpuError::Readback(e.to_string()))?
+            .map_err(|e| GpuError::Readback(e.to_string()))?;
+        let mut result = vec![[0.0f32; 3]; (n * u64::from(sets_n)) as usize];
+        {
+            let view = slice
+                .get_mapped_range()
+                .map_err(|e| GpuError::Readback(e.to_string()))?;
+            bytemuck::cast_slice_mut::<[f32; 3], u8>(&mut result).copy_from_slice(&view);
+        }
+        readback.unmap();
+        Ok(result)
+    }
+}

@@ -1,0 +1,300 @@
+// Direct irradiance with shadows against the scene's triangles: the twin of
+// `bounce_core::direct::surface_irradiance` (read it and `bounce_core::trimesh` for the model;
+// the comments here only say where the two differ). `light.wgsl` (the prepared light,
+// `light_sample`, `BIG`) is prepended.
+//
+// Two passes over a piece of the patches (`params.first` onward, `params.patches` of them):
+//
+// - `shadow`: one thread per (light of the dispatch, patch, sample) traces that shadow ray
+//   through the BVH and records one bit, whether the light reaches the sample (lit and not
+//   occluded). The rays are the work, so they get the threads, even for a single light set.
+//   Light-major: neighbouring threads trace neighbouring samples towards one light, rays that
+//   walk the same nodes. A workgroup's 64 bits meet in workgroup memory and leave as two words,
+//   with no atomics.
+// - `gather`: one thread per (light set, patch) walks the patch's samples in order and, per
+//   sample, the set's lights in order, adding the irradiance of every ray whose bit is set. So a
+//   patch sums in the CPU's order, and its value differs from the CPU's only by f32 rounding
+//   (division, sqrt, fused multiply-adds the driver may form), which can also flip a shadow ray
+//   that grazes a triangle's edge.
+
+struct SurfaceParams {
+    // Patches in the scene (the stride of one light set's output).
+    n: u32,
+    // Sample points stored per patch (the stride of `points`).
+    per_patch: u32,
+    // Samples per patch used: the first `count` of each patch's points.
+    count: u32,
+    // Lights in this dispatch, all its light sets together.
+    lights: u32,
+    // The piece: patches `first..first + patches`.
+    first: u32,
+    patches: u32,
+    // Light sets in this dispatch.
+    sets: u32,
+    // BVH nodes; 0 when there is no triangle (nothing blocks light).
+    nodes: u32,
+}
+
+// `bounce_core::trimesh::MeshTri`: a corner and two edges.
+struct Tri {
+    p0: vec3<f32>,
+    source: u32,
+    e1: vec3<f32>,
+    double_sided: u32,
+    e2: vec3<f32>,
+    pad: u32,
+}
+
+// `bounce_core::trimesh::MeshNode` (obvhs' `Bvh2Node`): an inner node when `prim_count` is 0,
+// with children at `first_index` and `first_index + 1`, else a leaf over
+// `tris[first_index..first_index + prim_count]`.
+struct Node {
+    min: vec3<f32>,
+    prim_count: u32,
+    max: vec3<f32>,
+    first_index: u32,
+}
+
+// `bounce_core::surface::SamplePoint`, padded to vec4 alignment.
+struct GpuSample {
+    position: vec3<f32>,
+    pad0: u32,
+    normal: vec3<f32>,
+    pad1: u32,
+}
+
+const WG: u32 = 64u;
+// Words of visibility bits one `shadow` workgroup writes.
+const WORDS: u32 = 2u;
+// Traversal stack entries: the host refuses a BVH deeper than this.
+const STACK: u32 = 64u;
+// `bounce_core::direct::SHADOW_END`, set by the host (so the two cannot round it apart).
+override SHADOW_END: f32;
+// obvhs' `safe_inverse` clamps |x| <= f32::EPSILON (2^-23) to ±1/EPSILON.
+const EPSILON: f32 = 1.1920929e-7;
+const INV_EPSILON: f32 = 8388608.0;
+
+@group(0) @binding(0) var<uniform> params: SurfaceParams;
+@group(0) @binding(1) var<storage, read> nodes: array<Node>;
+@group(0) @binding(2) var<storage, read> tris: array<Tri>;
+@group(0) @binding(3) var<storage, read> points: array<GpuSample>;
+@group(0) @binding(4) var<storage, read> lights: array<GpuLight>;
+// Set s owns lights[offsets[s]..offsets[s + 1]].
+@group(0) @binding(5) var<storage, read> offsets: array<u32>;
+// Bit `(l * patches + i) * count + k` (32 to a word): light l reaches sample k of the piece's
+// patch i. Light-major, so a workgroup's rays share a light and neighbouring samples.
+@group(0) @binding(6) var<storage, read_write> bits: array<u32>;
+// Packed RGB, light set s, patch i at (s * n + i) * 3.
+@group(0) @binding(7) var<storage, read_write> out: array<f32>;
+
+// Each thread's visibility bit, in place in its word.
+var<workgroup> visible: array<u32, WG>;
+
+// glam's `Vec3::dot` and `Vec3::cross`, term by term in its order.
+fn dot3(a: vec3<f32>, b: vec3<f32>) -> f32 {
+    return a.x * b.x + a.y * b.y + a.z * b.z;
+}
+
+fn cross3(a: vec3<f32>, b: vec3<f32>) -> vec3<f32> {
+    return vec3<f32>(a.y * b.z - b.y * a.z, a.z * b.x - b.z * a.x, a.x * b.y - b.x * a.y);
+}
+
+// obvhs' `safe_inverse`, with Rust's `signum` (-1 for -0.0, where WGSL's `sign` gives 0).
+fn safe_inverse(x: f32) -> f32 {
+    if abs(x) <= EPSILON {
+        return select(INV_EPSILON, -INV_EPSILON, (bitcast<u32>(x) & 0x80000000u) != 0u);
+    }
+    return 1.0 / x;
+}
+
+// obvhs' `Aabb::intersect_ray`: the entry distance, BIG for a miss (the CPU's infinity: it
+// fails every `t < t_max` test either way).
+fn node_t(nd: Node, origin: vec3<f32>, inv: vec3<f32>) -> f32 {
+    let t1 = (nd.min - origin) * inv;
+    let t2 = (nd.max - origin) * inv;
+    let lo = min(t1, t2);
+    let hi = max(t1, t2);
+    let enter = max(max(lo.x, lo.y), lo.z);
+    let leave = min(min(hi.x, hi.y), hi.z);
+    if leave >= enter && leave >= 0.0 {
+        return enter;
+    }
+    return BIG;
+}
+
+// `bounce_core::trimesh::intersect` (Möller–Trumbore), the same arithmetic in the same order,
+// reduced to whether the crossing lies in (0, t_max).
+fn tri_hit(tri: Tri, origin: vec3<f32>, dir: vec3<f32>, t_max: f32) -> bool {
+    let p = cross3(dir, tri.e2);
+    let det = dot3(tri.e1, p);
+    if det == 0.0 || !(abs(det) <= BIG) {
+        return false;
+    }
+    let inv = 1.0 / det;
+    let s = origin - tri.p0;
+    let u = dot3(s, p) * inv;
+    if !(u >= 0.0 && u <= 1.0) {
+        return false;
+    }
+    let q = cross3(s, tri.e1);
+    let v = dot3(dir, q) * inv;
+    if v < 0.0 || u + v > 1.0 {
+        return false;
+    }
+    let t = dot3(tri.e2, q) * inv;
+    return t > 0.0 && t < t_max;
+}
+
+fn leaf_hit(nd: Node, origin: vec3<f32>, dir: vec3<f32>, t_max: f32) -> bool {
+    let end = nd.first_index + nd.prim_count;
+    for (var i = nd.first_index; i < end; i++) {
+        if tri_hit(tris[i], origin, dir, t_max) {
+            return true;
+        }
+    }
+    return false;
+}
+
+// `TriMesh::occluded`: obvhs' `ray_traverse_miss` (near child first, any hit ends the walk),
+// with a fixed stack the host sized against the tree's depth.
+fn occluded(origin: vec3<f32>, dir: vec3<f32>, t_max: f32) -> bool {
+    if params.nodes == 0u || !(t_max > 0.0) {
+        return false;
+    }
+    let inv = vec3<f32>(safe_inverse(dir.x), safe_inverse(dir.y), safe_inverse(dir.z));
+    let root = nodes[0];
+    if !(node_t(root, origin, inv) < t_max) {
+        return false;
+    }
+    if root.prim_count > 0u {
+        return leaf_hit(root, origin, dir, t_max);
+    }
+    var stack: array<u32, STACK>;
+    var sp = 0u;
+    var current = root.first_index;
+    // Each round visits one inner node's children, and no inner node twice: the bound only
+    // guards the loop against a malformed tree.
+    for (var round = 0u; round < params.nodes; round++) {
+        var near = nodes[current];
+        var far = nodes[current + 1u];
+        var t_near = node_t(near, origin, inv);
+        var t_far = node_t(far, origin, inv);
+        if t_near > t_far {
+            let n = near;
+            near = far;
+            far = n;
+            let t = t_near;
+            t_near = t_far;
+            t_far = t;
+        }
+        var go_near = t_near < t_max;
+        if go_near && near.prim_count > 0u {
+            if leaf_hit(near, origin, dir, t_max) {
+                return true;
+            }
+            go_near = false;
+        }
+        var go_far = t_far < t_max;
+        if go_far && far.prim_count > 0u {
+            if leaf_hit(far, origin, dir, t_max) {
+                return true;
+            }
+            go_far = false;
+        }
+        if go_near {
+            current = near.first_index;
+            if go_far && sp < STACK {
+                stack[sp] = far.first_index;
+                sp++;
+            }
+        } else if go_far {
+            current = far.first_index;
+        } else {
+            if sp == 0u {
+                return false;
+            }
+            sp--;
+            current = stack[sp];
+        }
+    }
+    return false;
+}
+
+@compute @workgroup_size(WG)
+fn shadow(
+    @builtin(workgroup_id) wg: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+    @builtin(local_invocation_index) lid: u32,
+) {
+    let group = wg.y * groups.x + wg.x;
+    let per_light = params.patches * params.count;
+    let total = per_light * params.lights;
+    // Whole workgroups past the end (the grid is padded to a rectangle) leave together.
+    if group * WG >= total {
+        return;
+    }
+    let t = group * WG + lid;
+    var bit = 0u;
+    if t < total {
+        // Two divisions, not four: integer division is slow on every target.
+        let l = t / per_light;
+        let r = t - l * per_light;
+        let i = r / params.count;
+        let k = r - i * params.count;
+        let pt = points[(params.first + i) * params.per_patch + k];
+        let s = light_sample(lights[l], pt.position, pt.normal);
+        if s.lit && !occluded(pt.position, s.dir, s.distance * SHADOW_END) {
+            bit = 1u << (lid % 32u);
+        }
+    }
+    visible[lid] = bit;
+    workgroupBarrier();
+    if lid < WORDS {
+        var word = 0u;
+        for (var j = 0u; j < 32u; j++) {
+            word |= visible[lid * 32u + j];
+        }
+        bits[group * WORDS + lid] = word;
+    }
+}
+
+@compute @workgroup_size(WG)
+fn gather(
+    @builtin(workgroup_id) wg: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+    @builtin(local_invocation_index) lid: u32,
+) {
+    let id = (wg.y * groups.x + wg.x) * WG + lid;
+    if id >= params.patches * params.sets {
+        return;
+    }
+    let sid = id / params.patches;
+    let i = id % params.patches;
+    let pid = params.first + i;
+    let first = offsets[sid];
+    let last = offsets[sid + 1u];
+    let count = params.count;
+    var e = vec3<f32>(0.0);
+    if first != last && count > 0u {
+        var sum = vec3<f32>(0.0);
+        for (var k = 0u; k < count; k++) {
+            let pt = points[pid * params.per_patch + k];
+            let column = i * count + k;
+            let stride = params.patches * count;
+            for (var l = first; l < last; l++) {
+                let b = l * stride + column;
+                if ((bits[b >> 5u] >> (b & 31u)) & 1u) == 1u {
+                    let s = light_sample(lights[l], pt.position, pt.normal);
+                    if s.lit {
+                        sum += s.irradiance;
+                    }
+                }
+            }
+        }
+        e = min(sum / f32(count), vec3<f32>(BIG));
+    }
+    let o = (sid * params.n + pid) * 3u;
+    out[o] = e.x;
+    out[o + 1u] = e.y;
+    out[o + 2u] = e.z;
+}
