@@ -1,9 +1,11 @@
-//! `bounce render`: one image of a glTF scene lit by a baked transport, offscreen, to a PNG.
+//! `bounce render`: one image of a glTF scene lit by a baked transport, offscreen, to a PNG
+//! (tonemapped) or to a PFM or OpenEXR file (linear radiance).
 //!
 //! `--baked` relights in this process (engine → indirect per patch → irradiance volume →
 //! renderer); `--server` takes the indirect light from a running `bounce serve` (layout, a
 //! session, its first frame → irradiance volume → renderer), as a viewer does.
 
+use std::io::Write as _;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
@@ -15,7 +17,7 @@ use bounce_core::light::LightSet;
 use bounce_core::scene::Scene;
 use bounce_engine::gpu::GpuContext;
 use bounce_engine::{Engine, EngineChoice};
-use bounce_render::{Camera, RenderOptions, Renderer, volume_from_baked};
+use bounce_render::{Camera, LinearImage, RenderOptions, Renderer, volume_from_baked};
 use clap::Args;
 use glam::Vec3;
 
@@ -52,18 +54,25 @@ pub struct RenderArgs {
     /// framed from +Z with a 45° vertical field of view.
     #[arg(long, value_name = "EYE,TARGET[,FOV]", allow_hyphen_values = true)]
     pub camera: Option<String>,
-    /// The PNG to write.
-    #[arg(long, value_name = "IMG.png")]
+    /// The image to write, by its extension: `.png` is tonemapped and sRGB-encoded (see
+    /// --exposure); `.pfm` and `.exr` hold linear RGB radiance in 32-bit float, before exposure
+    /// and tonemap (the lights' units per m² and steradian: cd/m² for glTF's lights), for
+    /// comparing with other renderers.
+    #[arg(long, value_name = "IMG.png|IMG.pfm|IMG.exr")]
     pub out: PathBuf,
     #[arg(long, default_value_t = 640)]
     pub width: u32,
     #[arg(long, default_value_t = 480)]
     pub height: u32,
-    /// Radiance is multiplied by this before the Reinhard tonemap.
+    /// Radiance is multiplied by this before the Reinhard tonemap (PNG only: PFM and EXR
+    /// images are linear radiance).
     #[arg(long, default_value_t = 1.0)]
     pub exposure: f32,
-    /// `off` leaves the indirect (volume) term out: direct light and emission only.
-    #[arg(long, value_name = "on|off", default_value = "on")]
+    /// `on`: direct light, emission and indirect light. `off` leaves the indirect (volume) term
+    /// out: direct light and emission only. `only`: the indirect term alone, radiance =
+    /// albedo / π · E_indirect as the irradiance volume interpolates it, with no direct light
+    /// and no emission.
+    #[arg(long, value_name = "on|off|only", default_value = "on")]
     pub indirect: String,
     /// The relight engine; the renderer itself always takes a GPU adapter (software included).
     #[arg(long, value_name = "auto|gpu|cpu", default_value = "auto")]
@@ -71,11 +80,15 @@ pub struct RenderArgs {
 }
 
 pub fn run(args: &RenderArgs) -> Result<()> {
-    let indirect = match args.indirect.as_str() {
-        "on" => true,
-        "off" => false,
-        other => bail!("--indirect must be on or off, not {other:?}"),
+    let (direct, indirect) = match args.indirect.as_str() {
+        "on" => (true, true),
+        "off" => (true, false),
+        "only" => (false, true),
+        other => {
+            bail!("--indirect must be on or off (or only: the indirect term alone), not {other:?}")
+        }
     };
+    let format = ImageFile::of(&args.out)?;
     let choice: EngineChoice = args.engine.parse()?;
     if args.baked.is_none() && args.server.is_none() {
         bail!("give the indirect light's source: --baked FILE or --server URL");
@@ -115,22 +128,86 @@ pub fn run(args: &RenderArgs) -> Result<()> {
         height: args.height,
         exposure: args.exposure,
         indirect,
+        direct,
     };
-    let image = renderer.render(&scene, &camera, &lights, &volume, &options)?;
-    image::save_buffer(
-        &args.out,
-        &image.pixels,
-        image.width,
-        image.height,
-        image::ColorType::Rgba8,
-    )
-    .with_context(|| format!("writing {}", args.out.display()))?;
-    eprintln!(
-        "wrote {} ({}×{})",
-        args.out.display(),
-        image.width,
-        image.height
-    );
+    let (width, height) = (args.width, args.height);
+    match format {
+        ImageFile::Png => {
+            let image = renderer.render(&scene, &camera, &lights, &volume, &options)?;
+            image::save_buffer(
+                &args.out,
+                &image.pixels,
+                image.width,
+                image.height,
+                image::ColorType::Rgba8,
+            )
+            .with_context(|| format!("writing {}", args.out.display()))?;
+        }
+        ImageFile::Pfm | ImageFile::Exr => {
+            let image = renderer.render_linear(&scene, &camera, &lights, &volume, &options)?;
+            if format == ImageFile::Pfm {
+                write_pfm(&args.out, &image)
+            } else {
+                write_exr(&args.out, &image)
+            }
+            .with_context(|| format!("writing {}", args.out.display()))?;
+        }
+    }
+    eprintln!("wrote {} ({width}×{height})", args.out.display());
+    Ok(())
+}
+
+/// What `--out` writes, by its extension.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum ImageFile {
+    /// Tonemapped, sRGB-encoded 8-bit.
+    Png,
+    /// Linear radiance, 32-bit float.
+    Pfm,
+    Exr,
+}
+
+impl ImageFile {
+    fn of(path: &Path) -> Result<ImageFile> {
+        let ext = path
+            .extension()
+            .map(|e| e.to_string_lossy().to_ascii_lowercase());
+        Ok(match ext.as_deref() {
+            Some("png") => ImageFile::Png,
+            Some("pfm") => ImageFile::Pfm,
+            Some("exr") => ImageFile::Exr,
+            _ => bail!(
+                "--out {}: the image's extension must be .png (tonemapped), .pfm or .exr \
+                 (linear radiance)",
+                path.display()
+            ),
+        })
+    }
+}
+
+/// A colour PFM: the header `PF`, the size, `-1.0` (little-endian), then RGB f32 rows from the
+/// bottom one up.
+fn write_pfm(path: &Path, image: &LinearImage) -> Result<()> {
+    let mut bytes = Vec::with_capacity(32 + image.pixels.len() * 12);
+    write!(bytes, "PF\n{} {}\n-1.0\n", image.width, image.height)?;
+    if image.width > 0 {
+        for row in image.pixels.chunks_exact(image.width as usize).rev() {
+            for channel in row.iter().flatten() {
+                bytes.extend_from_slice(&channel.to_le_bytes());
+            }
+        }
+    }
+    std::fs::write(path, bytes)?;
+    Ok(())
+}
+
+/// An OpenEXR file of RGB f32, rows top to bottom.
+fn write_exr(path: &Path, image: &LinearImage) -> Result<()> {
+    let floats: Vec<f32> = image.pixels.iter().flatten().copied().collect();
+    let buffer: image::ImageBuffer<image::Rgb<f32>, Vec<f32>> =
+        image::ImageBuffer::from_raw(image.width, image.height, floats)
+            .context("the image's pixels do not fill its size")?;
+    buffer.save_with_format(path, image::ImageFormat::OpenExr)?;
     Ok(())
 }
 
@@ -253,5 +330,44 @@ mod tests {
         assert!(parse_camera("0,1,4").is_err());
         assert!(parse_camera("0,1,4,0,1,x").is_err());
         assert!(parse_camera("0,1,4,0,1,inf").is_err());
+    }
+
+    #[test]
+    fn image_files_by_extension() {
+        assert_eq!(ImageFile::of(Path::new("a.png")).unwrap(), ImageFile::Png);
+        assert_eq!(ImageFile::of(Path::new("d/a.PFM")).unwrap(), ImageFile::Pfm);
+        assert_eq!(ImageFile::of(Path::new("a.exr")).unwrap(), ImageFile::Exr);
+        for bad in ["a.jpg", "a", "a.png.tmp"] {
+            let err = ImageFile::of(Path::new(bad)).unwrap_err().to_string();
+            assert!(err.contains(".pfm or .exr"), "{bad}: {err}");
+        }
+    }
+
+    #[test]
+    fn pfm_rows_run_bottom_to_top() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("x.pfm");
+        let image = LinearImage {
+            width: 2,
+            height: 2,
+            pixels: vec![
+                [1.0, 2.0, 3.0],
+                [4.0, 5.0, 6.0],
+                [7.0, 8.0, 9.0],
+                [0.5, 0.25, 0.0],
+            ],
+        };
+        write_pfm(&path, &image).unwrap();
+        let bytes = std::fs::read(&path).unwrap();
+        let header = b"PF\n2 2\n-1.0\n";
+        assert_eq!(&bytes[..header.len()], header);
+        let floats: Vec<f32> = bytes[header.len()..]
+            .chunks_exact(4)
+            .map(|b| f32::from_le_bytes(b.try_into().unwrap()))
+            .collect();
+        assert_eq!(
+            floats,
+            [7.0, 8.0, 9.0, 0.5, 0.25, 0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0]
+        );
     }
 }

@@ -16,23 +16,35 @@
 //!   `(p − origin) / voxel_size − 0.5`, i.e. normalised texture coordinate
 //!   `(p − origin) / (voxel_size · dims)` with the hardware's linear filter. Outside the grid the
 //!   edge texels repeat (clamp-to-edge addressing).
-//! - Sampling a point `p` with unit normal `n`: per axis `a`, take the grid facing the sign of
-//!   `n[a]` (+X for `n.x ≥ 0`, −X otherwise, and so on), filter it trilinearly at `p`, and where
-//!   the filtered coverage is at least [`MIN_COVERAGE`] take `rgb / coverage` as that axis's
-//!   irradiance. Dividing by coverage is what makes the empty neighbours of a patch texel (the
-//!   air in front of it, the solid behind it) drop out of the filter instead of darkening it.
-//!   Blend the axes with weights `n[a]²` (the ambient-cube blend; they sum to 1 for a unit
-//!   normal), renormalised over the axes that had coverage, so a normal leaning towards a
-//!   direction with no patch nearby does not darken the result. No axis covered: zero.
+//! - A surface patch is the surface inside one voxel whose side faces one direction most, so a
+//!   point `p` of a surface with normal `n` (the seen side's geometric normal) belongs to the
+//!   patch of face `dominant_face(n)` (the axis of `n`'s largest component, ties to X, then Y;
+//!   its sign, `+` for `n[a] ≥ 0`: the bake's own rule) in the voxel containing `p`,
+//!   `floor((p − origin) / voxel_size)`: its *own cell*. Only that face's grid is read; the
+//!   other directions' grids hold other surfaces (a wall meeting the floor, the side of a box),
+//!   not light arriving at this one.
+//! - Between patches the value is interpolated: that grid filtered trilinearly at `p` (texel
+//!   centres at voxel centres: the 2 × 2 × 2 texels around `p`, own cell among them, edge texels
+//!   repeating outside the grid), with two exceptions. Texels without a patch drop out: the sum
+//!   is divided by the filtered coverage (where it is at least [`MIN_COVERAGE`]; below, zero).
+//!   And texels across a *separator* from the own cell drop out: a texel that differs from the
+//!   own cell along axis `a` is left out when the own cell and its neighbour along `a` (on the
+//!   texel's side) hold, between the two of them, patches facing both ways along `a`, which is
+//!   what a wall thinner than two voxels between them looks like. So light is interpolated along
+//!   a surface but never read from the far side of a thin wall, the other room's floor.
+//! - The separators are a seventh grid of the same dims, one byte a voxel: bit `f` (face code)
+//!   set when the voxel is separated from its neighbour in direction `f` ([`Volume::separators`];
+//!   an `R8Uint` 3D texture). They follow from the layout alone.
 //! - Sample at the surface point itself. The patch texel sits at the centre of the voxel the
 //!   surface lies in, so no offset is needed (DESIGN.md's "slightly off the surface" belongs to
 //!   conventions that store a patch in the empty voxel in front of it); an offset along the
 //!   normal of more than half a voxel leaves the patch's voxel.
 //!
-//! [`Volume::sample`] is the CPU twin of that shader code, for tests and tools. A GPU filters
-//! with fixed-point weights (8 fractional bits on most hardware), so the two agree to about
-//! 1/256 of the values involved, not bit for bit.
+//! [`Volume::sample`] is the CPU twin of that shader code, for tests and tools. The shader reads
+//! the texels and weighs them itself (no hardware filter), so the two agree to f32 rounding of
+//! the f16 texels' values, except for points within rounding of a voxel boundary.
 
+use bounce_core::voxel::dominant_face;
 use bounce_server::frame::{FLAG_CLAMPED, FLAG_NON_FINITE, Frame, FrameHeader, decode_rgb9e5};
 use glam::{IVec3, UVec3, Vec3, Vec4};
 use half::f16;
@@ -62,6 +74,9 @@ pub struct Volume {
     dims: UVec3,
     /// Indexed by face code.
     grids: [Vec<Texel>; 6],
+    /// Per voxel, bit `f` set when a thin wall separates it from its neighbour in direction `f`
+    /// (see the module doc).
+    separators: Vec<u8>,
     /// Per patch, where its value goes: computed once, so applying a frame is one pass.
     targets: Vec<Target>,
     frame: Option<FrameHeader>,
@@ -110,11 +125,13 @@ impl Volume {
                 Target { grid, texel }
             })
             .collect();
+        let separators = separators(dims, &grids);
         Ok(Volume {
             origin: layout.origin(),
             voxel_size: layout.voxel_size(),
             dims,
             grids,
+            separators,
             targets,
             frame: None,
             flags: 0,
@@ -216,6 +233,20 @@ impl Volume {
         bytemuck::cast_slice(self.texels(face))
     }
 
+    /// The separator grid (see the module doc), x fastest, then y, then z: the bytes of an
+    /// `R8Uint` texture upload (`bytes_per_row = dims.x`, `rows_per_image = dims.y`).
+    pub fn separators(&self) -> &[u8] {
+        &self.separators
+    }
+
+    /// The separator bits of a voxel, `None` outside the grid.
+    pub fn separator(&self, voxel: UVec3) -> Option<u8> {
+        if voxel.cmpge(self.dims).any() {
+            return None;
+        }
+        Some(self.separators[(voxel.x + self.dims.x * (voxel.y + self.dims.y * voxel.z)) as usize])
+    }
+
     /// The texel of a voxel in every grid, `None` outside the grid.
     pub fn texel(&self, face: Face, voxel: UVec3) -> Option<Texel> {
         if voxel.cmpge(self.dims).any() {
@@ -225,36 +256,26 @@ impl Volume {
         Some(self.texels(face)[i as usize])
     }
 
-    /// Indirect irradiance at `position` on a surface with `normal`, as the module doc says.
+    /// Indirect irradiance at `position` on a surface whose seen side has `normal`, as the
+    /// module doc says: the patch of the normal's dominant face around the position's own
+    /// voxel, interpolated. Zero for a zero or non-finite normal.
     pub fn sample(&self, position: Vec3, normal: Vec3) -> [f32; 3] {
-        let weights = blend_weights(normal);
-        let mut sum = Vec3::ZERO;
-        let mut covered = 0.0;
-        for (axis, &w) in weights.iter().enumerate() {
-            if w == 0.0 {
-                continue;
-            }
-            let face = Face::from_axis_sign(axis, normal[axis] >= 0.0);
-            if let Some(rgb) = self.sample_face(face, position) {
-                sum += w * rgb;
-                covered += w;
-            }
+        if !(normal.is_finite() && normal.length_squared() > 0.0) {
+            return [0.0; 3];
         }
-        if covered > 0.0 {
-            (sum / covered).to_array()
-        } else {
-            [0.0; 3]
-        }
+        self.sample_face(dominant_face(normal), position)
+            .map_or([0.0; 3], |v| v.to_array())
     }
 
-    /// One grid filtered at `position` and divided by its coverage; `None` where the coverage is
-    /// below [`MIN_COVERAGE`].
+    /// One grid filtered at `position` as the module doc says (separators respected) and
+    /// divided by its coverage; `None` where the coverage is below [`MIN_COVERAGE`].
     pub fn sample_face(&self, face: Face, position: Vec3) -> Option<Vec3> {
         let v = self.filter(face, position);
         (v.w >= MIN_COVERAGE).then(|| v.truncate() / v.w)
     }
 
-    /// Trilinear filter with clamp-to-edge addressing, texel centres at voxel centres.
+    /// Trilinear filter with clamp-to-edge addressing, texel centres at voxel centres, leaving
+    /// out the texels across a separator from the own cell.
     fn filter(&self, face: Face, position: Vec3) -> Vec4 {
         if !position.is_finite() {
             return Vec4::ZERO;
@@ -265,10 +286,20 @@ impl Volume {
         let base = u.floor().clamp(Vec3::splat(-1.0), max.as_vec3() + 1.0);
         let frac = (u - u.floor()).clamp(Vec3::ZERO, Vec3::ONE);
         let lo = base.as_ivec3();
+        // The own cell is the corner nearest the position: floor((p − origin) / voxel_size).
+        let own = IVec3::select(frac.cmpge(Vec3::splat(0.5)), IVec3::ONE, IVec3::ZERO);
+        let own_cell = (lo + own).clamp(IVec3::ZERO, max).as_uvec3();
+        let separated = self.separator(own_cell).unwrap_or(0);
         let grid = self.texels(face);
         let mut acc = Vec4::ZERO;
         for corner in 0..8 {
             let step = IVec3::new(corner & 1, (corner >> 1) & 1, (corner >> 2) & 1);
+            if (0..3).any(|a| {
+                step[a] != own[a]
+                    && separated & (1 << Face::from_axis_sign(a, step[a] > own[a]).code()) != 0
+            }) {
+                continue;
+            }
             let w = Vec3::select(step.cmpeq(IVec3::ONE), frac, Vec3::ONE - frac).element_product();
             if w == 0.0 {
                 continue;
@@ -282,8 +313,49 @@ impl Volume {
     }
 }
 
+/// The separator grid of the module doc: per voxel, bit `f` set when the voxel and its
+/// neighbour in direction `f` hold, between them, patches facing both ways along `f`'s axis.
+fn separators(dims: UVec3, grids: &[Vec<Texel>; 6]) -> Vec<u8> {
+    let count = grids[0].len();
+    // Which faces have a patch, per voxel.
+    let mut faces = vec![0u8; count];
+    for (code, grid) in grids.iter().enumerate() {
+        for (bits, texel) in faces.iter_mut().zip(grid) {
+            if texel[3] != f16::ZERO {
+                *bits |= 1 << code;
+            }
+        }
+    }
+    let mut out = vec![0u8; count];
+    let strides = [1, dims.x as usize, (dims.x * dims.y) as usize];
+    for z in 0..dims.z {
+        for y in 0..dims.y {
+            for x in 0..dims.x {
+                let v = [x, y, z];
+                let i = (x + dims.x * (y + dims.y * z)) as usize;
+                for axis in 0..3 {
+                    let both = 0b11u8 << (2 * axis);
+                    // The neighbour on the positive side; the same pair seen from it is the
+                    // negative side's.
+                    if v[axis] + 1 >= dims[axis] {
+                        continue;
+                    }
+                    let j = i + strides[axis];
+                    if (faces[i] | faces[j]) & both == both {
+                        out[i] |= 1 << (2 * axis);
+                        out[j] |= 1 << (2 * axis + 1);
+                    }
+                }
+            }
+        }
+    }
+    out
+}
+
 /// The ambient-cube weights of a normal: its squared components over its squared length, so
-/// they sum to 1. A zero or non-finite normal weighs the axes equally.
+/// they sum to 1. A zero or non-finite normal weighs the axes equally. [`Volume::sample`] no
+/// longer blends the six directions this way (a surface patch holds its own surface's light, and
+/// the other directions' grids other surfaces'); kept for tools that want the blend.
 pub fn blend_weights(normal: Vec3) -> [f32; 3] {
     let sq = normal * normal;
     let len = sq.element_sum();
@@ -386,15 +458,100 @@ mod tests {
         // Facing away from both patches: nothing there.
         assert_eq!(v.sample(centre, -Vec3::Z), [0.0; 3]);
         assert_eq!(v.sample(centre, Vec3::X), [0.0; 3]);
-        // A normal between the two blends them by n², here 1/4 and 3/4.
-        let n = Vec3::new(-(0.75f32.sqrt()), 0.0, 0.5);
-        let got = v.sample(centre, n);
-        for k in 0..3 {
-            let want = 0.25 * VALUE[k] + 0.75 * 7.0;
-            assert!((got[k] - want).abs() < 1e-5, "{got:?}");
-        }
-        // A normal leaning into an empty direction is renormalised over the covered one.
+        // A normal between the two reads the patch of the direction it faces most, and only
+        // that one: the other belongs to another surface.
+        assert_eq!(v.sample(centre, Vec3::new(-0.8, 0.0, 0.6)), [7.0; 3]);
+        assert_eq!(v.sample(centre, Vec3::new(-0.6, 0.0, 0.8)), VALUE);
+        // Ties go to X, then Y, as the bake's dominant face.
+        assert_eq!(v.sample(centre, Vec3::new(-1.0, 0.0, 1.0)), [7.0; 3]);
+        // A normal leaning into an empty direction still reads the face it faces most.
         assert_eq!(v.sample(centre, Vec3::new(0.0, 0.6, 0.8)), VALUE);
+        assert_eq!(v.sample(centre, Vec3::new(0.0, 0.8, 0.6)), [0.0; 3]);
+        // No side to read.
+        assert_eq!(v.sample(centre, Vec3::ZERO), [0.0; 3]);
+        assert_eq!(v.sample(centre, Vec3::NAN), [0.0; 3]);
+    }
+
+    /// Two rooms side by side along X, their floors (+Y) in voxels x = 0..=1 and 2..=3 of the
+    /// layout's row y = 1, z = 0, and a wall between voxels 1 and 2 thinner than two voxels:
+    /// its two sides face −X (into the left room) and +X (into the right one).
+    fn two_rooms(wall: [(u32, Face); 2]) -> Volume {
+        let mut patches: Vec<PatchFace> = (0..4).map(|x| patch(x, 1, 0, Face::PosY)).collect();
+        patches.extend(wall.iter().map(|&(x, f)| patch(x, 1, 0, f)));
+        let mut v = Volume::new(&layout(patches)).unwrap();
+        let left = [1.0, 2.0, 4.0];
+        v.apply(&frame(&[left, left, [0.0; 3], [0.0; 3], VALUE, VALUE]))
+            .unwrap();
+        v
+    }
+
+    #[test]
+    fn light_is_not_interpolated_through_a_thin_wall() {
+        let l = layout(vec![]);
+        let right_floor = |x: f32| l.origin() + Vec3::new(x, 0.75, 0.25);
+        // The wall's sides in the voxels either side of the plane between them, or both in one
+        // voxel: either way the floor right of the wall reads none of the left room's light.
+        for wall in [
+            [(1, Face::NegX), (2, Face::PosX)],
+            [(1, Face::NegX), (1, Face::PosX)],
+            [(2, Face::NegX), (2, Face::PosX)],
+        ] {
+            let v = two_rooms(wall);
+            for x in [1.0, 1.01, 1.1, 1.25, 1.4, 1.5, 1.75] {
+                // Voxel 2's floor (x from 1.0 to 1.5) lies right of the wall unless the wall is
+                // inside voxel 2; voxel 3's always does.
+                if wall[0].0 == 2 && x < 1.5 {
+                    continue;
+                }
+                assert_eq!(
+                    v.sample(right_floor(x), Vec3::Y),
+                    [0.0; 3],
+                    "{wall:?} at {x}"
+                );
+            }
+            let bits = v.separator(UVec3::new(1, 1, 0)).unwrap();
+            // Voxel 1 is separated from voxel 2 in every case, and from voxel 0 when it holds
+            // both sides itself.
+            let both_in_1 = wall.iter().all(|w| w.0 == 1);
+            assert_eq!(bits & 0b11, if both_in_1 { 0b11 } else { 0b01 }, "{wall:?}");
+        }
+        // Without the wall the floor interpolates across the same plane.
+        let mut v = Volume::new(&layout(
+            (0..4).map(|x| patch(x, 1, 0, Face::PosY)).collect(),
+        ))
+        .unwrap();
+        v.apply(&frame(&[[4.0; 3], [4.0; 3], [0.0; 3], [0.0; 3]]))
+            .unwrap();
+        assert_eq!(v.sample(right_floor(1.0), Vec3::Y), [2.0; 3]);
+        // 1.1 is 0.7 of the way from voxel 1's centre (0.75) to voxel 2's (1.25): 4 · 0.3.
+        let got = v.sample(right_floor(1.1), Vec3::Y);
+        assert!(got.iter().all(|&c| (c - 1.2).abs() < 1e-5), "{got:?}");
+        assert!(v.separators().iter().all(|&b| b == 0));
+    }
+
+    #[test]
+    fn one_sided_neighbours_are_not_separators() {
+        // A box's side facing +X next to a floor: only one direction along X, so no wall.
+        let l = layout(vec![
+            patch(1, 1, 0, Face::PosY),
+            patch(2, 1, 0, Face::PosY),
+            patch(2, 1, 0, Face::PosX),
+        ]);
+        let v = Volume::new(&l).unwrap();
+        assert!(v.separators().iter().all(|&b| b == 0));
+        // A wall a voxel thick: its sides in neighbouring voxels, facing both ways.
+        let l = layout(vec![patch(1, 0, 1, Face::NegZ), patch(1, 0, 0, Face::PosZ)]);
+        let v = Volume::new(&l).unwrap();
+        assert_eq!(
+            v.separator(UVec3::new(1, 0, 0)),
+            Some(1 << Face::PosZ.code())
+        );
+        assert_eq!(
+            v.separator(UVec3::new(1, 0, 1)),
+            Some(1 << Face::NegZ.code())
+        );
+        assert_eq!(v.separator(UVec3::new(0, 0, 0)), Some(0));
+        assert_eq!(v.separator(UVec3::new(4, 0, 0)), None);
     }
 
     #[test]

@@ -15,9 +15,15 @@ pub struct Globals {
     pub light_count: u32,
     pub indirect: u32,
     pub normal_offset: f32,
-    pub pad0: u32,
+    /// [`FLAG_LINEAR`] | [`FLAG_NO_EMISSION`].
+    pub flags: u32,
     pub pad1: u32,
 }
+
+/// `Globals::flags`: write linear radiance (no exposure, no tonemap), for a float target.
+pub const FLAG_LINEAR: u32 = 1;
+/// `Globals::flags`: leave emission out (indirect light only).
+pub const FLAG_NO_EMISSION: u32 = 2;
 
 /// `GpuLight` in `shade.wgsl`: a `bounce_core::direct::PreparedLight` and where its shadow
 /// views start.

@@ -5,7 +5,8 @@
 //! lights with a shadow map each (directional: orthographic over the scene's bounds; spot:
 //! perspective; point: six perspective faces), `E_indirect` from the six-direction irradiance
 //! volume ([`bounce_client::Volume`], sampled as its module doc says), and the tonemap: radiance
-//! times the exposure, then Reinhard `x / (1 + x)` per channel, then sRGB encoding. A [`Stage`]
+//! times the exposure, then Reinhard `x / (1 + x)` per channel, then sRGB encoding, or none of
+//! that for [`Renderer::render_linear`]'s float images of radiance itself. A [`Stage`]
 //! holds one scene on the GPU; [`Renderer::draw`] records it into any target (a window's
 //! surface texture or an offscreen image), so the window and `bounce render` run the same code.
 //! [`Overlay`] draws the viewer's text on top.
@@ -23,10 +24,11 @@ mod renderer;
 mod stage;
 
 pub use camera::Camera;
-pub use gpu_types::{Globals, GpuLight, Vertex};
+pub use gpu_types::{FLAG_LINEAR, FLAG_NO_EMISSION, Globals, GpuLight, Vertex};
 pub use overlay::{OVERLAY_SHADER, Overlay, OverlayParams};
 pub use renderer::{
-    IMAGE_FORMAT, Image, MAX_SHADOW_VIEWS, MAX_SIDE, RenderError, RenderOptions, Renderer, SHADER,
-    Target, Terms, layout_from_baked, read_buffer, volume_from_baked,
+    IMAGE_FORMAT, Image, LINEAR_FORMAT, LinearImage, MAX_SHADOW_VIEWS, MAX_SIDE, RenderError,
+    RenderOptions, Renderer, SHADER, Target, Terms, layout_from_baked, read_buffer,
+    volume_from_baked,
 };
 pub use stage::Stage;

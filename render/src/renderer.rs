@@ -13,7 +13,7 @@ use thiserror::Error;
 use wgpu::util::DeviceExt;
 
 use crate::camera::Camera;
-use crate::gpu_types::{Globals, Vertex};
+use crate::gpu_types::{FLAG_LINEAR, FLAG_NO_EMISSION, Globals, Vertex};
 use crate::stage::{Stage, VolumeGpu};
 
 /// The shading module (see the crate doc).
@@ -21,6 +21,9 @@ pub const SHADER: &str = include_str!("shade.wgsl");
 
 /// The offscreen images' format.
 pub const IMAGE_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8UnormSrgb;
+/// The format of offscreen images of linear radiance ([`Renderer::render_linear`]): drawn with
+/// neither exposure nor tonemap.
+pub const LINEAR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Float;
 pub(crate) const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
 pub(crate) const SHADOW_SIZE: u32 = 1024;
 /// Most shadow-map layers one image may use (a directional or spot light takes one, a point
@@ -58,10 +61,13 @@ pub enum RenderError {
 pub struct RenderOptions {
     pub width: u32,
     pub height: u32,
-    /// Radiance is multiplied by this before the Reinhard curve.
+    /// Radiance is multiplied by this before the Reinhard curve (tonemapped images only).
     pub exposure: f32,
     /// Add the volume's indirect irradiance.
     pub indirect: bool,
+    /// Add the lights' direct irradiance and the surfaces' emission. Off, with `indirect` on,
+    /// an image is `albedo / π · E_indirect` alone.
+    pub direct: bool,
 }
 
 impl Default for RenderOptions {
@@ -71,6 +77,7 @@ impl Default for RenderOptions {
             height: 480,
             exposure: 1.0,
             indirect: true,
+            direct: true,
         }
     }
 }
@@ -88,6 +95,15 @@ pub struct Image {
     pub width: u32,
     pub height: u32,
     pub pixels: Vec<u8>,
+}
+
+/// Linear RGB radiance (the lights' units per m² and steradian), before exposure and
+/// tonemap: rows top to bottom, no padding. Pixels no surface covers are 0.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LinearImage {
+    pub width: u32,
+    pub height: u32,
+    pub pixels: Vec<[f32; 3]>,
 }
 
 /// Where a draw goes: a colour view of a format the renderer has a pipeline for, and a depth
@@ -108,14 +124,14 @@ pub struct Renderer<'a> {
     mains: Vec<(wgpu::TextureFormat, wgpu::RenderPipeline)>,
     pub(crate) shadow: wgpu::RenderPipeline,
     pub(crate) shadow_sampler: wgpu::Sampler,
-    pub(crate) linear_sampler: wgpu::Sampler,
     pub(crate) albedo_sampler: wgpu::Sampler,
 }
 
 impl<'a> Renderer<'a> {
-    /// A renderer for offscreen images ([`IMAGE_FORMAT`]).
+    /// A renderer for offscreen images, tonemapped ([`IMAGE_FORMAT`]) and linear
+    /// ([`LINEAR_FORMAT`]).
     pub fn new(ctx: &'a GpuContext) -> Result<Renderer<'a>, RenderError> {
-        Renderer::with_formats(ctx, &[IMAGE_FORMAT])
+        Renderer::with_formats(ctx, &[IMAGE_FORMAT, LINEAR_FORMAT])
     }
 
     /// A renderer that can draw into each of `formats` (a window's surface format, say, and
@@ -220,15 +236,6 @@ impl<'a> Renderer<'a> {
             compare: Some(wgpu::CompareFunction::LessEqual),
             ..Default::default()
         });
-        let linear_sampler = device.create_sampler(&wgpu::SamplerDescriptor {
-            label: Some("volume"),
-            address_mode_u: wgpu::AddressMode::ClampToEdge,
-            address_mode_v: wgpu::AddressMode::ClampToEdge,
-            address_mode_w: wgpu::AddressMode::ClampToEdge,
-            mag_filter: wgpu::FilterMode::Linear,
-            min_filter: wgpu::FilterMode::Linear,
-            ..Default::default()
-        });
         let albedo_sampler = device.create_sampler(&wgpu::SamplerDescriptor {
             label: Some("albedo"),
             address_mode_u: wgpu::AddressMode::Repeat,
@@ -245,7 +252,6 @@ impl<'a> Renderer<'a> {
             mains,
             shadow,
             shadow_sampler,
-            linear_sampler,
             albedo_sampler,
         })
     }
@@ -286,6 +292,21 @@ impl<'a> Renderer<'a> {
         exposure: f32,
         terms: Terms,
     ) -> Result<(), RenderError> {
+        self.draw_flags(stage, encoder, target, camera, exposure, terms, 0)
+    }
+
+    /// [`Renderer::draw`] with `Globals::flags`.
+    #[allow(clippy::too_many_arguments)]
+    fn draw_flags(
+        &self,
+        stage: &mut Stage,
+        encoder: &mut wgpu::CommandEncoder,
+        target: &Target<'_>,
+        camera: &Camera,
+        exposure: f32,
+        terms: Terms,
+        flags: u32,
+    ) -> Result<(), RenderError> {
         let (width, height) = (target.width, target.height);
         if !(1..=MAX_SIDE).contains(&width) || !(1..=MAX_SIDE).contains(&height) {
             return Err(RenderError::Size { width, height });
@@ -309,7 +330,7 @@ impl<'a> Renderer<'a> {
             light_count: if terms.direct { stage.lights.count } else { 0 },
             indirect: u32::from(terms.indirect),
             normal_offset: radius * 0.004,
-            pad0: 0,
+            flags,
             pad1: 0,
         };
         self.ctx
@@ -371,18 +392,59 @@ impl<'a> Renderer<'a> {
         check_size(options.width, options.height)?;
         let mut stage = Stage::new(self, scene, volume)?;
         stage.set_lights(self, lights)?;
-        let terms = Terms {
-            direct: true,
-            indirect: options.indirect,
-        };
-        self.render_stage(
+        let (terms, flags) = terms_of(options);
+        let (width, height) = (options.width, options.height);
+        let pixels = self.offscreen(
             &mut stage,
             camera,
-            options.width,
-            options.height,
+            (width, height),
             options.exposure,
             terms,
-        )
+            (IMAGE_FORMAT, flags),
+        )?;
+        Ok(Image {
+            width,
+            height,
+            pixels,
+        })
+    }
+
+    /// As [`Renderer::render`], but linear radiance in float: no exposure, no tonemap, no sRGB
+    /// encoding (`options.exposure` is not used).
+    pub fn render_linear(
+        &self,
+        scene: &Scene,
+        camera: &Camera,
+        lights: &LightSet,
+        volume: &Volume,
+        options: &RenderOptions,
+    ) -> Result<LinearImage, RenderError> {
+        check_size(options.width, options.height)?;
+        let mut stage = Stage::new(self, scene, volume)?;
+        stage.set_lights(self, lights)?;
+        let (terms, flags) = terms_of(options);
+        let (width, height) = (options.width, options.height);
+        let bytes = self.offscreen(
+            &mut stage,
+            camera,
+            (width, height),
+            1.0,
+            terms,
+            (LINEAR_FORMAT, flags | FLAG_LINEAR),
+        )?;
+        let pixels = bytes
+            .chunks_exact(16)
+            .map(|texel| {
+                let channel =
+                    |c: usize| f32::from_ne_bytes(texel[4 * c..4 * c + 4].try_into().unwrap());
+                [channel(0), channel(1), channel(2)]
+            })
+            .collect();
+        Ok(LinearImage {
+            width,
+            height,
+            pixels,
+        })
     }
 
     /// One image of a stage, offscreen, read back.
@@ -395,6 +457,32 @@ impl<'a> Renderer<'a> {
         exposure: f32,
         terms: Terms,
     ) -> Result<Image, RenderError> {
+        let pixels = self.offscreen(
+            stage,
+            camera,
+            (width, height),
+            exposure,
+            terms,
+            (IMAGE_FORMAT, 0),
+        )?;
+        Ok(Image {
+            width,
+            height,
+            pixels,
+        })
+    }
+
+    /// One image of a stage into an offscreen target of `format`, drawn with `flags`: its
+    /// pixels' bytes, rows top to bottom, no padding.
+    fn offscreen(
+        &self,
+        stage: &mut Stage,
+        camera: &Camera,
+        (width, height): (u32, u32),
+        exposure: f32,
+        terms: Terms,
+        (format, flags): (wgpu::TextureFormat, u32),
+    ) -> Result<Vec<u8>, RenderError> {
         check_size(width, height)?;
         let device = self.ctx.device();
         let size = wgpu::Extent3d {
@@ -408,7 +496,7 @@ impl<'a> Renderer<'a> {
             mip_level_count: 1,
             sample_count: 1,
             dimension: wgpu::TextureDimension::D2,
-            format: IMAGE_FORMAT,
+            format,
             usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC,
             view_formats: &[],
         });
@@ -417,13 +505,16 @@ impl<'a> Renderer<'a> {
         let mut encoder = device.create_command_encoder(&Default::default());
         let target = Target {
             color: &color_view,
-            format: IMAGE_FORMAT,
+            format,
             depth: &depth_view,
             width,
             height,
         };
-        self.draw(stage, &mut encoder, &target, camera, exposure, terms)?;
-        let row = width * 4;
+        self.draw_flags(stage, &mut encoder, &target, camera, exposure, terms, flags)?;
+        let texel = format
+            .block_copy_size(None)
+            .ok_or(RenderError::Format(format))?;
+        let row = width * texel;
         let padded = row.next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT);
         let readback = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("readback"),
@@ -449,11 +540,7 @@ impl<'a> Renderer<'a> {
         for r in bytes.chunks(padded as usize).take(height as usize) {
             pixels.extend_from_slice(&r[..row as usize]);
         }
-        Ok(Image {
-            width,
-            height,
-            pixels,
-        })
+        Ok(pixels)
     }
 
     /// `Volume::sample`'s shader twin run on the GPU at each point: for tests and tools.
@@ -493,10 +580,13 @@ impl<'a> Renderer<'a> {
         });
         let textures = VolumeGpu::new(self, volume);
         let mut bindings = vec![(0, globals.as_entire_binding())];
-        bindings.push((5, wgpu::BindingResource::Sampler(&self.linear_sampler)));
         for (i, v) in textures.views().iter().enumerate() {
             bindings.push((6 + i as u32, wgpu::BindingResource::TextureView(v)));
         }
+        bindings.push((
+            14,
+            wgpu::BindingResource::TextureView(textures.separators_view()),
+        ));
         let group0 = bind_group(device, &pipeline.get_bind_group_layout(0), bindings);
         let vec4s = |f: &dyn Fn(&(Vec3, Vec3)) -> Vec3| -> Vec<[f32; 4]> {
             points.iter().map(|p| f(p).extend(0.0).to_array()).collect()
@@ -556,6 +646,17 @@ impl<'a> Renderer<'a> {
     }
 }
 
+/// The terms and `Globals::flags` an image of `options` is drawn with: without direct light,
+/// emission goes too.
+fn terms_of(options: &RenderOptions) -> (Terms, u32) {
+    let terms = Terms {
+        direct: options.direct,
+        indirect: options.indirect,
+    };
+    let flags = if options.direct { 0 } else { FLAG_NO_EMISSION };
+    (terms, flags)
+}
+
 fn check_size(width: u32, height: u32) -> Result<(), RenderError> {
     if !(1..=MAX_SIDE).contains(&width) || !(1..=MAX_SIDE).contains(&height) {
         return Err(RenderError::Size { width, height });
@@ -608,11 +709,6 @@ fn main_layout_entries() -> Vec<wgpu::BindGroupLayoutEntry> {
             S::FRAGMENT,
             wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Comparison),
         ),
-        entry(
-            5,
-            S::FRAGMENT,
-            wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Filtering),
-        ),
     ];
     for binding in 6..12 {
         entries.push(entry(
@@ -630,6 +726,14 @@ fn main_layout_entries() -> Vec<wgpu::BindGroupLayoutEntry> {
         13,
         S::FRAGMENT,
         wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Filtering),
+    ));
+    entries.push(entry(
+        14,
+        S::FRAGMENT,
+        texture(
+            wgpu::TextureSampleType::Uint,
+            wgpu::TextureViewDimension::D3,
+        ),
     ));
     entries
 }

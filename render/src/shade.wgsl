@@ -1,6 +1,6 @@
 // The renderer's one shading module: direct light with shadow maps, indirect light from the
 // six-direction irradiance volume (client/src/volume.rs's convention; `sample_volume` is the twin
-// of `Volume::sample`), and the tonemap. The Rust mirrors of `Globals` and `GpuLight` live in
+// of `Volume::sample`), and the tonemap (or linear radiance, for a float target). The Rust mirrors of `Globals` and `GpuLight` live in
 // render/src/gpu_types.rs; a naga test checks that the layouts agree.
 
 const MIN_COVERAGE: f32 = 0.00390625; // 1/256, client::volume::MIN_COVERAGE
@@ -10,6 +10,8 @@ const KIND_POINT: u32 = 1u;
 const KIND_SPOT: u32 = 2u;
 const WRAP_REPEAT_U: u32 = 1u;
 const WRAP_REPEAT_V: u32 = 2u;
+const FLAG_LINEAR: u32 = 1u;
+const FLAG_NO_EMISSION: u32 = 2u;
 
 struct Globals {
     view_proj: mat4x4<f32>,
@@ -21,7 +23,8 @@ struct Globals {
     light_count: u32,
     indirect: u32,
     normal_offset: f32,
-    pad0: u32,
+    // FLAG_LINEAR | FLAG_NO_EMISSION (render/src/gpu_types.rs).
+    flags: u32,
     pad1: u32,
 }
 
@@ -43,7 +46,6 @@ struct GpuLight {
 @group(0) @binding(2) var<storage, read> views: array<mat4x4<f32>>;
 @group(0) @binding(3) var shadow_maps: texture_depth_2d_array;
 @group(0) @binding(4) var shadow_sampler: sampler_comparison;
-@group(0) @binding(5) var volume_sampler: sampler;
 @group(0) @binding(6) var vol_px: texture_3d<f32>;
 @group(0) @binding(7) var vol_nx: texture_3d<f32>;
 @group(0) @binding(8) var vol_py: texture_3d<f32>;
@@ -53,45 +55,75 @@ struct GpuLight {
 // Base-colour maps, one layer a texture, layer 0 white (render/src/mesh.rs).
 @group(0) @binding(12) var albedo_maps: texture_2d_array<f32>;
 @group(0) @binding(13) var albedo_sampler: sampler;
+// Per voxel, bit f set when a thin wall separates it from its neighbour in direction f.
+@group(0) @binding(14) var vol_separators: texture_3d<u32>;
 
-// One grid filtered at `p` (hardware trilinear, clamp to edge): rgb and coverage. Texel centres
-// sit at voxel centres, so the normalised coordinate is (p − origin) / (voxel_size · dims).
-fn volume_filter(face: u32, p: vec3<f32>) -> vec4<f32> {
-    let uvw = (p - g.volume_origin) / (g.voxel_size * g.volume_dims);
+// One texel of a grid: rgb and coverage.
+fn volume_texel(face: u32, t: vec3<i32>) -> vec4<f32> {
     switch face {
-        case 0u: { return textureSampleLevel(vol_px, volume_sampler, uvw, 0.0); }
-        case 1u: { return textureSampleLevel(vol_nx, volume_sampler, uvw, 0.0); }
-        case 2u: { return textureSampleLevel(vol_py, volume_sampler, uvw, 0.0); }
-        case 3u: { return textureSampleLevel(vol_ny, volume_sampler, uvw, 0.0); }
-        case 4u: { return textureSampleLevel(vol_pz, volume_sampler, uvw, 0.0); }
-        default: { return textureSampleLevel(vol_nz, volume_sampler, uvw, 0.0); }
+        case 0u: { return textureLoad(vol_px, t, 0); }
+        case 1u: { return textureLoad(vol_nx, t, 0); }
+        case 2u: { return textureLoad(vol_py, t, 0); }
+        case 3u: { return textureLoad(vol_ny, t, 0); }
+        case 4u: { return textureLoad(vol_pz, t, 0); }
+        default: { return textureLoad(vol_nz, t, 0); }
     }
 }
 
-// Indirect irradiance at `p` with normal `n`: per axis the grid facing n's sign, divided by its
-// coverage, blended by n² over the covered axes (Volume::sample).
-fn sample_volume(p: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
-    let sq = n * n;
-    let len = sq.x + sq.y + sq.z;
-    var w = vec3<f32>(1.0 / 3.0);
-    if len > 0.0 {
-        w = sq / len;
+// The face a normal faces most: bounce_core::voxel::dominant_face (ties to X, then Y).
+fn dominant_face(n: vec3<f32>) -> u32 {
+    let a = abs(n);
+    if a.x >= a.y && a.x >= a.z {
+        return select(1u, 0u, n.x >= 0.0);
     }
-    var sum = vec3<f32>(0.0);
-    var covered = 0.0;
-    for (var axis = 0u; axis < 3u; axis++) {
-        if w[axis] == 0.0 {
+    if a.y >= a.z {
+        return select(3u, 2u, n.y >= 0.0);
+    }
+    return select(5u, 4u, n.z >= 0.0);
+}
+
+// Indirect irradiance at `p` on a surface whose seen side has normal `n` (Volume::sample): the
+// grid of n's dominant face, filtered trilinearly by hand (texel centres at voxel centres, clamp
+// to edge) over the texels that are not across a separator from p's own voxel, divided by
+// their coverage.
+fn sample_volume(p: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
+    if !(dot(n, n) > 0.0) {
+        return vec3<f32>(0.0);
+    }
+    let face = dominant_face(n);
+    let u = (p - g.volume_origin) / g.voxel_size - 0.5;
+    let max_t = vec3<i32>(g.volume_dims) - 1;
+    let fl = floor(u);
+    let lo = vec3<i32>(clamp(fl, vec3<f32>(-1.0), vec3<f32>(max_t) + 1.0));
+    let frac = clamp(u - fl, vec3<f32>(0.0), vec3<f32>(1.0));
+    // The own voxel: the corner nearest p.
+    let own = vec3<i32>(frac >= vec3<f32>(0.5));
+    let separated = textureLoad(vol_separators, clamp(lo + own, vec3<i32>(0), max_t), 0).r;
+    var acc = vec4<f32>(0.0);
+    for (var corner = 0u; corner < 8u; corner++) {
+        let step = vec3<i32>(vec3<u32>(corner & 1u, (corner >> 1u) & 1u, (corner >> 2u) & 1u));
+        var blocked = false;
+        for (var a = 0u; a < 3u; a++) {
+            if step[a] != own[a] {
+                // Towards +axis (face code 2a) or −axis (2a + 1).
+                let towards = 2u * a + select(1u, 0u, step[a] > own[a]);
+                if (separated & (1u << towards)) != 0u {
+                    blocked = true;
+                }
+            }
+        }
+        if blocked {
             continue;
         }
-        let face = axis * 2u + select(1u, 0u, n[axis] >= 0.0);
-        let v = volume_filter(face, p);
-        if v.w >= MIN_COVERAGE {
-            sum += w[axis] * v.rgb / v.w;
-            covered += w[axis];
+        let w3 = select(vec3<f32>(1.0) - frac, frac, step == vec3<i32>(1));
+        let w = w3.x * w3.y * w3.z;
+        if w == 0.0 {
+            continue;
         }
+        acc += w * volume_texel(face, clamp(lo + step, vec3<i32>(0), max_t));
     }
-    if covered > 0.0 {
-        return sum / covered;
+    if acc.w >= MIN_COVERAGE {
+        return acc.rgb / acc.w;
     }
     return vec3<f32>(0.0);
 }
@@ -196,6 +228,16 @@ fn fs_main(frag: VertexOut, @builtin(front_facing) front: bool) -> @location(0) 
     if !front {
         n = -n;
     }
+    // The volume is read with the triangle's own normal on the seen side: the side whose patch
+    // (by the direction it faces most) holds this surface's light; an interpolated shading
+    // normal can face another direction most near 45°.
+    var ng = cross(dpdx(frag.world), dpdy(frag.world));
+    if !(dot(ng, ng) > 0.0) {
+        ng = n;
+    }
+    if dot(ng, g.eye - frag.world) < 0.0 {
+        ng = -ng;
+    }
     var e = vec3<f32>(0.0);
     for (var i = 0u; i < g.light_count; i++) {
         let light = lights[i];
@@ -205,7 +247,7 @@ fn fs_main(frag: VertexOut, @builtin(front_facing) front: bool) -> @location(0) 
         }
     }
     if g.indirect != 0u {
-        e += sample_volume(frag.world, n);
+        e += sample_volume(frag.world, ng);
     }
     // The map is sRGB-encoded, so the sample is linear; the white layer leaves the tint.
     // The array's sampler repeats; a layer that clamps to its edge keeps its coordinates half a
@@ -215,7 +257,15 @@ fn fs_main(frag: VertexOut, @builtin(front_facing) front: bool) -> @location(0) 
     let uv = select(clamp(frag.uv, half_texel, vec2<f32>(1.0) - half_texel), frag.uv, repeat);
     let albedo = frag.albedo * textureSample(albedo_maps, albedo_sampler, uv, frag.layer).rgb;
     // Radiance of a diffuse surface: albedo / π · E, plus emitted exitance / π.
-    let radiance = (albedo * e + frag.emission) / PI;
+    var emission = frag.emission;
+    if (g.flags & FLAG_NO_EMISSION) != 0u {
+        emission = vec3<f32>(0.0);
+    }
+    let radiance = (albedo * e + emission) / PI;
+    // A float target takes the radiance itself.
+    if (g.flags & FLAG_LINEAR) != 0u {
+        return vec4<f32>(radiance, 1.0);
+    }
     // Tonemap: exposure, then Reinhard per channel; the sRGB target encodes the result.
     let x = radiance * g.exposure;
     return vec4<f32>(x / (vec3<f32>(1.0) + x), 1.0);

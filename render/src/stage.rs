@@ -45,6 +45,9 @@ pub(crate) struct VolumeGpu {
     pub dims: UVec3,
     textures: Vec<wgpu::Texture>,
     views: Vec<wgpu::TextureView>,
+    /// `Volume::separators`, an R8Uint grid.
+    separators: wgpu::Texture,
+    separators_view: wgpu::TextureView,
 }
 
 impl Stage {
@@ -221,12 +224,25 @@ impl VolumeGpu {
             .iter()
             .map(|t| t.create_view(&Default::default()))
             .collect();
+        let separators = device.create_texture(&wgpu::TextureDescriptor {
+            label: Some("volume separators"),
+            size: extent(dims),
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D3,
+            format: wgpu::TextureFormat::R8Uint,
+            usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+            view_formats: &[],
+        });
+        let separators_view = separators.create_view(&Default::default());
         let gpu = VolumeGpu {
             origin: volume.origin(),
             voxel_size: volume.voxel_size(),
             dims,
             textures,
             views,
+            separators,
+            separators_view,
         };
         gpu.write(renderer, volume);
         gpu
@@ -245,10 +261,26 @@ impl VolumeGpu {
                 extent(self.dims),
             );
         }
+        // The separators follow from the layout: the same for every frame of it, but a volume
+        // of another layout over the same grid may bring others.
+        renderer.ctx.queue().write_texture(
+            self.separators.as_image_copy(),
+            volume.separators(),
+            wgpu::TexelCopyBufferLayout {
+                offset: 0,
+                bytes_per_row: Some(self.dims.x),
+                rows_per_image: Some(self.dims.y),
+            },
+            extent(self.dims),
+        );
     }
 
     pub(crate) fn views(&self) -> &[wgpu::TextureView] {
         &self.views
+    }
+
+    pub(crate) fn separators_view(&self) -> &wgpu::TextureView {
+        &self.separators_view
     }
 }
 
@@ -335,13 +367,16 @@ fn groups(
         (2, lights.views.as_entire_binding()),
         (3, wgpu::BindingResource::TextureView(&lights.array)),
         (4, wgpu::BindingResource::Sampler(&renderer.shadow_sampler)),
-        (5, wgpu::BindingResource::Sampler(&renderer.linear_sampler)),
     ];
     for (i, v) in volume.views.iter().enumerate() {
         entries.push((6 + i as u32, wgpu::BindingResource::TextureView(v)));
     }
     entries.push((12, wgpu::BindingResource::TextureView(albedo)));
     entries.push((13, wgpu::BindingResource::Sampler(&renderer.albedo_sampler)));
+    entries.push((
+        14,
+        wgpu::BindingResource::TextureView(&volume.separators_view),
+    ));
     let main = crate::renderer::bind_group(device, &renderer.main_layout, entries);
     let shadow = crate::renderer::bind_group(
         device,

@@ -21,6 +21,7 @@ export function volumeUniforms() {
     bounceVolNY: { value: null },
     bounceVolPZ: { value: null },
     bounceVolNZ: { value: null },
+    bounceSeparators: { value: null },
     bounceOrigin: { value: new Vector3() },
     bounceVoxelSize: { value: 1 },
     bounceDims: { value: new Vector3(1, 1, 1) },
@@ -37,6 +38,7 @@ export function bindVolume(uniforms, volume) {
   uniforms.bounceVolNY.value = ny;
   uniforms.bounceVolPZ.value = pz;
   uniforms.bounceVolNZ.value = nz;
+  uniforms.bounceSeparators.value = volume.separatorTexture;
   uniforms.bounceOrigin.value.fromArray(volume.origin);
   uniforms.bounceVoxelSize.value = volume.voxelSize;
   uniforms.bounceDims.value.fromArray(volume.dims);
@@ -54,7 +56,7 @@ void main() {`;
 const VERTEX_WORLD = /* glsl */ `#include <project_vertex>
   vBounceWorld = (modelMatrix * vec4(transformed, 1.0)).xyz;`;
 
-// The twin of shade.wgsl's volume_filter and sample_volume.
+// The twin of shade.wgsl's volume_texel, dominant_face and sample_volume.
 const FRAGMENT_DECL = /* glsl */ `
 uniform highp sampler3D bounceVolPX;
 uniform highp sampler3D bounceVolNX;
@@ -62,47 +64,72 @@ uniform highp sampler3D bounceVolPY;
 uniform highp sampler3D bounceVolNY;
 uniform highp sampler3D bounceVolPZ;
 uniform highp sampler3D bounceVolNZ;
+uniform highp sampler3D bounceSeparators;
 uniform vec3 bounceOrigin;
 uniform float bounceVoxelSize;
 uniform vec3 bounceDims;
 uniform float bounceIndirect;
 varying vec3 vBounceWorld;
 
-vec4 bounceFilter(int face, vec3 p) {
-  vec3 uvw = (p - bounceOrigin) / (bounceVoxelSize * bounceDims);
-  if (face == 0) return textureLod(bounceVolPX, uvw, 0.0);
-  if (face == 1) return textureLod(bounceVolNX, uvw, 0.0);
-  if (face == 2) return textureLod(bounceVolPY, uvw, 0.0);
-  if (face == 3) return textureLod(bounceVolNY, uvw, 0.0);
-  if (face == 4) return textureLod(bounceVolPZ, uvw, 0.0);
-  return textureLod(bounceVolNZ, uvw, 0.0);
+vec4 bounceTexel(int face, ivec3 t) {
+  if (face == 0) return texelFetch(bounceVolPX, t, 0);
+  if (face == 1) return texelFetch(bounceVolNX, t, 0);
+  if (face == 2) return texelFetch(bounceVolPY, t, 0);
+  if (face == 3) return texelFetch(bounceVolNY, t, 0);
+  if (face == 4) return texelFetch(bounceVolPZ, t, 0);
+  return texelFetch(bounceVolNZ, t, 0);
+}
+
+int bounceDominantFace(vec3 n) {
+  vec3 a = abs(n);
+  if (a.x >= a.y && a.x >= a.z) return n.x >= 0.0 ? 0 : 1;
+  if (a.y >= a.z) return n.y >= 0.0 ? 2 : 3;
+  return n.z >= 0.0 ? 4 : 5;
 }
 
 vec3 bounceSampleVolume(vec3 p, vec3 n) {
-  vec3 sq = n * n;
-  float len = sq.x + sq.y + sq.z;
-  vec3 w = len > 0.0 ? sq / len : vec3(1.0 / 3.0);
-  vec3 sum = vec3(0.0);
-  float covered = 0.0;
-  for (int axis = 0; axis < 3; axis++) {
-    if (w[axis] == 0.0) continue;
-    int face = axis * 2 + (n[axis] >= 0.0 ? 0 : 1);
-    vec4 v = bounceFilter(face, p);
-    if (v.w >= ${(1 / 256).toFixed(8)}) {
-      sum += w[axis] * v.rgb / v.w;
-      covered += w[axis];
+  if (!(dot(n, n) > 0.0)) return vec3(0.0);
+  int face = bounceDominantFace(n);
+  vec3 u = (p - bounceOrigin) / bounceVoxelSize - 0.5;
+  ivec3 maxT = ivec3(bounceDims) - 1;
+  vec3 fl = floor(u);
+  ivec3 lo = ivec3(clamp(fl, vec3(-1.0), vec3(maxT) + 1.0));
+  vec3 fr = clamp(u - fl, 0.0, 1.0);
+  ivec3 own = ivec3(greaterThanEqual(fr, vec3(0.5)));
+  int separated = int(texelFetch(bounceSeparators, clamp(lo + own, ivec3(0), maxT), 0).r * 255.0 + 0.5);
+  vec4 acc = vec4(0.0);
+  for (int corner = 0; corner < 8; corner++) {
+    ivec3 st = ivec3(corner & 1, (corner >> 1) & 1, (corner >> 2) & 1);
+    bool blocked = false;
+    for (int a = 0; a < 3; a++) {
+      if (st[a] != own[a]) {
+        int towards = 2 * a + (st[a] > own[a] ? 0 : 1);
+        if (((separated >> towards) & 1) != 0) blocked = true;
+      }
     }
+    if (blocked) continue;
+    vec3 w3 = mix(vec3(1.0) - fr, fr, vec3(st));
+    float w = w3.x * w3.y * w3.z;
+    if (w == 0.0) continue;
+    acc += w * bounceTexel(face, clamp(lo + st, ivec3(0), maxT));
   }
-  return covered > 0.0 ? sum / covered : vec3(0.0);
+  return acc.w >= ${(1 / 256).toFixed(8)} ? acc.rgb / acc.w : vec3(0.0);
 }
 void main() {`;
 
-// `normal` is the shading normal in view space, already turned towards the viewer on back faces
-// (DoubleSide) or derived from the triangle (flat shading): the side that is seen is the side
-// that is lit and sampled, as in shade.wgsl.
+// The volume is read with the triangle's own normal turned to the seen side, as in shade.wgsl: the
+// side whose patch (by the direction it faces most) holds this surface's light; `normal`, the
+// shading normal in view space, only where the triangle's is degenerate.
 const FRAGMENT_INDIRECT = /* glsl */ `
+vec3 bounceNormal = cross(dFdx(vBounceWorld), dFdy(vBounceWorld));
+if (!(dot(bounceNormal, bounceNormal) > 0.0)) {
+  bounceNormal = inverseTransformDirection(normal, viewMatrix);
+}
+if (dot(bounceNormal, cameraPosition - vBounceWorld) < 0.0) {
+  bounceNormal = -bounceNormal;
+}
 if (bounceIndirect > 0.0) {
-  irradiance += bounceSampleVolume(vBounceWorld, inverseTransformDirection(normal, viewMatrix));
+  irradiance += bounceSampleVolume(vBounceWorld, bounceNormal);
 }
 #include <lights_fragment_end>`;
 
@@ -197,6 +224,6 @@ export function convertMaterial(source, uniforms) {
     m.emissiveMap = source.emissiveMap ?? null;
   }
   m.onBeforeCompile = (shader) => patchShader(shader, uniforms);
-  m.customProgramCacheKey = () => 'bounce-volume-v2';
+  m.customProgramCacheKey = () => 'bounce-volume-v3';
   return m;
 }
