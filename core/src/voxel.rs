@@ -13,7 +13,7 @@ use glam::{DVec3, Vec3};
 use thiserror::Error;
 
 use crate::patch::{Face, Patch, PatchLayout, Quad};
-use crate::scene::Scene;
+use crate::scene::{Scene, Triangle};
 
 /// The most patches a bake accepts: the dense transport grows as n², and at this size a
 /// three-channel f32 matrix is already 4.8 GB.
@@ -481,52 +481,34 @@ pub fn voxelize_at(scene: &Scene, size: f32) -> Result<Voxelization, VoxelError>
     let (origin, dims) = (grid.origin, grid.dims);
     let face_area = size as f64 * size as f64;
     let mut voxels: HashMap<u64, VoxelAccum> = HashMap::new();
-    let mut stack = Vec::new();
-    for tri in &scene.triangles {
-        let cross = tri.cross();
-        let len = cross.length();
-        if !(len > 0.0 && len.is_finite()) {
-            continue;
+    grid.pieces(scene, |_, tri, n, _, area, centroid| {
+        let (albedo, emission) = (tri.albedo.as_dvec3(), tri.emission.as_dvec3());
+        // Clipping through a grid edge or corner leaves rounding-error slivers in the
+        // neighbouring voxels; counted, they would mark those voxels occupied and hide faces
+        // that are really open.
+        if area.is_nan() || area <= MIN_PIECE_AREA * face_area {
+            return;
         }
-        let n = (cross / len).as_dvec3();
-        let albedo = tri.albedo.as_dvec3();
-        let emission = tri.emission.as_dvec3();
-        stack.clear();
-        stack.push(Poly::from_slice(&tri.positions));
-        while let Some(poly) = stack.pop() {
-            if let Some((a, b)) = grid.split(&poly) {
-                stack.push(a);
-                stack.push(b);
+        let key = grid.key(grid.cell_of(centroid));
+        let acc = voxels.entry(key).or_default();
+        for face in Face::ALL {
+            let c = n.dot(face.normal().as_dvec3());
+            let (c, normal) = if c > 0.0 {
+                (c, n)
+            } else if tri.double_sided && c < 0.0 {
+                (-c, -n)
+            } else {
                 continue;
-            }
-            let (area, centroid) = poly.area_centroid(n);
-            // Clipping through a grid edge or corner leaves rounding-error slivers in the
-            // neighbouring voxels; counted, they would mark those voxels occupied and hide
-            // faces that are really open.
-            if area.is_nan() || area <= MIN_PIECE_AREA * face_area {
-                continue;
-            }
-            let key = grid.key(grid.cell_of(centroid));
-            let acc = voxels.entry(key).or_default();
-            for face in Face::ALL {
-                let c = n.dot(face.normal().as_dvec3());
-                let (c, normal) = if c > 0.0 {
-                    (c, n)
-                } else if tri.double_sided && c < 0.0 {
-                    (-c, -n)
-                } else {
-                    continue;
-                };
-                let w = area * c;
-                let f = &mut acc.faces[face as usize];
-                f.weight += w;
-                f.albedo += albedo * w;
-                f.emission += emission * w;
-                f.centroid += centroid * w;
-                f.normal += normal * w;
-            }
+            };
+            let w = area * c;
+            let f = &mut acc.faces[face as usize];
+            f.weight += w;
+            f.albedo += albedo * w;
+            f.emission += emission * w;
+            f.centroid += centroid * w;
+            f.normal += normal * w;
         }
-    }
+    });
 
     let mut keys: Vec<u64> = voxels.keys().copied().collect();
     keys.sort_unstable();
@@ -657,57 +639,40 @@ pub fn cluster_at(scene: &Scene, size: f32) -> Result<Voxelization, VoxelError> 
     let face_area = size as f64 * size as f64;
     let mut groups: HashMap<(u64, Face), Group> = HashMap::new();
     let mut unassigned = 0.0f64;
-    let mut stack = Vec::new();
-    for (index, tri) in scene.triangles.iter().enumerate() {
-        let cross = tri.cross();
-        let len = cross.length();
-        if !(len > 0.0 && len.is_finite()) {
-            continue;
-        }
-        let n = (cross / len).as_dvec3();
+    grid.pieces(scene, |index, tri, n, poly, area, centroid| {
         let sides: &[f64] = if tri.double_sided {
             &[1.0, -1.0]
         } else {
             &[1.0]
         };
-        stack.clear();
-        stack.push(Poly::from_slice(&tri.positions));
-        while let Some(poly) = stack.pop() {
-            if let Some((a, b)) = grid.split(&poly) {
-                stack.push(a);
-                stack.push(b);
-                continue;
-            }
-            let (area, centroid) = poly.area_centroid(n);
-            if area.is_nan() || area <= 0.0 {
-                continue;
-            }
-            // Rounding-error slivers of clipping through a grid edge or corner are not
-            // geometry; their (negligible) area is reported as belonging to no patch.
-            if area <= MIN_PIECE_AREA * face_area {
-                unassigned += area * sides.len() as f64;
-                continue;
-            }
-            let key = grid.key(grid.cell_of(centroid));
-            let fan = poly.fan(n);
-            for &sign in sides {
-                let normal = n * sign;
-                let face = dominant_face(normal.as_vec3());
-                let g = groups.entry((key, face)).or_default();
-                g.acc.weight += area;
-                g.acc.albedo += tri.albedo.as_dvec3() * area;
-                g.acc.emission += tri.emission.as_dvec3() * area;
-                g.acc.centroid += centroid * area;
-                g.acc.normal += normal * area;
-                g.tris.extend(fan.iter().map(|&(corners, a)| PieceTri {
-                    corners,
-                    normal: normal.as_vec3(),
-                    area: a,
-                    triangle: index as u32,
-                }));
-            }
+        if area.is_nan() || area <= 0.0 {
+            return;
         }
-    }
+        // Rounding-error slivers of clipping through a grid edge or corner are not geometry;
+        // their (negligible) area is reported as belonging to no patch.
+        if area <= MIN_PIECE_AREA * face_area {
+            unassigned += area * sides.len() as f64;
+            return;
+        }
+        let key = grid.key(grid.cell_of(centroid));
+        let fan = poly.fan(n);
+        for &sign in sides {
+            let normal = n * sign;
+            let face = dominant_face(normal.as_vec3());
+            let g = groups.entry((key, face)).or_default();
+            g.acc.weight += area;
+            g.acc.albedo += tri.albedo.as_dvec3() * area;
+            g.acc.emission += tri.emission.as_dvec3() * area;
+            g.acc.centroid += centroid * area;
+            g.acc.normal += normal * area;
+            g.tris.extend(fan.iter().map(|&(corners, a)| PieceTri {
+                corners,
+                normal: normal.as_vec3(),
+                area: a,
+                triangle: index as u32,
+            }));
+        }
+    });
     let mut keys: Vec<(u64, Face)> = groups.keys().copied().collect();
     keys.sort_unstable();
     let mut patches = Vec::with_capacity(keys.len());
@@ -767,6 +732,32 @@ struct Grid {
 }
 
 impl Grid {
+    /// Every triangle of `scene` with an area, clipped exactly against the grid planes: `f` gets
+    /// the triangle's index, the triangle, its unit normal, and each piece with its area and
+    /// centroid (each piece lies in one voxel).
+    fn pieces(&self, scene: &Scene, mut f: impl FnMut(usize, &Triangle, DVec3, &Poly, f64, DVec3)) {
+        let mut stack = Vec::new();
+        for (index, tri) in scene.triangles.iter().enumerate() {
+            let cross = tri.cross();
+            let len = cross.length();
+            if !(len > 0.0 && len.is_finite()) {
+                continue;
+            }
+            let n = (cross / len).as_dvec3();
+            stack.clear();
+            stack.push(Poly::from_slice(&tri.positions));
+            while let Some(poly) = stack.pop() {
+                if let Some((a, b)) = self.split(&poly) {
+                    stack.push(a);
+                    stack.push(b);
+                    continue;
+                }
+                let (area, centroid) = poly.area_centroid(n);
+                f(index, tri, n, &poly, area, centroid);
+            }
+        }
+    }
+
     fn key(&self, c: [u32; 3]) -> u64 {
         // z-major so that sorted keys walk the grid in x-fastest order.
         (c[2] as u64 * self.dims[1] as u64 + c[1] as u64) * self.dims[0] as u64 + c[0] as u64

@@ -389,22 +389,18 @@ impl<'a> Renderer<'a> {
         volume: &Volume,
         options: &RenderOptions,
     ) -> Result<Image, RenderError> {
-        check_size(options.width, options.height)?;
-        let mut stage = Stage::new(self, scene, volume)?;
-        stage.set_lights(self, lights)?;
-        let (terms, flags) = terms_of(options);
-        let (width, height) = (options.width, options.height);
-        let pixels = self.offscreen(
-            &mut stage,
+        let pixels = self.render_scene(
+            scene,
             camera,
-            (width, height),
+            lights,
+            volume,
+            options,
             options.exposure,
-            terms,
-            (IMAGE_FORMAT, flags),
+            (IMAGE_FORMAT, 0),
         )?;
         Ok(Image {
-            width,
-            height,
+            width: options.width,
+            height: options.height,
             pixels,
         })
     }
@@ -419,32 +415,53 @@ impl<'a> Renderer<'a> {
         volume: &Volume,
         options: &RenderOptions,
     ) -> Result<LinearImage, RenderError> {
+        let bytes = self.render_scene(
+            scene,
+            camera,
+            lights,
+            volume,
+            options,
+            1.0,
+            (LINEAR_FORMAT, FLAG_LINEAR),
+        )?;
+        // RGBA f32 texels, as the GPU wrote them (native-endian).
+        let floats: Vec<f32> = bytes
+            .chunks_exact(4)
+            .map(|b| f32::from_ne_bytes([b[0], b[1], b[2], b[3]]))
+            .collect();
+        let pixels = floats.chunks_exact(4).map(|t| [t[0], t[1], t[2]]).collect();
+        Ok(LinearImage {
+            width: options.width,
+            height: options.height,
+            pixels,
+        })
+    }
+
+    /// The shared part of [`Renderer::render`] and [`Renderer::render_linear`]: a stage for
+    /// `scene` under `lights`, drawn offscreen into `format` with `extra` flags, read back.
+    #[allow(clippy::too_many_arguments)]
+    fn render_scene(
+        &self,
+        scene: &Scene,
+        camera: &Camera,
+        lights: &LightSet,
+        volume: &Volume,
+        options: &RenderOptions,
+        exposure: f32,
+        (format, extra): (wgpu::TextureFormat, u32),
+    ) -> Result<Vec<u8>, RenderError> {
         check_size(options.width, options.height)?;
         let mut stage = Stage::new(self, scene, volume)?;
         stage.set_lights(self, lights)?;
         let (terms, flags) = terms_of(options);
-        let (width, height) = (options.width, options.height);
-        let bytes = self.offscreen(
+        self.offscreen(
             &mut stage,
             camera,
-            (width, height),
-            1.0,
+            (options.width, options.height),
+            exposure,
             terms,
-            (LINEAR_FORMAT, flags | FLAG_LINEAR),
-        )?;
-        let pixels = bytes
-            .chunks_exact(16)
-            .map(|texel| {
-                let channel =
-                    |c: usize| f32::from_ne_bytes(texel[4 * c..4 * c + 4].try_into().unwrap());
-                [channel(0), channel(1), channel(2)]
-            })
-            .collect();
-        Ok(LinearImage {
-            width,
-            height,
-            pixels,
-        })
+            (format, flags | extra),
+        )
     }
 
     /// One image of a stage, offscreen, read back.

@@ -25,7 +25,7 @@ fn plane(k: u32) -> f32 {
 }
 
 /// Two one-sided triangles covering the rectangle `a b c d`, facing `normal`.
-fn rect(out: &mut Vec<Triangle>, corners: [Vec3; 4], normal: Vec3) {
+pub(crate) fn rect(out: &mut Vec<Triangle>, corners: [Vec3; 4], normal: Vec3) {
     let [a, b, c, d] = corners;
     for mut tri in [[a, b, c], [a, c, d]] {
         if (tri[1] - tri[0]).cross(tri[2] - tri[0]).dot(normal) < 0.0 {

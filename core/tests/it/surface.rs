@@ -21,18 +21,10 @@ fn no_progress(_: u64) {}
 
 /// Two triangles covering the rectangle `a b c d`, wound to face `normal`.
 fn rect(out: &mut Vec<Triangle>, corners: [Vec3; 4], normal: Vec3, double_sided: bool) {
-    let [a, b, c, d] = corners;
-    for mut tri in [[a, b, c], [a, c, d]] {
-        if (tri[1] - tri[0]).cross(tri[2] - tri[0]).dot(normal) < 0.0 {
-            tri.swap(1, 2);
-        }
-        out.push(Triangle {
-            positions: tri,
-            albedo: Vec3::splat(0.5),
-            emission: Vec3::ZERO,
-            double_sided,
-            material: 0,
-        });
+    let start = out.len();
+    crate::direct::rect(out, corners, normal);
+    for t in &mut out[start..] {
+        t.double_sided = double_sided;
     }
 }
 

@@ -19,15 +19,13 @@
 //! may fuse multiply-adds, so values agree to a few ulps and a shadow ray that grazes a voxel edge
 //! may flip (`engine/tests/gpu_direct.rs` bounds both).
 
-use std::sync::mpsc;
-
 use bounce_core::direct::{LightKind, PreparedLight, samples_side};
 use bounce_core::light::LightSet;
 use bounce_core::patch::PatchLayout;
 use bytemuck::{Pod, Zeroable};
 use wgpu::util::DeviceExt;
 
-use super::kernel::{check_binding, pipeline, storage};
+use super::kernel::{check_binding, pipeline, read_rgb, storage};
 use super::{GpuContext, GpuError};
 
 /// Threads per workgroup (mirrors `WG` in `direct.wgsl`).
@@ -315,26 +313,6 @@ impl GpuDirect {
         }
         encoder.copy_buffer_to_buffer(&out, 0, &readback, 0, bytes);
         self.queue.submit([encoder.finish()]);
-        let slice = readback.slice(..);
-        let (tx, rx) = mpsc::channel();
-        slice.map_async(wgpu::MapMode::Read, move |r| {
-            // The receiver outlives the poll below; a send can only fail after it gave up.
-            let _ = tx.send(r);
-        });
-        device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .map_err(|e| GpuError::Readback(e.to_string()))?;
-        rx.recv()
-            .map_err(|e| GpuError::Readback(e.to_string()))?
-            .map_err(|e| GpuError::Readback(e.to_string()))?;
-        let mut result = vec![[0.0f32; 3]; threads as usize];
-        {
-            let view = slice
-                .get_mapped_range()
-                .map_err(|e| GpuError::Readback(e.to_string()))?;
-            bytemuck::cast_slice_mut::<[f32; 3], u8>(&mut result).copy_from_slice(&view);
-        }
-        readback.unmap();
-        Ok(result)
+        read_rgb(device, &readback, threads as usize)
     }
 }

@@ -36,8 +36,6 @@
 //! within u32), and within a slice the patches go in pieces of at most [`RAYS_PER_PIECE`] rays,
 //! so the visibility bits stay small whatever the batch.
 
-use std::sync::mpsc;
-
 use bounce_core::direct::{PreparedLight, SHADOW_END};
 use bounce_core::light::LightSet;
 use bounce_core::surface::SurfaceData;
@@ -46,7 +44,7 @@ use bytemuck::{Pod, Zeroable};
 use wgpu::util::DeviceExt;
 
 use super::direct::{GpuLight, LIGHT};
-use super::kernel::{check_binding, pipeline, storage};
+use super::kernel::{check_binding, pipeline, read_rgb, storage};
 use super::{GpuContext, GpuError};
 
 /// Threads per workgroup (mirrors `WG` in `direct_surface.wgsl`).
@@ -465,26 +463,6 @@ impl GpuSurfaceDirect {
         }
         encoder.copy_buffer_to_buffer(&out, 0, &readback, 0, bytes);
         self.queue.submit([encoder.finish()]);
-        let slice = readback.slice(..);
-        let (tx, rx) = mpsc::channel();
-        slice.map_async(wgpu::MapMode::Read, move |r| {
-            // The receiver outlives the poll below; a send can only fail after it gave up.
-            let _ = tx.send(r);
-        });
-        device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .map_err(|e| GpuError::Readback(e.to_string()))?;
-        rx.recv()
-            .map_err(|e| GpuError::Readback(e.to_string()))?
-            .map_err(|e| GpuError::Readback(e.to_string()))?;
-        let mut result = vec![[0.0f32; 3]; (n * u64::from(sets_n)) as usize];
-        {
-            let view = slice
-                .get_mapped_range()
-                .map_err(|e| GpuError::Readback(e.to_string()))?;
-            bytemuck::cast_slice_mut::<[f32; 3], u8>(&mut result).copy_from_slice(&view);
-        }
-        readback.unmap();
-        Ok(result)
+        read_rgb(device, &readback, (n * u64::from(sets_n)) as usize)
     }
 }

@@ -138,3 +138,33 @@ pub fn grid(device: &wgpu::Device, groups: u32, sets: u32) -> ([u32; 3], u32) {
 pub fn u32_bytes(values: &[u32]) -> &[u8] {
     bytemuck::cast_slice(values)
 }
+
+/// Wait for the queue, then copy `count` RGB f32 triples out of `readback` (a `MAP_READ` buffer
+/// that the submitted work filled) and unmap it: the end of the direct-light kernels.
+pub fn read_rgb(
+    device: &wgpu::Device,
+    readback: &wgpu::Buffer,
+    count: usize,
+) -> Result<Vec<[f32; 3]>, GpuError> {
+    let slice = readback.slice(..);
+    let (tx, rx) = std::sync::mpsc::channel();
+    slice.map_async(wgpu::MapMode::Read, move |r| {
+        // The receiver outlives the poll below; a send can only fail after it gave up.
+        let _ = tx.send(r);
+    });
+    device
+        .poll(wgpu::PollType::wait_indefinitely())
+        .map_err(|e| GpuError::Readback(e.to_string()))?;
+    rx.recv()
+        .map_err(|e| GpuError::Readback(e.to_string()))?
+        .map_err(|e| GpuError::Readback(e.to_string()))?;
+    let mut result = vec![[0.0f32; 3]; count];
+    {
+        let view = slice
+            .get_mapped_range()
+            .map_err(|e| GpuError::Readback(e.to_string()))?;
+        bytemuck::cast_slice_mut::<[f32; 3], u8>(&mut result).copy_from_slice(&view);
+    }
+    readback.unmap();
+    Ok(result)
+}
