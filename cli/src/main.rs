@@ -58,7 +58,7 @@ enum Command {
     /// batch of light configurations, on the GPU or the CPU.
     Relight(relight_cmd::RelightArgs),
     /// Draw one image of a glTF scene lit by a baked transport (direct light with shadow maps,
-    /// indirect light from the irradiance volume), offscreen, to a PNG.
+    /// indirect light from the irradiance volume), offscreen, to a PNG or linear EXR/PFM.
     Render(render_cmd::RenderArgs),
     /// Open a window on a glTF scene: direct light from its own shadow maps, indirect light
     /// streamed from a server session (or relit in process from a baked file); fly, move lights.
