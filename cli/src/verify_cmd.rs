@@ -186,8 +186,28 @@ pub fn run(args: &VerifyArgs) -> Result<()> {
         .map(|(p, e)| std::array::from_fn(|c| p.emission[c] + p.albedo[c] * e[c] as f32))
         .collect();
     let exact_op = codec::decode(&exact.as_ref().unwrap_or(&baked).transport)?;
-    let mut surface_lit = vec![[0.0f32; 3]; b0.len()];
-    exact_op.matvec_batch(&b0, &mut surface_lit)?;
+    // With elements, each takes its patch's reference direct light (the reference knows
+    // patches, not elements), and the result is restricted to the patches as a relight is.
+    let surface_lit = match &baked.elements {
+        Some(e) => {
+            let rows = e.spread(&surface_direct);
+            let b0: Vec<[f32; 3]> = e
+                .layout
+                .patches
+                .iter()
+                .zip(&rows)
+                .map(|(p, e)| std::array::from_fn(|c| p.emission[c] + p.albedo[c] * e[c] as f32))
+                .collect();
+            let mut lit = vec![[0.0f32; 3]; b0.len()];
+            exact_op.matvec_batch(&b0, &mut lit)?;
+            e.restrict(&baked.layout, &lit)
+        }
+        None => {
+            let mut lit = vec![[0.0f32; 3]; b0.len()];
+            exact_op.matvec_batch(&b0, &mut lit)?;
+            lit
+        }
+    };
 
     let report = compare(
         &compressed,

@@ -260,7 +260,13 @@ fn simplify_with(
     let drop_isolated = |mut v: voxel::Voxelization| {
         let isolated = match (&v.pieces, mesh) {
             (Some(pieces), Some(mesh)) => {
-                let probe = SurfaceScene::new(scene, mesh.clone(), &v.layout, pieces);
+                let probe = SurfaceScene::new(
+                    scene,
+                    mesh.clone(),
+                    v.transport_layout(),
+                    pieces,
+                    &v.refinement,
+                );
                 formfactor::isolated_patches(&probe, PROBE_RAYS, options.seed)
             }
             _ => {
@@ -282,6 +288,14 @@ fn simplify_with(
             })?;
     vox.reorder(options.patch_order);
     Ok(vox)
+}
+
+/// The elements a file keeps: none when every patch is one element standing for all of it, as a
+/// file without elements means.
+pub(crate) fn file_elements(vox: &voxel::Voxelization) -> Option<crate::element::Elements> {
+    let e = vox.elements.as_ref()?;
+    let trivial = e.len() == vox.layout.len() && e.layout.patches == vox.layout.patches;
+    (!trivial).then(|| e.clone())
 }
 
 /// Refuse bad codec options before any expensive work.
@@ -363,7 +377,8 @@ pub(crate) fn prepare(
                 per_patch: options.direct_samples,
                 points: surface::sample_points(pieces, options.direct_samples, options.seed),
             };
-            let rays = SurfaceScene::new(scene, mesh, &vox.layout, pieces);
+            let rays =
+                SurfaceScene::new(scene, mesh, vox.transport_layout(), pieces, &vox.refinement);
             Ok(Prepared {
                 vox,
                 rays: Box::new(rays),
@@ -478,6 +493,7 @@ pub(crate) struct MetaParts {
     pub occupied_voxels: usize,
     pub dropped_patches: usize,
     pub patches: usize,
+    pub elements: usize,
     pub rays: crate::rays::RayTally,
     pub form_factors: FormFactorStats,
     pub channels: usize,
@@ -496,10 +512,11 @@ pub(crate) fn build_meta(p: MetaParts) -> BakeMeta {
         source_bytes: p.source.source_bytes,
         stats: BakeStats {
             patches: p.patches,
+            elements: p.elements,
             voxel_size: p.voxel_size,
             occupied_voxels: p.occupied_voxels,
             dropped_patches: p.dropped_patches,
-            rays_total: p.patches as u64 * u64::from(p.settings.rays_per_patch),
+            rays_total: p.elements as u64 * u64::from(p.settings.rays_per_patch),
             rays: p.rays,
             row_sum_min: ff.row_sum_min,
             row_sum_max: ff.row_sum_max,
@@ -534,21 +551,21 @@ fn bake_with(
         surface,
         tracer,
     } = prepare(scene, options, &mut timer)?;
-    let layout = vox.layout;
-    let n = layout.len();
+    let rows = vox.transport_layout();
+    let n = rows.len();
     let (f, tally) = timer.run(Stage::FormFactors, n as u64, || {
         formfactor::form_factors(rays.as_ref(), options.rays, options.seed, &advance)
     })?;
     drop(rays);
-    let ff = check_form_factors(&f, &layout, options.geometry)?;
+    let ff = check_form_factors(&f, rows, options.geometry)?;
 
-    let albedo: Vec<[f32; 3]> = layout.patches.iter().map(|p| p.albedo).collect();
+    let albedo: Vec<[f32; 3]> = rows.patches.iter().map(|p| p.albedo).collect();
     let channels = transport::channels_needed(&albedo, options.bounces);
     let t = timer.run(Stage::Transport, (n * channels) as u64, || {
         transport::transport(&f, &albedo, options.bounces, &advance)
     })?;
 
-    let (transport, codec_err) = encode_timed(&t, &layout, options, &mut timer)?;
+    let (transport, codec_err) = encode_timed(&t, rows, options, &mut timer)?;
     drop(t);
     let form_factors = options
         .keep_form_factors
@@ -557,10 +574,11 @@ fn bake_with(
     let meta = build_meta(MetaParts {
         settings: settings(options, tracer),
         source,
-        voxel_size: layout.voxel_size,
+        voxel_size: vox.layout.voxel_size,
         occupied_voxels: vox.occupied_voxels,
         dropped_patches: vox.dropped_patches,
-        patches: n,
+        patches: vox.layout.len(),
+        elements: n,
         rays: tally,
         form_factors: ff,
         channels,
@@ -570,9 +588,11 @@ fn bake_with(
         surface_area: vox.total_area,
         unassigned_area: vox.unassigned_area,
     });
+    let elements = file_elements(&vox);
     Ok(Baked {
         meta,
-        layout,
+        layout: vox.layout,
+        elements,
         transport,
         form_factors,
         // The runtime traces shadow rays against what the form factors were traced against:

@@ -13,6 +13,7 @@
 pub mod bake;
 pub mod codec;
 pub mod direct;
+pub mod element;
 pub mod format;
 pub mod formfactor;
 pub mod import;

@@ -109,10 +109,15 @@ fn default_codec() -> String {
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct BakeStats {
     pub patches: usize,
+    /// Rows of the transport: the elements the patches split into (surface geometry), or the
+    /// patches. 0 in files from before elements, whose rows are the patches.
+    #[serde(default)]
+    pub elements: usize,
     pub voxel_size: f32,
     pub occupied_voxels: usize,
     /// Candidate patches dropped because their probe rays reached no other patch.
     pub dropped_patches: usize,
+    /// Rays traced for the form factors: rows × rays per row.
     pub rays_total: u64,
     /// Where the form-factor rays ended.
     #[serde(default)]

@@ -86,6 +86,7 @@ pub struct ShardMeta {
     pub count: u32,
     pub first_row: usize,
     pub end_row: usize,
+    /// Rows (and columns) of the transport: the elements, or the patches of a voxel-face bake.
     pub patches: usize,
     /// Channels of the rows: 1 for form factors; the transport's 1 or 3.
     pub channels: usize,
@@ -261,7 +262,7 @@ pub fn form_factor_shard(
         tracer,
     } = bake::prepare(&scene, options, &mut timer)?;
     drop(scene);
-    let n = vox.layout.len();
+    let n = vox.transport_layout().len();
     let rows = shard_rows(n, spec.index, spec.count);
     let traced = timer.run(Stage::FormFactors, rows.len() as u64, || {
         formfactor::form_factor_rows_tallied(
@@ -297,6 +298,7 @@ pub fn form_factor_shard(
     Ok(ShardFile {
         header: ShardHeader {
             meta,
+            elements: bake::file_elements(&vox),
             layout: vox.layout,
             occupancy: vox.occupied,
             surface,
@@ -323,13 +325,19 @@ pub fn transport_shard(
         assemble(&members, 1, false, progress)
     })?;
     let options = bake::options_of(&first.meta.settings, first.meta.keep_form_factors);
-    let stats = bake::check_form_factors(&f, &first.layout, first.meta.settings.geometry)?;
+    let stats =
+        bake::check_form_factors(&f, first.transport_layout(), first.meta.settings.geometry)?;
     let summary = FormFactorSummary {
         stats,
         crc32: crc32fast::hash(&crate::format::f32_le_bytes(&f.data)),
     };
     let rows = shard_rows(n, spec.index, spec.count);
-    let albedo: Vec<[f32; 3]> = first.layout.patches.iter().map(|p| p.albedo).collect();
+    let albedo: Vec<[f32; 3]> = first
+        .transport_layout()
+        .patches
+        .iter()
+        .map(|p| p.albedo)
+        .collect();
     let channels = transport::channels_needed(&albedo, options.bounces);
     let t_rows = timer.run(Stage::Transport, (rows.len() * channels) as u64, || {
         let mut out = Vec::with_capacity(rows.len() * n * channels);
@@ -371,6 +379,7 @@ pub fn transport_shard(
             layout: first.layout,
             occupancy: first.occupancy,
             surface: first.surface,
+            elements: first.elements,
         },
         rows: t_rows,
         form_factor_rows,
@@ -407,8 +416,9 @@ pub fn merge(inputs: &[PathBuf], progress: &dyn Progress) -> Result<Baked, Shard
             let (f, _) = timer.run(Stage::ReadShards, n as u64, || {
                 assemble(&members, 1, false, progress)
             })?;
-            let stats = bake::check_form_factors(&f, &first.layout, first.meta.settings.geometry)?;
-            let albedo: Vec<[f32; 3]> = first.layout.patches.iter().map(|p| p.albedo).collect();
+            let rows = first.transport_layout();
+            let stats = bake::check_form_factors(&f, rows, first.meta.settings.geometry)?;
+            let albedo: Vec<[f32; 3]> = rows.patches.iter().map(|p| p.albedo).collect();
             let channels = transport::channels_needed(&albedo, options.bounces);
             let t = timer.run(Stage::Transport, (n * channels) as u64, || {
                 transport::transport(&f, &albedo, options.bounces, &|k| progress.advance(k))
@@ -421,7 +431,8 @@ pub fn merge(inputs: &[PathBuf], progress: &dyn Progress) -> Result<Baked, Shard
             (t, m0.keep_form_factors.then_some(f), stats, rays, timings)
         }
     };
-    let (transport, codec_err) = bake::encode_timed(&t, &first.layout, &options, &mut timer)?;
+    let (transport, codec_err) =
+        bake::encode_timed(&t, first.transport_layout(), &options, &mut timer)?;
     let channels = t.channels;
     drop(t);
     let form_factors = f.as_ref().map(EncodedMatrix::encode_dense_f32);
@@ -434,7 +445,8 @@ pub fn merge(inputs: &[PathBuf], progress: &dyn Progress) -> Result<Baked, Shard
         dropped_patches: m0.dropped_patches,
         surface_area: m0.surface_area,
         unassigned_area: m0.unassigned_area,
-        patches: n,
+        patches: first.layout.len(),
+        elements: n,
         rays,
         form_factors: stats,
         channels,
@@ -449,6 +461,7 @@ pub fn merge(inputs: &[PathBuf], progress: &dyn Progress) -> Result<Baked, Shard
         form_factors,
         occupancy: first.surface.is_none().then_some(first.occupancy),
         surface: first.surface,
+        elements: first.elements,
         model,
     })
 }
@@ -599,6 +612,7 @@ fn difference(a: &ShardHeader, b: &ShardHeader) -> Option<&'static str> {
         || x.occupied_voxels != y.occupied_voxels
         || x.dropped_patches != y.dropped_patches
         || a.surface != b.surface
+        || a.elements != b.elements
     {
         Some("voxelisations")
     } else if x.channels != y.channels {

@@ -16,6 +16,7 @@ use std::sync::Arc;
 use glam::Vec3;
 use serde::{Deserialize, Serialize};
 
+use crate::element::{Refinement, sub_cell};
 use crate::formfactor::{RowTracer, row_seed};
 use crate::patch::{Face, PatchLayout};
 use crate::rays::{RayFate, RayTally};
@@ -169,6 +170,8 @@ pub struct SurfaceScene {
     /// Per original triangle: the face its front side joins, and its back's for a double-sided
     /// triangle (`None` for a single-sided one: its back is no surface).
     sides: Vec<[Option<Face>; 2]>,
+    /// Per original triangle, its connected surface ([`crate::element::components`]).
+    component: Vec<u32>,
     pieces: Pieces,
     cdf: Vec<f64>,
     origin: Vec3,
@@ -176,18 +179,28 @@ pub struct SurfaceScene {
     dims: [u32; 3],
     /// The scene's size, for [`offset_origin`].
     extent: f32,
-    /// `linear voxel index · 6 + face code` → patch.
-    patches: HashMap<u64, u32>,
+    /// (`linear voxel index · 6 + face code`, component, sub-cell) → transport row.
+    rows: HashMap<(u64, u32, u32), u32>,
+    /// (`linear voxel index · 6 + face code`, component) → the first of its sub-cells' rows: for
+    /// a point that rounds into a sub-cell its surface has no piece in (a surface lying on a
+    /// sub-cell plane), so that no light meeting real surface is lost.
+    any_sub: HashMap<(u64, u32), u32>,
+    /// Where elements are cut finer than their voxel.
+    refinement: Refinement,
 }
 
 impl SurfaceScene {
-    /// `mesh` must be [`scene_mesh`] of `scene`; `pieces` are `layout`'s.
+    /// `mesh` must be [`scene_mesh`] of `scene`; `rows` are the transport's rows (the elements,
+    /// [`crate::voxel::Voxelization::transport_layout`]), `pieces` theirs, and `refinement` says
+    /// where they are cut finer than their voxel.
     pub fn new(
         scene: &Scene,
         mesh: Arc<TriMesh>,
-        layout: &PatchLayout,
+        rows: &PatchLayout,
         pieces: &Pieces,
+        refinement: &Refinement,
     ) -> SurfaceScene {
+        let component = crate::element::components(scene);
         let sides = scene
             .triangles
             .iter()
@@ -199,41 +212,57 @@ impl SurfaceScene {
                 ]
             })
             .collect();
-        let dims = layout.dims;
-        let patches = layout
+        let dims = rows.dims;
+        let origin = Vec3::from(rows.origin);
+        let rows_at = rows
             .patches
             .iter()
             .enumerate()
-            .map(|(i, p)| (key(dims, p.voxel) * 6 + u64::from(p.face.code()), i as u32))
-            .collect();
+            .filter_map(|(i, p)| {
+                let first = pieces.of(i).first()?;
+                let voxel = key(dims, p.voxel);
+                let sub = if refinement.cuts(voxel) {
+                    let c = first.corners;
+                    let at = ((c[0] + c[1] + c[2]) / 3.0 - origin) / rows.voxel_size;
+                    fine_sub(at, p.voxel, refinement.factor)
+                } else {
+                    0
+                };
+                let cell = voxel * 6 + u64::from(p.face.code());
+                Some(((cell, component[first.triangle as usize], sub), i as u32))
+            })
+            .collect::<HashMap<(u64, u32, u32), u32>>();
+        let mut any_sub = HashMap::new();
+        for (&(cell, comp, _), &row) in &rows_at {
+            let first = any_sub.entry((cell, comp)).or_insert(row);
+            *first = (*first).min(row);
+        }
         SurfaceScene {
+            any_sub,
             mesh,
             sides,
             cdf: piece_cdf(pieces),
             pieces: pieces.clone(),
-            origin: Vec3::from(layout.origin),
-            size: layout.voxel_size,
+            origin: Vec3::from(rows.origin),
+            size: rows.voxel_size,
             dims,
             extent: extent_of(scene.triangles.iter().flat_map(|t| &t.positions)),
-            patches,
+            rows: rows_at,
+            component,
+            refinement: refinement.clone(),
         }
     }
 
-    /// The patch whose piece holds `p` on a side facing `face`. A point on a voxel boundary
-    /// may round into the neighbour; the neighbours across boundaries within a thousandth of a
-    /// voxel are tried too.
-    fn patch_at(&self, p: Vec3, face: Face) -> Option<u32> {
+    /// The transport row whose piece of connected surface `component` holds `p` on a side
+    /// facing `face`. A point on a voxel boundary may round into the neighbour; the neighbours
+    /// across boundaries within a thousandth of a voxel are tried too.
+    fn row_at(&self, p: Vec3, face: Face, component: u32) -> Option<u32> {
         let f = (p - self.origin) / self.size;
         let mut cell = [0u32; 3];
         for a in 0..3 {
             cell[a] = (f[a].floor().max(0.0) as u32).min(self.dims[a].saturating_sub(1));
         }
-        let look = |c: [u32; 3]| {
-            self.patches
-                .get(&(key(self.dims, c) * 6 + u64::from(face.code())))
-                .copied()
-        };
-        if let Some(j) = look(cell) {
+        if let Some(j) = self.row_in(f, cell, face, component) {
             return Some(j);
         }
         for a in 0..3 {
@@ -246,11 +275,50 @@ impl SurfaceScene {
             } else {
                 continue;
             }
-            if let Some(j) = look(c) {
+            if let Some(j) = self.row_in(f, c, face, component) {
                 return Some(j);
             }
         }
         None
+    }
+
+    /// The row of voxel `cell` for a point at `f` (in voxel units from the grid's origin): its
+    /// sub-cell's where the voxel is cut, trying the sub-cells across boundaries within a
+    /// thousandth of a sub-cell too.
+    fn row_in(&self, f: Vec3, cell: [u32; 3], face: Face, component: u32) -> Option<u32> {
+        let voxel = key(self.dims, cell);
+        let look = |sub: u32| {
+            self.rows
+                .get(&(voxel * 6 + u64::from(face.code()), component, sub))
+                .copied()
+        };
+        if !self.refinement.cuts(voxel) {
+            return look(0);
+        }
+        let k = self.refinement.factor;
+        let sub = fine_sub(f, cell, k);
+        if let Some(j) = look(sub) {
+            return Some(j);
+        }
+        let local = |a: usize| (f[a] - cell[a] as f32) * k as f32;
+        for (a, stride) in [1, k, k * k].into_iter().enumerate() {
+            let l = local(a);
+            let i = (l.floor().max(0.0) as u32).min(k - 1);
+            let frac = l - i as f32;
+            let other = if frac < 1e-3 && i > 0 {
+                sub - stride
+            } else if frac > 1.0 - 1e-3 && i + 1 < k {
+                sub + stride
+            } else {
+                continue;
+            };
+            if let Some(j) = look(other) {
+                return Some(j);
+            }
+        }
+        self.any_sub
+            .get(&(voxel * 6 + u64::from(face.code()), component))
+            .copied()
     }
 
     /// Where a ray from a surface point ends.
@@ -263,7 +331,8 @@ impl SurfaceScene {
         let Some(face) = side else {
             return RayFate::BackFace;
         };
-        match self.patch_at(origin + dir * hit.t, face) {
+        let component = self.component[hit.triangle as usize];
+        match self.row_at(origin + dir * hit.t, face, component) {
             Some(j) => RayFate::Patch(j as usize),
             None => RayFate::Occluder,
         }
@@ -313,6 +382,13 @@ impl RowTracer for SurfaceScene {
             matches!(self.fate(origin, dir), RayFate::Patch(_))
         })
     }
+}
+
+/// The sub-cell of voxel `cell` a point at `f` (voxel units from the grid's origin) lies in.
+fn fine_sub(f: Vec3, cell: [u32; 3], factor: u32) -> u32 {
+    let k = factor as f32;
+    let fine = [0, 1, 2].map(|a| (f[a] * k).floor().max(0.0) as u32);
+    sub_cell(fine, cell, factor)
 }
 
 #[inline]

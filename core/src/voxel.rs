@@ -12,6 +12,7 @@ use std::collections::HashMap;
 use glam::{DVec3, Vec3};
 use thiserror::Error;
 
+use crate::element::{Elements, Refinement, sub_cell};
 use crate::patch::{Face, Patch, PatchLayout, Quad};
 use crate::scene::{Scene, Triangle};
 
@@ -29,6 +30,10 @@ const MIN_FACE_COVERAGE: f64 = 1e-3;
 
 /// Clipped pieces smaller than this share of a voxel face are rounding noise, not geometry.
 const MIN_PIECE_AREA: f64 = 1e-6;
+/// How much finer elements are cut in voxels where surfaces meet (per axis).
+pub const REFINE_FACTOR: u32 = 3;
+/// The most transport elements refinement may make, as a multiple of the patches.
+pub const REFINE_BUDGET: f64 = 1.5;
 
 /// How the voxel size is chosen.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -82,9 +87,16 @@ pub struct Voxelization {
     pub occupied: Vec<u64>,
     /// Candidate patches dropped by a [`Refine`] step (e.g. because they see nothing).
     pub dropped_patches: usize,
-    /// Surface geometry ([`Geometry::Surface`]): per patch, the pieces of original triangles it
-    /// stands for. `None` for voxel faces.
+    /// Elements dropped because they see nothing (those of dropped patches included).
+    pub dropped_elements: usize,
+    /// Surface geometry ([`Geometry::Surface`]): per transport row (element), the pieces of
+    /// original triangles it stands for. `None` for voxel faces.
     pub pieces: Option<Pieces>,
+    /// Surface geometry: the elements the transport runs on ([`crate::element`]). `None` for
+    /// voxel faces, whose patches are their own transport rows.
+    pub elements: Option<Elements>,
+    /// Where elements are cut finer than their voxel.
+    pub refinement: Refinement,
     /// Surface area (world units²) that belongs to no patch: pieces of patches that were dropped,
     /// and clipping slivers too small to be geometry. Always 0 for voxel faces, whose patches
     /// stand for projected rather than real area.
@@ -94,37 +106,95 @@ pub struct Voxelization {
 }
 
 impl Voxelization {
-    /// Drop the patches marked in `drop`: their faces stay as occluders, so they still block
-    /// light, but they carry no row or column of the transport.
+    /// What the transport's rows and columns are: the elements (surface geometry) or the
+    /// patches themselves (voxel faces).
+    pub fn transport_layout(&self) -> &PatchLayout {
+        self.elements.as_ref().map_or(&self.layout, |e| &e.layout)
+    }
+
+    /// Drop the transport rows marked in `drop` ([`Voxelization::transport_layout`]'s order).
+    /// Voxel faces stay as occluders, so they still block light, but carry no row or column of
+    /// the transport. Surface elements' triangles still block rays; only their area now belongs
+    /// to no element. A patch goes when all its elements have gone.
     pub fn drop_patches(&mut self, drop: &[bool]) {
         let dropped = |i: usize| drop.get(i).copied().unwrap_or(false);
-        let mut kept = Vec::with_capacity(self.layout.patches.len());
-        for (i, p) in self.layout.patches.iter().enumerate() {
-            if dropped(i) {
-                if self.pieces.is_some() {
-                    // Surface geometry: the triangles still block rays; only their area now
-                    // belongs to no patch.
-                    self.unassigned_area += f64::from(p.source_area);
+        if let Some(elements) = &mut self.elements {
+            let mut kept = Vec::with_capacity(elements.len());
+            let mut kept_patch = Vec::with_capacity(elements.len());
+            let mut has = vec![false; self.layout.len()];
+            for (i, (rec, &p)) in elements
+                .layout
+                .patches
+                .iter()
+                .zip(&elements.patch)
+                .enumerate()
+            {
+                if dropped(i) {
+                    self.unassigned_area += f64::from(rec.source_area);
+                    self.dropped_elements += 1;
                 } else {
-                    self.occluders.push(self.layout.face_quad(p.voxel, p.face));
+                    kept.push(*rec);
+                    kept_patch.push(p);
+                    has[p as usize] = true;
                 }
-                self.dropped_patches += 1;
-            } else {
-                kept.push(*p);
             }
+            // Renumber the patches that keep an element.
+            let mut renumber = vec![0u32; self.layout.len()];
+            let mut patches = Vec::with_capacity(self.layout.len());
+            for (i, p) in self.layout.patches.iter().enumerate() {
+                if has[i] {
+                    renumber[i] = patches.len() as u32;
+                    patches.push(*p);
+                } else {
+                    self.dropped_patches += 1;
+                }
+            }
+            elements.layout.patches = kept;
+            elements.patch = kept_patch.iter().map(|&p| renumber[p as usize]).collect();
+            self.layout.patches = patches;
+        } else {
+            let mut kept = Vec::with_capacity(self.layout.patches.len());
+            for (i, p) in self.layout.patches.iter().enumerate() {
+                if dropped(i) {
+                    self.occluders.push(self.layout.face_quad(p.voxel, p.face));
+                    self.dropped_patches += 1;
+                } else {
+                    kept.push(*p);
+                }
+            }
+            self.layout.patches = kept;
         }
-        self.layout.patches = kept;
         if let Some(pieces) = &mut self.pieces {
             pieces.retain(|i| !dropped(i));
         }
     }
 
-    /// Renumber the patches (and their pieces) in `order`.
+    /// Renumber the patches in `order`; each patch's elements (and their pieces) follow it.
     pub fn reorder(&mut self, order: PatchOrder) {
         let perm = self.layout.order_of(order);
         self.layout.patches = perm.iter().map(|&i| self.layout.patches[i]).collect();
+        let Some(elements) = &mut self.elements else {
+            if let Some(pieces) = &mut self.pieces {
+                *pieces = pieces.permuted(&perm);
+            }
+            return;
+        };
+        let mut first = vec![0usize; perm.len() + 1];
+        for &p in &elements.patch {
+            first[p as usize + 1] += 1;
+        }
+        for i in 0..perm.len() {
+            first[i + 1] += first[i];
+        }
+        let rows: Vec<usize> = perm.iter().flat_map(|&p| first[p]..first[p + 1]).collect();
+        let mut patch = Vec::with_capacity(rows.len());
+        for (new, &p) in perm.iter().enumerate() {
+            patch.extend(std::iter::repeat_n(new as u32, first[p + 1] - first[p]));
+        }
+        elements.layout.patches = rows.iter().map(|&r| elements.layout.patches[r]).collect();
+        elements.patch = patch;
         if let Some(pieces) = &mut self.pieces {
-            *pieces = pieces.permuted(&perm);
+            *pieces = pieces.permuted(&rows);
         }
     }
 }
@@ -327,6 +397,24 @@ struct FaceAccum {
     normal: DVec3,
 }
 
+impl FaceAccum {
+    fn add(&mut self, tri: &Triangle, area: f64, centroid: DVec3, normal: DVec3) {
+        self.weight += area;
+        self.albedo += tri.albedo.as_dvec3() * area;
+        self.emission += tri.emission.as_dvec3() * area;
+        self.centroid += centroid * area;
+        self.normal += normal * area;
+    }
+
+    fn merge(&mut self, o: &FaceAccum) {
+        self.weight += o.weight;
+        self.albedo += o.albedo;
+        self.emission += o.emission;
+        self.centroid += o.centroid;
+        self.normal += o.normal;
+    }
+}
+
 #[derive(Debug, Clone, Copy, Default)]
 struct VoxelAccum {
     faces: [FaceAccum; 6],
@@ -376,10 +464,11 @@ pub fn simplify_refined(
                     size,
                 });
             }
-            if v.layout.len() > MAX_PATCHES as usize {
+            // The transport's rows are the elements: they are what must fit.
+            if v.transport_layout().len() > MAX_PATCHES as usize {
                 return Err(VoxelError::TooManyPatches {
                     size,
-                    patches: v.layout.len(),
+                    patches: v.transport_layout().len(),
                 });
             }
             Ok(v)
@@ -445,7 +534,7 @@ fn search_voxel_size(
                     too_coarse = too_coarse.min(size);
                 }
                 let next = size * (count / target as f64).sqrt() as f32;
-                if err < best_err && v.layout.len() <= MAX_PATCHES as usize {
+                if err < best_err && v.transport_layout().len() <= MAX_PATCHES as usize {
                     best_err = err;
                     best = Some(v);
                 }
@@ -561,7 +650,10 @@ pub fn voxelize_at(scene: &Scene, size: f32) -> Result<Voxelization, VoxelError>
         occupied_voxels: keys.len(),
         occupied: keys,
         dropped_patches: 0,
+        dropped_elements: 0,
         pieces: None,
+        elements: None,
+        refinement: Refinement::default(),
         unassigned_area: 0.0,
         total_area: scene.total_area(),
     })
@@ -618,6 +710,116 @@ fn sided_area(scene: &Scene) -> f64 {
         .sum()
 }
 
+/// Keep the cuts of the refined voxels that matter most while the elements stay within
+/// `budget` × the patches; merge the sub-cells of the others back into one element each.
+///
+/// First the voxels where two surfaces face each other across a gap inside the voxel, narrowest
+/// gap first (a fixture under a ceiling, a panel against a wall: the gap is dark, the surfaces'
+/// other parts lit), then those with the most connected surfaces. Cluttered scenes have far more
+/// such voxels than a budget allows; the budget keeps their transport's size predictable.
+fn within_budget(
+    groups: HashMap<(u64, Face, u32, u32), Group>,
+    refined: &mut Vec<u64>,
+    budget: f64,
+) -> HashMap<(u64, Face, u32, u32), Group> {
+    // Per (voxel, face, component): its sub-cells and where it lies along its face's axis.
+    #[derive(Default)]
+    struct Coarse {
+        subs: usize,
+        weight: f64,
+        along: f64,
+    }
+    // Sorted, so that every sum below is taken in one order: the bake is deterministic.
+    let mut groups: Vec<((u64, Face, u32, u32), Group)> = groups.into_iter().collect();
+    groups.sort_unstable_by_key(|g| g.0);
+    let mut coarse: HashMap<(u64, Face, u32), Coarse> = HashMap::new();
+    for &((v, face, comp, _), ref g) in &groups {
+        let c = coarse.entry((v, face, comp)).or_default();
+        c.subs += 1;
+        c.weight += g.acc.weight;
+        c.along += g.acc.centroid[face.axis()];
+    }
+    let patches = coarse
+        .keys()
+        .map(|&(v, f, _)| (v, f))
+        .collect::<std::collections::HashSet<_>>()
+        .len();
+    // Per refined voxel: the elements its cuts add, its narrowest facing gap, its components.
+    struct Candidate {
+        voxel: u64,
+        extra: usize,
+        gap: f64,
+        components: usize,
+    }
+    let mut by_voxel: std::collections::BTreeMap<u64, Vec<(Face, u32, f64, usize)>> =
+        Default::default();
+    let mut sorted: Vec<_> = coarse.iter().collect();
+    sorted.sort_unstable_by_key(|c| c.0);
+    for (&(v, face, comp), c) in sorted {
+        if refined.binary_search(&v).is_ok() {
+            by_voxel
+                .entry(v)
+                .or_default()
+                .push((face, comp, c.along / c.weight, c.subs));
+        }
+    }
+    let mut candidates: Vec<Candidate> = by_voxel
+        .into_iter()
+        .map(|(voxel, els)| {
+            let mut gap = f64::INFINITY;
+            for &(fa, ca, pa, _) in &els {
+                for &(fb, cb, pb, _) in &els {
+                    // `fa` faces up its axis and `fb` down it, above it: they face each other.
+                    if ca != cb && fa.axis() == fb.axis() && fa.sign() > 0.0 && fb.sign() < 0.0 {
+                        let d = pb - pa;
+                        if d >= 0.0 {
+                            gap = gap.min(d);
+                        }
+                    }
+                }
+            }
+            let mut comps: Vec<u32> = els.iter().map(|e| e.1).collect();
+            comps.sort_unstable();
+            comps.dedup();
+            Candidate {
+                voxel,
+                extra: els.iter().map(|e| e.3 - 1).sum(),
+                gap,
+                components: comps.len(),
+            }
+        })
+        .collect();
+    candidates.sort_by(|a, b| {
+        a.gap
+            .total_cmp(&b.gap)
+            .then(b.components.cmp(&a.components))
+            .then(a.voxel.cmp(&b.voxel))
+    });
+    let allowed = (budget * patches as f64) as usize;
+    let mut elements = coarse.len();
+    let mut kept = Vec::new();
+    for c in candidates {
+        if elements + c.extra <= allowed {
+            elements += c.extra;
+            kept.push(c.voxel);
+        }
+    }
+    kept.sort_unstable();
+    let mut out: HashMap<(u64, Face, u32, u32), Group> = HashMap::with_capacity(elements);
+    for ((v, face, comp, sub), g) in groups {
+        let sub = if kept.binary_search(&v).is_ok() {
+            sub
+        } else {
+            0
+        };
+        let e = out.entry((v, face, comp, sub)).or_default();
+        e.acc.merge(&g.acc);
+        e.tris.extend(g.tris);
+    }
+    *refined = kept;
+    out
+}
+
 /// One (voxel, face) group of surface pieces while clustering.
 #[derive(Default)]
 struct Group {
@@ -634,11 +836,55 @@ struct Group {
 /// centroid and normal are area-weighted over its pieces, and its `source_area` is their true
 /// area.
 pub fn cluster_at(scene: &Scene, size: f32) -> Result<Voxelization, VoxelError> {
+    cluster_refined_at(scene, size, REFINE_FACTOR)
+}
+
+/// [`cluster_at`] with elements in voxels where surfaces meet cut `factor` times finer along each
+/// axis (1: not at all).
+pub fn cluster_refined_at(
+    scene: &Scene,
+    size: f32,
+    factor: u32,
+) -> Result<Voxelization, VoxelError> {
     let total_area = sided_area(scene);
     let grid = grid_for(scene, size, total_area)?;
     let face_area = size as f64 * size as f64;
-    let mut groups: HashMap<(u64, Face), Group> = HashMap::new();
+    let component = crate::element::components(scene);
+    // Voxels where more than one connected surface lies: there one object's surface meets or
+    // hides another's (a fixture under a ceiling, a box on a floor), and the light of a patch
+    // changes abruptly across it.
+    let mut first: HashMap<u64, Option<u32>> = HashMap::new();
+    grid.pieces(scene, |index, _, _, _, area, centroid| {
+        if area > MIN_PIECE_AREA * face_area {
+            let c = component[index];
+            first
+                .entry(grid.key(grid.cell_of(centroid)))
+                .and_modify(|seen| {
+                    if *seen != Some(c) {
+                        *seen = None;
+                    }
+                })
+                .or_insert(Some(c));
+        }
+    });
+    let mut refined: Vec<u64> = if factor > 1 {
+        first
+            .iter()
+            .filter(|(_, c)| c.is_none())
+            .map(|(&k, _)| k)
+            .collect()
+    } else {
+        Vec::new()
+    };
+    refined.sort_unstable();
+    let fine = Grid {
+        origin: grid.origin,
+        size: size / factor as f32,
+        dims: grid.dims.map(|d| d.saturating_mul(factor)),
+    };
+    let mut groups: HashMap<(u64, Face, u32, u32), Group> = HashMap::new();
     let mut unassigned = 0.0f64;
+    let mut stack = Vec::new();
     grid.pieces(scene, |index, tri, n, poly, area, centroid| {
         let sides: &[f64] = if tri.double_sided {
             &[1.0, -1.0]
@@ -654,37 +900,57 @@ pub fn cluster_at(scene: &Scene, size: f32) -> Result<Voxelization, VoxelError> 
             unassigned += area * sides.len() as f64;
             return;
         }
-        let key = grid.key(grid.cell_of(centroid));
-        let fan = poly.fan(n);
-        for &sign in sides {
-            let normal = n * sign;
-            let face = dominant_face(normal.as_vec3());
-            let g = groups.entry((key, face)).or_default();
-            g.acc.weight += area;
-            g.acc.albedo += tri.albedo.as_dvec3() * area;
-            g.acc.emission += tri.emission.as_dvec3() * area;
-            g.acc.centroid += centroid * area;
-            g.acc.normal += normal * area;
-            g.tris.extend(fan.iter().map(|&(corners, a)| PieceTri {
-                corners,
-                normal: normal.as_vec3(),
-                area: a,
-                triangle: index as u32,
-            }));
+        let cell = grid.cell_of(centroid);
+        let key = grid.key(cell);
+        stack.clear();
+        if refined.binary_search(&key).is_ok() {
+            fine.split_all(poly, &mut stack);
+        } else {
+            stack.push(*poly);
+        }
+        let whole = stack.len() == 1;
+        for piece in &stack {
+            let (area, centroid) = if whole {
+                (area, centroid)
+            } else {
+                piece.area_centroid(n)
+            };
+            if area.is_nan() || area <= 0.0 {
+                continue;
+            }
+            if area <= MIN_PIECE_AREA * face_area {
+                unassigned += area * sides.len() as f64;
+                continue;
+            }
+            let sub = if whole && refined.binary_search(&key).is_err() {
+                0
+            } else {
+                sub_cell(fine.cell_of(centroid), cell, factor)
+            };
+            let fan = piece.fan(n);
+            for &sign in sides {
+                let normal = n * sign;
+                let face = dominant_face(normal.as_vec3());
+                let g = groups
+                    .entry((key, face, component[index], sub))
+                    .or_default();
+                g.acc.add(tri, area, centroid, normal);
+                g.tris.extend(fan.iter().map(|&(corners, a)| PieceTri {
+                    corners,
+                    normal: normal.as_vec3(),
+                    area: a,
+                    triangle: index as u32,
+                }));
+            }
         }
     });
-    let mut keys: Vec<(u64, Face)> = groups.keys().copied().collect();
+    let groups = within_budget(groups, &mut refined, REFINE_BUDGET);
+    // Sorted keys put each patch's elements together, in component then sub-cell order.
+    let mut keys: Vec<(u64, Face, u32, u32)> = groups.keys().copied().collect();
     keys.sort_unstable();
-    let mut patches = Vec::with_capacity(keys.len());
-    let mut pieces = Pieces {
-        start: vec![0],
-        tris: Vec::new(),
-    };
-    for key in &keys {
-        let g = &groups[key];
-        let f = &g.acc;
+    let record = |key: (u64, Face), f: &FaceAccum| {
         let inv = 1.0 / f.weight;
-        patches.push(Patch {
+        Patch {
             voxel: grid.unkey(key.0),
             face: key.1,
             albedo: (f.albedo * inv)
@@ -699,27 +965,62 @@ pub fn cluster_at(scene: &Scene, size: f32) -> Result<Voxelization, VoxelError> 
                 .to_array(),
             source_area: f.weight as f32,
             emission: (f.emission * inv).max(DVec3::ZERO).as_vec3().to_array(),
-        });
-        pieces.tris.extend_from_slice(&g.tris);
-        pieces.start.push(pieces.tris.len() as u32);
+        }
+    };
+    let mut patches: Vec<Patch> = Vec::new();
+    let mut elements = Vec::with_capacity(keys.len());
+    let mut element_patch = Vec::with_capacity(keys.len());
+    let mut pieces = Pieces {
+        start: vec![0],
+        tris: Vec::new(),
+    };
+    let mut k = 0;
+    while k < keys.len() {
+        let patch = (keys[k].0, keys[k].1);
+        let mut whole = FaceAccum::default();
+        while k < keys.len() && (keys[k].0, keys[k].1) == patch {
+            let g = &groups[&keys[k]];
+            whole.merge(&g.acc);
+            elements.push(record(patch, &g.acc));
+            element_patch.push(patches.len() as u32);
+            pieces.tris.extend_from_slice(&g.tris);
+            pieces.start.push(pieces.tris.len() as u32);
+            k += 1;
+        }
+        patches.push(record(patch, &whole));
     }
     if patches.is_empty() {
         return Err(VoxelError::NoPatches { size });
     }
     let mut occupied: Vec<u64> = keys.iter().map(|k| k.0).collect();
     occupied.dedup();
-    Ok(Voxelization {
+    refined.retain(|k| occupied.binary_search(k).is_ok());
+    let layout = PatchLayout {
+        origin: grid.origin.to_array(),
+        voxel_size: size,
+        dims: grid.dims,
+        patches,
+    };
+    let elements = Elements {
         layout: PatchLayout {
-            origin: grid.origin.to_array(),
-            voxel_size: size,
-            dims: grid.dims,
-            patches,
+            patches: elements,
+            ..layout.clone()
         },
+        patch: element_patch,
+    };
+    Ok(Voxelization {
+        layout,
         occluders: Vec::new(),
         occupied_voxels: occupied.len(),
         occupied,
         dropped_patches: 0,
+        dropped_elements: 0,
         pieces: Some(pieces),
+        elements: Some(elements),
+        refinement: Refinement {
+            factor,
+            voxels: refined,
+        },
         unassigned_area: unassigned,
         total_area,
     })
@@ -754,6 +1055,20 @@ impl Grid {
                 }
                 let (area, centroid) = poly.area_centroid(n);
                 f(index, tri, n, &poly, area, centroid);
+            }
+        }
+    }
+
+    /// `poly` cut at every plane of this grid it crosses, into `out`.
+    fn split_all(&self, poly: &Poly, out: &mut Vec<Poly>) {
+        let mut todo = vec![*poly];
+        while let Some(p) = todo.pop() {
+            match self.split(&p) {
+                Some((a, b)) => {
+                    todo.push(a);
+                    todo.push(b);
+                }
+                None => out.push(p),
             }
         }
     }

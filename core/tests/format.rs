@@ -106,6 +106,7 @@ fn sample_meta() -> BakeMeta {
         },
         stats: BakeStats {
             patches: 5,
+            elements: 5,
             voxel_size: 0.25,
             occupied_voxels: 3,
             dropped_patches: 1,
@@ -188,6 +189,7 @@ fn sample(channels: usize, with_form_factors: bool) -> Baked {
         form_factors: with_form_factors.then(|| EncodedMatrix::encode_dense_f32(&dense(n, 1, 2.0))),
         occupancy: Some(SAMPLE_OCCUPANCY.to_vec()),
         surface: None,
+        elements: None,
         model: None,
     }
 }
@@ -390,7 +392,7 @@ fn layout_on_disk_matches_the_documentation() {
     let baked = sample(3, true);
     let b = baked.to_bytes().unwrap();
     assert_eq!(&b[..8], b"BOUNCE\0B");
-    assert_eq!(get_u32(&b, 8), 2);
+    assert_eq!(get_u32(&b, 8), 3);
     assert_eq!(get_u32(&b, 12), 5);
     assert_eq!(get_u64(&b, 16), b.len() as u64);
     let kinds: Vec<&[u8]> = (0..5).map(|i| &b[entry_at(i)..entry_at(i) + 4]).collect();
@@ -646,14 +648,14 @@ fn future_version() {
             FormatError::UnsupportedVersion {
                 found: 7,
                 oldest: 1,
-                supported: 2
+                supported: 3
             }
         ),
         "{err:?}"
     );
     assert_eq!(
         err.to_string(),
-        "unsupported format version 7 (this build reads versions 1 to 2); bake the scene again \
+        "unsupported format version 7 (this build reads versions 1 to 3); bake the scene again \
          with this bounce"
     );
 }
@@ -681,11 +683,84 @@ fn surface_sample() -> Baked {
     b
 }
 
+/// The surface sample with patches 0 and 3 split into two elements each (seven transport rows):
+/// the transport and the sample points are then per element.
+fn element_sample() -> Baked {
+    let mut b = surface_sample();
+    let (mut records, mut owner) = (Vec::new(), Vec::new());
+    for (i, p) in b.layout.patches.iter().enumerate() {
+        let parts = if i == 0 || i == 3 { 2 } else { 1 };
+        for _ in 0..parts {
+            records.push(Patch {
+                source_area: p.source_area / parts as f32,
+                ..*p
+            });
+            owner.push(i as u32);
+        }
+    }
+    let m = records.len();
+    b.elements = Some(bounce_core::element::Elements {
+        layout: PatchLayout {
+            patches: records,
+            ..b.layout.clone()
+        },
+        patch: owner,
+    });
+    b.transport = EncodedMatrix::encode_dense_f32(&dense(m, 3, 1.0));
+    if let Some(s) = &mut b.surface {
+        s.points = (0..m * 2)
+            .map(|k| bounce_core::surface::SamplePoint {
+                position: [k as f32 * 0.1, 0.5, 0.25],
+                normal: [0.0, 0.0, 1.0],
+            })
+            .collect();
+    }
+    b
+}
+
+#[test]
+fn transport_elements_round_trip_and_are_checked() {
+    let b = element_sample();
+    let bytes = b.to_bytes().expect("an element sample encodes");
+    let back = Baked::from_bytes(&bytes).unwrap();
+    assert_eq!(back, b);
+    assert_eq!(back.transport_layout().len(), 7);
+    assert_eq!(back.layout.len(), 5);
+    // A version-2 file cannot hold elements.
+    let mut old = bytes.clone();
+    put_u32(&mut old, 8, 2);
+    reseal(&mut old);
+    assert!(matches!(refuse(&old), FormatError::Elements(_)));
+    // Every way the elements can disagree with the patches or the rest of the file is refused
+    // by the writer (which runs the reader's checks).
+    let refuse = |edit: &dyn Fn(&mut Baked)| {
+        let mut bad = b.clone();
+        edit(&mut bad);
+        assert!(bad.to_bytes().is_err());
+    };
+    refuse(&|b| b.elements.as_mut().unwrap().patch.swap(0, 2));
+    refuse(&|b| b.elements.as_mut().unwrap().layout.patches[1].voxel = [9, 9, 9]);
+    refuse(&|b| b.elements.as_mut().unwrap().layout.patches[0].source_area = 1e9);
+    refuse(&|b| b.elements.as_mut().unwrap().layout.patches[0].albedo = [f32::NAN; 3]);
+    // A matrix or sample points sized for the patches, not the elements.
+    refuse(&|b| b.transport = EncodedMatrix::encode_dense_f32(&dense(5, 3, 1.0)));
+    refuse(&|b| b.surface.as_mut().unwrap().points.truncate(10));
+    // Elements belong to surface bakes only.
+    let mut voxel = element_sample();
+    voxel.meta.settings.geometry = bounce_core::voxel::Geometry::VoxelFaces;
+    voxel.surface = None;
+    assert!(voxel.to_bytes().is_err());
+}
+
 #[test]
 fn surface_geometry_round_trips_and_is_checked() {
     let b = surface_sample();
     let bytes = b.to_bytes().expect("a surface sample encodes");
-    assert_eq!(get_u32(&bytes, 8), 2, "written as version 2");
+    assert_eq!(
+        get_u32(&bytes, 8),
+        FORMAT_VERSION,
+        "written as this version"
+    );
     assert_eq!(Baked::from_bytes(&bytes).unwrap(), b);
     // A surface bake without its section, or a voxel-face bake with one, is refused both ways.
     let mut missing = b.clone();
@@ -1453,6 +1528,7 @@ fn arb_baked() -> impl Strategy<Value = Baked> {
                 form_factors,
                 occupancy,
                 surface: None,
+                elements: None,
                 model: None,
             })
     })

@@ -23,6 +23,7 @@ use bounce_core::codec::{self, MatrixOp};
 use bounce_core::direct::{
     DEFAULT_SAMPLES, ShadowScene, ShadowSource, direct_irradiance, exitance_b0,
 };
+use bounce_core::element::Elements;
 use bounce_core::format::Baked;
 use bounce_core::light::LightSet;
 use bounce_core::patch::PatchLayout;
@@ -182,6 +183,8 @@ impl Engine {
         };
         Ok(Scene {
             layout: baked.layout.clone(),
+            rows: baked.transport_layout().clone(),
+            elements: baked.elements.clone(),
             direct,
             shadow_source,
             transport,
@@ -209,19 +212,19 @@ impl Engine {
             set.validate()
                 .map_err(|error| EngineError::Lights { index, error })?;
         }
-        let n = scene.layout.len();
+        let n = scene.rows.len();
         let start = Instant::now();
         let direct: Vec<Vec<[f32; 3]>> = match &scene.direct {
             DirectLight::Gpu(gpu) => gpu.irradiance(lights, self.samples)?,
             DirectLight::GpuSurface(gpu) => gpu.irradiance(lights, self.samples)?,
             DirectLight::Cpu(shadow, _) => lights
                 .iter()
-                .map(|set| direct_irradiance(shadow, &scene.layout, set, self.samples))
+                .map(|set| direct_irradiance(shadow, &scene.rows, set, self.samples))
                 .collect(),
         };
         let b0: Vec<[f32; 3]> = direct
             .iter()
-            .flat_map(|e| exitance_b0(&scene.layout, e))
+            .flat_map(|e| exitance_b0(&scene.rows, e))
             .collect();
         let direct_s = start.elapsed().as_secs_f64();
         let start = Instant::now();
@@ -237,15 +240,22 @@ impl Engine {
                 }
             }
         }
-        let indirect_s = start.elapsed().as_secs_f64();
         let out = direct
             .into_iter()
             .zip(indirect.chunks(n.max(1)))
-            .map(|(direct, ind)| Irradiance {
-                direct,
-                indirect: ind.to_vec(),
+            .map(|(direct, ind)| match &scene.elements {
+                // What a patch streams is its elements' light over its surface.
+                Some(e) => Irradiance {
+                    direct: e.restrict_sampled(&scene.layout, &direct),
+                    indirect: e.restrict(&scene.layout, ind),
+                },
+                None => Irradiance {
+                    direct,
+                    indirect: ind.to_vec(),
+                },
             })
             .collect();
+        let indirect_s = start.elapsed().as_secs_f64();
         Ok((
             out,
             Timing {
@@ -261,7 +271,8 @@ impl Engine {
         scene.direct_engine()
     }
 
-    /// `E_ind = T · B0` alone, for a batch of given `B0` vectors (`batch × n`).
+    /// `E_ind = T · B0` alone, for a batch of given `B0` vectors (`batch × rows`, the
+    /// transport's rows: [`Scene::rows`]), per row, not restricted to the patches.
     pub fn indirect(
         &self,
         scene: &Scene,
@@ -291,7 +302,11 @@ pub struct Irradiance {
 
 /// A baked scene made ready on one engine.
 pub struct Scene {
+    /// The patches: what a relight returns values for.
     pub layout: PatchLayout,
+    /// The transport's rows: the elements of a surface bake that has them, else the patches.
+    rows: PatchLayout,
+    elements: Option<Elements>,
     direct: DirectLight,
     shadow_source: ShadowSource,
     transport: Transport,
@@ -300,6 +315,11 @@ pub struct Scene {
 }
 
 impl Scene {
+    /// The transport's rows (and columns): what [`Engine::indirect`] takes and gives.
+    pub fn rows(&self) -> &PatchLayout {
+        &self.rows
+    }
+
     /// The transport's codec.
     pub fn codec(&self) -> &str {
         &self.codec

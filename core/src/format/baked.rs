@@ -22,11 +22,19 @@
 //! section are valid; their readers get no occupancy and trace shadows against the patches alone.
 //!
 //! `SURF` (version 2, surface geometry only, required there): what direct light needs at run
-//! time. Triangle count u32, samples per patch u32, patch count u32, reserved u32 (0) (16 bytes),
+//! time. Triangle count u32, samples per row u32, row count u32, reserved u32 (0) (16 bytes),
 //! then per triangle its three corners f32×9 (36 bytes; every triangle blocks shadow rays from
-//! both sides), then `patches × samples per patch` sample points, position f32×3 and unit normal
-//! f32×3 (24 bytes), patch by patch. Positions are already pushed off their surface
-//! ([`crate::trimesh::offset_origin`]). Every value is finite; the patch count is the layout's.
+//! both sides), then `rows × samples per row` sample points, position f32×3 and unit normal
+//! f32×3 (24 bytes), row by row. Positions are already pushed off their surface
+//! ([`crate::trimesh::offset_origin`]). Every value is finite; the rows are the transport's (the
+//! elements, or the patches in a file without `ELEM`).
+//!
+//! `ELEM` (version 3, surface geometry only, optional there): the transport elements
+//! ([`crate::element`]) when they are not the patches themselves. Element count u32, reserved
+//! u32 (0) (8 bytes), then per element its patch index u32 followed by a 68-byte record laid out
+//! as a `LAYT` patch record (72 bytes). Patch `p` owns a contiguous, non-empty run of elements on
+//! its own voxel and face. With the section, the transport, the form factors and the `SURF`
+//! sample points are per element; without it, per patch.
 //!
 //! `MODL` (flagged [`SECTION_OPTIONAL`]): the scene the file was baked from, packed into one
 //! self-contained GLB 2.0 file ([`crate::import::pack_glb`]): every buffer and image inside its
@@ -37,6 +45,7 @@
 use std::borrow::Cow;
 use std::path::Path;
 
+use crate::element::Elements;
 use crate::matrix::EncodedMatrix;
 use crate::meta::BakeMeta;
 use crate::patch::{Face, Patch, PatchLayout};
@@ -62,13 +71,17 @@ pub const OCCUPANCY_HEADER_LEN: u64 = 16;
 pub const SURFACE_HEADER_LEN: u64 = 16;
 const TRIANGLE_RECORD_LEN: u64 = 36;
 const SAMPLE_RECORD_LEN: u64 = 24;
+/// Bytes of the `ELEM` fields before the element records.
+pub const ELEMENTS_HEADER_LEN: u64 = 8;
+/// Bytes of one element record in `ELEM`: the patch index, then a `LAYT` record.
+pub const ELEMENT_RECORD_LEN: u64 = 4 + PATCH_RECORD_LEN;
 
 /// Everything a baked file holds.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Baked {
     pub meta: BakeMeta,
     pub layout: PatchLayout,
-    /// The transport `T`, `patches × patches`.
+    /// The transport `T`, `rows × rows` ([`Baked::transport_layout`]).
     pub transport: EncodedMatrix,
     /// The single-bounce form factors `F`, kept when the bake was asked to.
     pub form_factors: Option<EncodedMatrix>,
@@ -79,12 +92,21 @@ pub struct Baked {
     /// Surface geometry: the triangles shadow rays are traced against and each patch's
     /// direct-light sample points (the `SURF` section). `None` for voxel faces.
     pub surface: Option<SurfaceData>,
+    /// The transport elements (the `ELEM` section), when they are not the patches themselves:
+    /// the transport, form factors and sample points are then per element, and what a patch
+    /// streams is its elements' irradiance restricted to it ([`Elements::restrict`]).
+    pub elements: Option<Elements>,
     /// The scene baked, as one self-contained GLB (the `MODL` section): what a viewer draws.
     /// Absent in files baked without it (`bounce bake --no-model`, or an older bounce).
     pub model: Option<Vec<u8>>,
 }
 
 impl Baked {
+    /// What the transport's rows and columns are: the elements, or the patches.
+    pub fn transport_layout(&self) -> &PatchLayout {
+        self.elements.as_ref().map_or(&self.layout, |e| &e.layout)
+    }
+
     /// The file's bytes. Fails, without writing anything, on a value the reader would refuse
     /// (non-finite numbers, patches outside the grid, a matrix that does not fit the layout), so
     /// every file written can be read back.
@@ -95,7 +117,8 @@ impl Baked {
     /// The file laid out, every value validated and every checksum computed, with the matrix
     /// payloads borrowed rather than copied.
     fn assemble(&self) -> Result<Assembled<'_>, FormatError> {
-        let n = self.layout.len();
+        let rows = self.transport_layout();
+        let n = rows.len();
         let owned = |kind, bytes| Section {
             kind,
             flags: 0,
@@ -116,12 +139,15 @@ impl Baked {
                 pieces: vec![Cow::Owned(encode_occupancy(occ, &self.layout)?)],
             });
         }
-        check_geometry(&self.meta, self.surface.is_some())?;
-        if let Some(surface) = &self.surface {
+        check_geometry(&self.meta, self.surface.is_some(), self.elements.is_some())?;
+        if let Some(elements) = &self.elements {
             sections.push(owned(
-                SectionKind::SURF,
-                encode_surface(surface, &self.layout)?,
+                SectionKind::ELEM,
+                encode_elements(elements, &self.layout)?,
             ));
+        }
+        if let Some(surface) = &self.surface {
+            sections.push(owned(SectionKind::SURF, encode_surface(surface, rows)?));
         }
         if let Some(model) = &self.model {
             sections.push(model_section(model)?);
@@ -142,6 +168,7 @@ impl Baked {
                 SectionKind::OCCU,
                 SectionKind::MODL,
                 SectionKind::SURF,
+                SectionKind::ELEM,
             ]
             .contains(&e.kind);
             if !known && !e.is_optional() {
@@ -161,7 +188,18 @@ impl Baked {
         };
         let meta = decode_meta(required(SectionKind::META)?)?;
         let layout = decode_layout(required(SectionKind::LAYT)?)?;
-        let n = layout.len();
+        let elements = match c.entry(SectionKind::ELEM) {
+            Some(_) if c.header.format_version < 3 => {
+                return Err(FormatError::Elements(format!(
+                    "a version-{} file cannot hold transport elements",
+                    c.header.format_version
+                )));
+            }
+            Some(e) => Some(decode_elements(c.section(e)?, &layout)?),
+            None => None,
+        };
+        let rows = elements.as_ref().map_or(&layout, |e| &e.layout);
+        let n = rows.len();
         let transport = decode_matrix(SectionKind::MTRX, required(SectionKind::MTRX)?, n)?;
         let form_factors = match c.entry(SectionKind::FFAC) {
             Some(e) => Some(decode_matrix(SectionKind::FFAC, c.section(e)?, n)?),
@@ -177,10 +215,10 @@ impl Baked {
                     "a version-1 file cannot hold surface geometry".to_string(),
                 ));
             }
-            Some(e) => Some(decode_surface(c.section(e)?, &layout)?),
+            Some(e) => Some(decode_surface(c.section(e)?, rows)?),
             None => None,
         };
-        check_geometry(&meta, surface.is_some())?;
+        check_geometry(&meta, surface.is_some(), elements.is_some())?;
         let model = match c.entry(SectionKind::MODL) {
             Some(e) => {
                 let bytes = c.section(e)?;
@@ -196,6 +234,7 @@ impl Baked {
             form_factors,
             occupancy,
             surface,
+            elements,
             model,
         })
     }
@@ -303,13 +342,7 @@ pub(super) fn encode_layout(layout: &PatchLayout) -> Result<Vec<u8>, FormatError
     u32s(&mut out, &layout.dims);
     u32s(&mut out, &[count]);
     for p in &layout.patches {
-        u32s(&mut out, &p.voxel);
-        out.extend_from_slice(&[p.face.code(), 0, 0, 0]);
-        f32s(&mut out, &p.albedo);
-        f32s(&mut out, &p.centroid);
-        f32s(&mut out, &p.normal);
-        f32s(&mut out, &[p.source_area]);
-        f32s(&mut out, &p.emission);
+        encode_record(&mut out, p);
     }
     debug_assert_eq!(
         out.len() as u64,
@@ -337,23 +370,7 @@ pub(super) fn decode_layout(bytes: &[u8]) -> Result<PatchLayout, FormatError> {
     let mut patches = Vec::with_capacity(count as usize);
     for (i, record) in records.chunks_exact(PATCH_RECORD_LEN as usize).enumerate() {
         let mut r = FieldReader::new(record, Some(SectionKind::LAYT));
-        let voxel = r.u32x3("patch voxel")?;
-        let [code, pad @ ..] = r.array::<4>("patch face")?;
-        let face = Face::from_code(code).ok_or(FormatError::BadFace { patch: i, code })?;
-        if pad != [0; 3] {
-            return Err(FormatError::NonZeroPadding {
-                what: format!("patch {i}"),
-            });
-        }
-        patches.push(Patch {
-            voxel,
-            face,
-            albedo: r.f32x3("patch albedo")?,
-            centroid: r.f32x3("patch centroid")?,
-            normal: r.f32x3("patch normal")?,
-            source_area: r.f32("patch source area")?,
-            emission: r.f32x3("patch emission")?,
-        });
+        patches.push(decode_record(&mut r, i)?);
     }
     let layout = PatchLayout {
         origin,
@@ -363,6 +380,110 @@ pub(super) fn decode_layout(bytes: &[u8]) -> Result<PatchLayout, FormatError> {
     };
     validate_layout(&layout)?;
     Ok(layout)
+}
+
+/// One patch record (`LAYT`, and after its patch index in `ELEM`).
+fn encode_record(out: &mut Vec<u8>, p: &Patch) {
+    for v in p.voxel {
+        out.extend_from_slice(&v.to_le_bytes());
+    }
+    out.extend_from_slice(&[p.face.code(), 0, 0, 0]);
+    let f = p
+        .albedo
+        .iter()
+        .chain(&p.centroid)
+        .chain(&p.normal)
+        .chain(std::slice::from_ref(&p.source_area))
+        .chain(&p.emission);
+    for x in f {
+        out.extend_from_slice(&x.to_le_bytes());
+    }
+}
+
+fn decode_record(r: &mut FieldReader<'_>, i: usize) -> Result<Patch, FormatError> {
+    let voxel = r.u32x3("patch voxel")?;
+    let [code, pad @ ..] = r.array::<4>("patch face")?;
+    let face = Face::from_code(code).ok_or(FormatError::BadFace { patch: i, code })?;
+    if pad != [0; 3] {
+        return Err(FormatError::NonZeroPadding {
+            what: format!("patch {i}"),
+        });
+    }
+    Ok(Patch {
+        voxel,
+        face,
+        albedo: r.f32x3("patch albedo")?,
+        centroid: r.f32x3("patch centroid")?,
+        normal: r.f32x3("patch normal")?,
+        source_area: r.f32("patch source area")?,
+        emission: r.f32x3("patch emission")?,
+    })
+}
+
+/// The checks shared by writer and reader: finite records on the patches' grid, each patch
+/// owning a contiguous run ([`Elements::check`]).
+fn validate_elements(e: &Elements, layout: &PatchLayout) -> Result<(), FormatError> {
+    validate_layout(&e.layout).map_err(|err| FormatError::Elements(err.to_string()))?;
+    e.check(layout).map_err(FormatError::Elements)
+}
+
+pub(super) fn encode_elements(e: &Elements, layout: &PatchLayout) -> Result<Vec<u8>, FormatError> {
+    validate_elements(e, layout)?;
+    let count = u32::try_from(e.len()).map_err(|_| FormatError::TooLarge {
+        what: "element count",
+        value: e.len() as u64,
+        max: u64::from(u32::MAX),
+    })?;
+    let mut out =
+        Vec::with_capacity(ELEMENTS_HEADER_LEN as usize + e.len() * ELEMENT_RECORD_LEN as usize);
+    out.extend_from_slice(&count.to_le_bytes());
+    out.extend_from_slice(&0u32.to_le_bytes());
+    for (&p, rec) in e.patch.iter().zip(&e.layout.patches) {
+        out.extend_from_slice(&p.to_le_bytes());
+        encode_record(&mut out, rec);
+    }
+    Ok(out)
+}
+
+pub(super) fn decode_elements(bytes: &[u8], layout: &PatchLayout) -> Result<Elements, FormatError> {
+    let kind = SectionKind::ELEM;
+    let mut r = FieldReader::new(bytes, Some(kind));
+    let count = r.u32("element count")?;
+    if r.u32("reserved")? != 0 {
+        return Err(FormatError::Reserved {
+            what: format!("section '{kind}'"),
+        });
+    }
+    let records = r.remaining();
+    // Only a count the section's length accounts for may size an allocation.
+    if u64::from(count) * ELEMENT_RECORD_LEN != records.len() as u64 {
+        return Err(FormatError::Elements(format!(
+            "{count} elements need {} bytes, the section holds {}",
+            u64::from(count) * ELEMENT_RECORD_LEN,
+            records.len()
+        )));
+    }
+    let mut patch = Vec::with_capacity(count as usize);
+    let mut patches = Vec::with_capacity(count as usize);
+    for (i, record) in records
+        .chunks_exact(ELEMENT_RECORD_LEN as usize)
+        .enumerate()
+    {
+        let mut r = FieldReader::new(record, Some(kind));
+        patch.push(r.u32("element patch")?);
+        patches.push(decode_record(&mut r, i)?);
+    }
+    let e = Elements {
+        layout: PatchLayout {
+            origin: layout.origin,
+            voxel_size: layout.voxel_size,
+            dims: layout.dims,
+            patches,
+        },
+        patch,
+    };
+    validate_elements(&e, layout)?;
+    Ok(e)
 }
 
 /// Cells of the layout's grid; cannot overflow (three u32 factors fit in 96 bits, and u128 holds
@@ -475,14 +596,21 @@ pub(super) fn decode_occupancy(
 }
 
 /// A surface bake must carry its `SURF` section (its direct light needs it) and a voxel-face
-/// bake must not.
-fn check_geometry(meta: &BakeMeta, has_surface: bool) -> Result<(), FormatError> {
+/// bake must not; only a surface bake has elements.
+fn check_geometry(
+    meta: &BakeMeta,
+    has_surface: bool,
+    has_elements: bool,
+) -> Result<(), FormatError> {
     match (meta.settings.geometry, has_surface) {
         (Geometry::Surface, false) => Err(FormatError::MissingSection {
             kind: SectionKind::SURF,
         }),
         (Geometry::VoxelFaces, true) => Err(FormatError::Surface(
             "a voxel-face bake holds no surface geometry".to_string(),
+        )),
+        (Geometry::VoxelFaces, false) if has_elements => Err(FormatError::Elements(
+            "a voxel-face bake has no transport elements".to_string(),
         )),
         _ => Ok(()),
     }

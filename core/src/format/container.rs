@@ -95,6 +95,7 @@ impl SectionKind {
     pub const OCCU: SectionKind = SectionKind(*b"OCCU");
     pub const MODL: SectionKind = SectionKind(*b"MODL");
     pub const SURF: SectionKind = SectionKind(*b"SURF");
+    pub const ELEM: SectionKind = SectionKind(*b"ELEM");
 }
 
 impl fmt::Display for SectionKind {

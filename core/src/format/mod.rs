@@ -42,15 +42,16 @@ pub(crate) use shard::le_bytes as f32_le_bytes;
 pub use shard::{ROWS_HEADER_LEN, ShardFile, ShardHeader};
 
 /// The version this build writes. Version 2 added surface patches: the `SURF` section and the
-/// `geometry` setting in `META`.
-pub const FORMAT_VERSION: u32 = 2;
+/// `geometry` setting in `META`. Version 3 added transport elements (the `ELEM` section), so a
+/// version-2 reader refuses such a file by its version rather than by a section it does not know.
+pub const FORMAT_VERSION: u32 = 3;
 /// The oldest version this build reads: a version-1 file is a voxel-face bake and is relit as
 /// one.
 pub const OLDEST_FORMAT_VERSION: u32 = 1;
 /// The bake-shard version this build writes, and the only one it reads. Shards are
 /// intermediate files of one bake, written and read by the same release, so there is no reason
 /// to read older ones.
-pub const SHARD_FORMAT_VERSION: u32 = 2;
+pub const SHARD_FORMAT_VERSION: u32 = 3;
 
 /// Everything that can go wrong reading or writing a baked file.
 ///
@@ -92,6 +93,8 @@ pub enum FormatError {
     },
     #[error("section 'SURF': {0}")]
     Surface(String),
+    #[error("section 'ELEM': {0}")]
+    Elements(String),
     #[error("file truncated: {what} ends at byte {end} but the file has {len} bytes")]
     Truncated { what: String, end: u64, len: u64 },
     #[error("file truncated: its header says it has {declared} bytes but it has {actual}")]

@@ -10,7 +10,9 @@
 //!   carries them, so later steps need no scene file and can refuse shards of another layout.
 //! - `SURF` (surface geometry only): the triangles and direct-light sample points, as in a baked
 //!   file, carried to the merge.
-//! - `ROWS`: the shard's rows: patches u32, first row u32, end row u32, channels u32 (16 bytes),
+//! - `ELEM` (surface geometry, when the transport runs on elements): as in a baked file. The rows
+//!   are then the elements'.
+//! - `ROWS`: the shard's rows: transport rows (patches or elements) u32, first row u32, end row u32, channels u32 (16 bytes),
 //!   zeros up to byte 64, then `channels × rows × patches` f32, channel-major then row-major.
 //!   Form-factor rows in phase 1, transport rows in phase 2.
 //! - `FROW` (phase 2, only when the bake keeps its form factors): the same rows of `F`, same
@@ -25,13 +27,14 @@
 use std::borrow::Cow;
 use std::path::Path;
 
+use crate::element::Elements;
 use crate::patch::PatchLayout;
 use crate::shard::{Phase, ShardMeta, shard_rows};
 
 use super::FormatError;
 use super::baked::{
-    decode_layout, decode_occupancy, decode_surface, encode_layout, encode_occupancy,
-    encode_surface, model_section, validate_model,
+    decode_elements, decode_layout, decode_occupancy, decode_surface, encode_elements,
+    encode_layout, encode_occupancy, encode_surface, model_section, validate_model,
 };
 use super::container::{
     self, Assembled, Container, FieldReader, FileBytes, Flavour, SECTION_ALIGN, SECTION_OPTIONAL,
@@ -56,6 +59,15 @@ pub struct ShardHeader {
     pub occupancy: Vec<u64>,
     /// Surface geometry's triangles and sample points, for the baked file.
     pub surface: Option<SurfaceData>,
+    /// The transport elements, when they are not the patches.
+    pub elements: Option<Elements>,
+}
+
+impl ShardHeader {
+    /// What the rows are rows of: the elements, or the patches.
+    pub fn transport_layout(&self) -> &PatchLayout {
+        self.elements.as_ref().map_or(&self.layout, |e| &e.layout)
+    }
 }
 
 /// A whole shard.
@@ -74,7 +86,7 @@ impl ShardFile {
     /// The file laid out and checked (everything the reader checks), rows borrowed.
     fn assemble(&self) -> Result<Assembled<'_>, FormatError> {
         let h = &self.header;
-        check_meta(&h.meta, &h.layout)?;
+        check_meta(&h.meta, h.transport_layout())?;
         check_rows_len(ROWS, &h.meta, h.meta.channels, self.rows.len())?;
         check_values(ROWS, &self.rows)?;
         let wants_frow = wants_form_factor_rows(&h.meta);
@@ -107,10 +119,19 @@ impl ShardFile {
         if h.meta.settings.geometry == Geometry::Surface && h.surface.is_none() {
             return Err(bad("a surface bake's shard lacks its surface geometry"));
         }
+        if let Some(elements) = &h.elements {
+            if h.meta.settings.geometry != Geometry::Surface {
+                return Err(bad("a voxel-face bake's shard holds transport elements"));
+            }
+            sections.push(owned(
+                SectionKind::ELEM,
+                encode_elements(elements, &h.layout)?,
+            ));
+        }
         if let Some(surface) = &h.surface {
             sections.push(owned(
                 SectionKind::SURF,
-                encode_surface(surface, &h.layout)?,
+                encode_surface(surface, h.transport_layout())?,
             ));
         }
         // Before the rows, which stay last as they are the bulk of the file.
@@ -187,6 +208,7 @@ impl ShardHeader {
             SectionKind::LAYT,
             SectionKind::OCCU,
             SectionKind::SURF,
+            SectionKind::ELEM,
         ] {
             if let Some(e) = c.entry(kind)
                 && !c.section_crc_ok(e)?
@@ -230,6 +252,7 @@ fn header_from(c: &Container<'_>) -> Result<ShardHeader, FormatError> {
             SectionKind::LAYT,
             SectionKind::OCCU,
             SectionKind::SURF,
+            SectionKind::ELEM,
             ROWS,
             FROW,
         ]
@@ -255,10 +278,18 @@ fn header_from(c: &Container<'_>) -> Result<ShardHeader, FormatError> {
     }
     let meta = decode_meta(section(c, SHRD)?)?;
     let layout = decode_layout(section(c, SectionKind::LAYT)?)?;
-    check_meta(&meta, &layout)?;
+    let elements = match (c.entry(SectionKind::ELEM), meta.settings.geometry) {
+        (Some(e), Geometry::Surface) => Some(decode_elements(c.section(e)?, &layout)?),
+        (Some(_), Geometry::VoxelFaces) => {
+            return Err(bad("a voxel-face bake's shard holds transport elements"));
+        }
+        (None, _) => None,
+    };
+    let rows = elements.as_ref().map_or(&layout, |e| &e.layout);
+    check_meta(&meta, rows)?;
     let occupancy = decode_occupancy(section(c, SectionKind::OCCU)?, &layout)?;
     let surface = match (c.entry(SectionKind::SURF), meta.settings.geometry) {
-        (Some(e), Geometry::Surface) => Some(decode_surface(c.section(e)?, &layout)?),
+        (Some(e), Geometry::Surface) => Some(decode_surface(c.section(e)?, rows)?),
         (None, Geometry::VoxelFaces) => None,
         (None, Geometry::Surface) => {
             return Err(FormatError::MissingSection {
@@ -274,6 +305,7 @@ fn header_from(c: &Container<'_>) -> Result<ShardHeader, FormatError> {
         layout,
         occupancy,
         surface,
+        elements,
     })
 }
 
@@ -285,7 +317,7 @@ fn wants_form_factor_rows(m: &ShardMeta) -> bool {
     m.phase == Phase::Transport && m.keep_form_factors
 }
 
-/// The metadata agrees with itself and with the layout.
+/// The metadata agrees with itself and with the transport's rows.
 fn check_meta(m: &ShardMeta, layout: &PatchLayout) -> Result<(), FormatError> {
     if m.count == 0 || m.index >= m.count {
         return Err(bad(format!(
