@@ -62,7 +62,7 @@ fn case(scene: &Scene, voxel: f32) -> Case {
     Case {
         shadow: ShadowScene::surface(&data),
         open: ShadowScene::surface(&open),
-        layout: vox.layout,
+        layout: vox.transport_layout().clone(),
         data,
     }
 }
