@@ -7,7 +7,7 @@ use bounce_core::format::Baked;
 use serde_json::Value;
 
 mod common;
-use common::{ServeChild, bounce, cornell, run, serve_command, stderr};
+use common::{ServeChild, bounce, cornell, gpu_ran, run, serve_command, stderr};
 
 fn inspect_json(file: &Path) -> Value {
     let out = run(bounce().arg("inspect").arg(file).arg("--json"));
@@ -354,14 +354,9 @@ fn relight_the_cornell_box_on_both_engines() {
             .arg(&dim)
             .args(["--engine", engine, "--out"])
             .arg(&json));
-        if engine == "gpu"
-            && !out.status.success()
-            && std::env::var("BOUNCE_ALLOW_NO_GPU").as_deref() == Ok("1")
-        {
-            eprintln!("SKIPPED gpu (BOUNCE_ALLOW_NO_GPU=1): {}", stderr(&out));
+        if !gpu_ran(&out, &format!("bounce relight --engine {engine}")) {
             continue;
         }
-        assert!(out.status.success(), "{engine}: {}", stderr(&out));
         assert!(
             stderr(&out).contains(&format!("engine: {engine}")),
             "{}",
@@ -656,14 +651,9 @@ fn render_a_baked_cornell_box_to_png() {
     };
     let on = dir.path().join("on.png");
     let out = render(&on, "on");
-    if !out.status.success()
-        && stderr(&out).contains("adapter")
-        && std::env::var("BOUNCE_ALLOW_NO_GPU").as_deref() == Ok("1")
-    {
-        eprintln!("SKIPPED (BOUNCE_ALLOW_NO_GPU=1): {}", stderr(&out));
+    if !gpu_ran(&out, "bounce render") {
         return;
     }
-    assert!(out.status.success(), "{}", stderr(&out));
     let off = dir.path().join("off.png");
     let out = render(&off, "off");
     assert!(out.status.success(), "{}", stderr(&out));
@@ -727,8 +717,8 @@ fn render_user_errors_read_clearly() {
 }
 
 /// An X server of the test's own (Xvfb picks a free display and prints it), for the window.
-/// Without Xvfb the window tests fail, unless `BOUNCE_ALLOW_NO_GPU=1` says skipping is intended
-/// (`.ci/run` installs it).
+/// Without Xvfb the window tests fail, naming `scripts/test` (which installs it), unless
+/// `BOUNCE_ALLOW_NO_GPU=1` says skipping is intended.
 struct Xvfb {
     child: std::process::Child,
     display: String,
@@ -752,11 +742,9 @@ impl Xvfb {
             .spawn();
         let mut child = match spawned {
             Ok(c) => c,
-            Err(e) if std::env::var("BOUNCE_ALLOW_NO_GPU").as_deref() == Ok("1") => {
-                eprintln!("SKIPPED (BOUNCE_ALLOW_NO_GPU=1): Xvfb: {e}");
-                return None;
+            Err(e) => {
+                return bounce_testkit::missing(bounce_testkit::Tool::Xvfb, format!("Xvfb: {e}"));
             }
-            Err(e) => panic!("the window tests need Xvfb (apt-get install xvfb): {e}"),
         };
         let mut line = String::new();
         BufReader::new(child.stdout.take().expect("stdout"))
