@@ -10,7 +10,6 @@ use std::time::Duration;
 
 use anyhow::{Context, Result};
 use bounce_core::format::Baked;
-use bounce_core::meta::Bounces;
 use bounce_engine::EngineChoice;
 use bounce_server::{Hub, HubConfig};
 use clap::Args;
@@ -108,9 +107,6 @@ fn parse_duration(s: &str) -> Result<Duration, String> {
     };
     Duration::try_from_secs_f64(seconds).map_err(|e| format!("{s:?}: {e}"))
 }
-
-/// Patches of the demo bake: the same as `bounce demo`.
-const DEMO_PATCHES: u32 = 2000;
 
 pub fn run(args: &ServeArgs) -> Result<()> {
     init_logging();
@@ -288,12 +284,25 @@ fn demo_scenes(cache_dir: Option<PathBuf>) -> Result<PathBuf> {
     let demo = cache.join("demo");
     let scenes = demo.join("scenes");
     let baked = scenes.join("cornell-box.bounce");
+    let bake = crate::demo::DemoBake::default();
     // A cached bake from a bounce that did not keep the model is baked again: the page needs it.
+    // So is one made with another codec request (an older bounce's exact dense-f32): the demo
+    // serves what a bake gives by default.
     let cached = Baked::read(&baked)
         .map_err(|e| e.to_string())
-        .and_then(|b| match b.model {
-            Some(_) => Ok(()),
-            None => Err("it has no model for the browser page".to_string()),
+        .and_then(|b| {
+            let asked = bounce_core::bake::options_of(&b.meta.settings, false).codec;
+            if b.model.is_none() {
+                Err("it has no model for the browser page".to_string())
+            } else if asked != bake.codec {
+                Err(format!(
+                    "it was baked with codec {}, the demo now asks for {}",
+                    crate::bake_cmd::codec_request_label(&asked),
+                    crate::bake_cmd::codec_request_label(&bake.codec)
+                ))
+            } else {
+                Ok(())
+            }
         });
     match cached {
         Ok(()) => info!(file = %baked.display(), "demo scene from the cache"),
@@ -307,7 +316,7 @@ fn demo_scenes(cache_dir: Option<PathBuf>) -> Result<PathBuf> {
                 "bounce: baking the demo Cornell box into {} (first start only)",
                 demo.display()
             );
-            crate::demo::bake_demo(&demo, &baked, DEMO_PATCHES, Bounces::K(3), false)?;
+            crate::demo::bake_demo(&demo, &baked, &bake, false)?;
         }
     }
     Ok(scenes)

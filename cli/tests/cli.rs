@@ -26,6 +26,8 @@ fn bake_then_inspect_the_cornell_box() {
             "400",
             "--rays",
             "1024",
+            "--codec",
+            "dense-f32",
             "--quiet",
             "-o",
         ])
@@ -116,6 +118,36 @@ fn all_bounces_and_single_bounce() {
         };
         assert_eq!(j["bounces"], want);
         assert_eq!(j["channels"], channels);
+    }
+}
+
+/// `bake` and `demo` default to `--codec auto --max-error 0.01`: the smallest matrix within 1% of
+/// the indirect light, recorded with the choice and its measured error. (The first-run `serve`
+/// bakes the demo with `demo`'s defaults: `cli/src/demo.rs`.)
+#[test]
+fn bake_and_demo_default_to_the_smallest_codec_within_one_percent() {
+    let dir = tempfile::tempdir().unwrap();
+    let baked = dir.path().join("default.bounce");
+    let out = run(bounce()
+        .args(["bake", "--patches", "300", "--rays", "256", "-q", "-o"])
+        .arg(&baked)
+        .arg(cornell()));
+    assert!(out.status.success(), "{}", stderr(&out));
+    let demo_dir = dir.path().join("demo");
+    let out = run(bounce()
+        .args(["demo", "--patches", "300", "-q", "--dir"])
+        .arg(&demo_dir));
+    assert!(out.status.success(), "{}", stderr(&out));
+    for file in [baked, demo_dir.join("cornell-box.bounce")] {
+        let j = inspect_json(&file);
+        assert_eq!(j["settings"]["codec"], "auto", "{}", file.display());
+        assert_eq!(j["settings"]["max_error"], 0.01, "{}", file.display());
+        let err = j["stats"]["codec_eind_rel_l2"].as_f64().unwrap();
+        assert!(err <= 0.01, "{}: {err}", file.display());
+        // Smaller than the exact matrix: at 1% some codec always fits on the Cornell box.
+        let n = j["patches"].as_u64().unwrap();
+        assert_ne!(j["codec"], "dense-f32", "{}", file.display());
+        assert!(j["matrix_bytes"].as_u64().unwrap() < n * n * 3 * 4);
     }
 }
 

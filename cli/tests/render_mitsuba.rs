@@ -127,7 +127,8 @@ fn bake(scene: &Path, out: &Path, args: &[&str]) {
         .arg(scene)
         .arg("-o")
         .arg(out)
-        .args(["--bounces", "all", "--quiet"])
+        // The exact transport: these tests measure the method, not a codec's error on top.
+        .args(["--bounces", "all", "--codec", "dense-f32", "--quiet"])
         .args(args));
 }
 
