@@ -646,10 +646,7 @@ async fn box_sessions(serve: &Serve) -> Vec<String> {
 
 /// The session the page's address bar names.
 async fn session_in_address_bar(page: &Page) -> String {
-    let search = page
-        .eval("location.search")
-        .await
-        .expect("the address bar");
+    let search = page.eval("location.search").await.expect("the address bar");
     let search = search.as_str().expect("a string").to_owned();
     search
         .trim_start_matches('?')

@@ -33,7 +33,10 @@ fn every_repository_scene_bakes() {
     folders.sort();
     let mut listed: Vec<&str> = files.iter().filter_map(|f| f.split('/').next()).collect();
     listed.sort();
-    assert_eq!(folders, listed, "every folder of assets/ is a scene this test bakes");
+    assert_eq!(
+        folders, listed,
+        "every folder of assets/ is a scene this test bakes"
+    );
     for file in files {
         let options = BakeOptions {
             resolution: Resolution::TargetPatches(300),
