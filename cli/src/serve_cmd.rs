@@ -170,7 +170,12 @@ pub fn run(args: &ServeArgs) -> Result<()> {
                 "  HTTP  http://{http}   (health /healthz, metrics /metrics, scenes /v1/scenes)"
             ),
             format!(
-                "  page  http://{http}/   ({})",
+                "  page  http://{http}/{}   ({})",
+                // With one scene, the URL that opens it: the first thing a newcomer wants.
+                match names.as_slice() {
+                    [one] => format!("?scene={}", query_escape(one)),
+                    _ => String::new(),
+                },
                 match &args.web_dir {
                     Some(d) => format!("from {}", d.display()),
                     None => "built in".to_string(),
@@ -221,6 +226,19 @@ pub fn run(args: &ServeArgs) -> Result<()> {
     })?;
     info!("stopped");
     Ok(())
+}
+
+/// `s` percent-encoded for a URL's query: a scene is named after its file, which may hold
+/// anything. RFC 3986's unreserved characters stay as they are.
+fn query_escape(s: &str) -> String {
+    s.bytes()
+        .map(|b| match b {
+            b'A'..=b'Z' | b'a'..=b'z' | b'0'..=b'9' | b'-' | b'.' | b'_' | b'~' => {
+                char::from(b).to_string()
+            }
+            _ => format!("%{b:02X}"),
+        })
+        .collect()
 }
 
 /// Logs to stderr; `RUST_LOG` takes `tracing` target filters (`info`, `bounce_server=debug`).
@@ -324,8 +342,15 @@ fn demo_scenes(cache_dir: Option<PathBuf>) -> Result<PathBuf> {
 
 #[cfg(test)]
 mod tests {
-    use super::parse_duration;
+    use super::{parse_duration, query_escape};
     use std::time::Duration;
+
+    #[test]
+    fn scene_names_are_escaped_for_the_page_url() {
+        assert_eq!(query_escape("cornell-box"), "cornell-box");
+        assert_eq!(query_escape("my level #2"), "my%20level%20%232");
+        assert_eq!(query_escape("é"), "%C3%A9");
+    }
 
     #[test]
     fn durations_read_with_their_units() {
