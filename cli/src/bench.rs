@@ -73,6 +73,11 @@ pub struct BenchBakeArgs {
     pub rays: u32,
     #[arg(long, default_value = "3")]
     pub bounces: Bounces,
+    /// The codec each bake stores (`bounce bake --codec`). The exact dense-f32 by default, so
+    /// the table times the pipeline itself; `auto` adds the encode-every-codec search that a
+    /// plain `bounce bake` runs.
+    #[arg(long, value_name = "NAME|auto", default_value = bounce_core::matrix::DENSE_F32)]
+    pub codec: String,
     /// Write the table as CSV here too.
     #[arg(long, value_name = "OUT.csv")]
     pub csv: Option<PathBuf>,
@@ -139,6 +144,7 @@ fn bench_bake(args: &BenchBakeArgs) -> Result<()> {
             .args(["--patches", &target.to_string()])
             .args(["--rays", &args.rays.to_string()])
             .args(["--bounces", &args.bounces.to_string()])
+            .args(["--codec", &args.codec])
             .arg("--quiet")
             .arg("--report-json")
             .arg(&report_path)

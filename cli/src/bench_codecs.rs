@@ -70,7 +70,7 @@ pub fn run(args: &BenchCodecsArgs) -> Result<()> {
     if baked.transport.codec != DENSE_F32 {
         bail!(
             "{} stores its transport as '{}'; the benchmark needs the exact dense-f32 to measure \
-             against (bake without --codec)",
+             against (bake with --codec dense-f32)",
             args.baked.display(),
             baked.transport.codec
         );

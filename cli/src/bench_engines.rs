@@ -68,7 +68,8 @@ pub fn run(args: &BenchEnginesArgs) -> Result<()> {
         Baked::read(&args.baked).with_context(|| format!("reading {}", args.baked.display()))?;
     if baked.transport.codec != DENSE_F32 {
         bail!(
-            "{} stores '{}'; the benchmark needs the exact dense-f32 transport to measure against",
+            "{} stores '{}'; the benchmark needs the exact dense-f32 transport to measure against \
+             (bake with --codec dense-f32)",
             args.baked.display(),
             baked.transport.codec
         );

@@ -6,7 +6,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
-use bounce_core::bake::BakeOptions;
+use bounce_core::bake::{BakeOptions, CodecRequest};
 use bounce_core::meta::Bounces;
 use bounce_core::voxel::Resolution;
 use clap::Args;
@@ -32,18 +32,38 @@ pub fn write_scene(dir: &Path) -> Result<PathBuf> {
     Ok(scene_dir.join("scene.gltf"))
 }
 
+/// What the demo bakes with; `bounce demo`'s flags and the first-run `serve` (which takes the
+/// defaults) fill it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DemoBake {
+    pub patches: u32,
+    pub bounces: Bounces,
+    pub codec: CodecRequest,
+}
+
+impl Default for DemoBake {
+    fn default() -> Self {
+        DemoBake {
+            patches: DEMO_PATCHES,
+            bounces: Bounces::K(3),
+            codec: crate::bake_cmd::codec_request(
+                crate::bake_cmd::DEFAULT_CODEC,
+                crate::bake_cmd::DEFAULT_MAX_ERROR,
+            ),
+        }
+    }
+}
+
+/// Patches of the demo bake (`bounce demo` and the first-run `serve`).
+pub const DEMO_PATCHES: u32 = 2000;
+
 /// Writes the embedded scene into `dir` and bakes it to `out`.
-pub fn bake_demo(
-    dir: &Path,
-    out: &Path,
-    patches: u32,
-    bounces: Bounces,
-    quiet: bool,
-) -> Result<()> {
+pub fn bake_demo(dir: &Path, out: &Path, bake: &DemoBake, quiet: bool) -> Result<()> {
     let gltf = write_scene(dir)?;
     let options = BakeOptions {
-        resolution: Resolution::TargetPatches(patches),
-        bounces,
+        resolution: Resolution::TargetPatches(bake.patches),
+        bounces: bake.bounces,
+        codec: bake.codec.clone(),
         ..BakeOptions::default()
     };
     // The model is kept: the browser page `bounce serve` hands out draws it.
@@ -57,18 +77,30 @@ pub struct DemoArgs {
     #[arg(long, default_value = "bounce-demo")]
     pub dir: PathBuf,
     /// Target patch count.
-    #[arg(long, default_value_t = 2000)]
+    #[arg(long, default_value_t = DEMO_PATCHES)]
     pub patches: u32,
     /// Light bounces: a number or "all".
     #[arg(long, default_value = "3")]
     pub bounces: Bounces,
+    /// How the transport is stored: auto (the smallest within --max-error), or a codec by name
+    /// (dense-f32, dense-f16, bc1, bc4, log8, bc1-resid), as for `bounce bake`.
+    #[arg(long, value_name = "NAME|auto", default_value = crate::bake_cmd::DEFAULT_CODEC)]
+    pub codec: String,
+    /// For --codec auto: the largest relative L2 error of the indirect irradiance allowed.
+    #[arg(long, value_name = "E", default_value_t = crate::bake_cmd::DEFAULT_MAX_ERROR)]
+    pub max_error: f64,
     #[arg(short, long)]
     pub quiet: bool,
 }
 
 pub fn run(args: &DemoArgs) -> Result<()> {
     let out = args.dir.join("cornell-box.bounce");
-    bake_demo(&args.dir, &out, args.patches, args.bounces, args.quiet)?;
+    let bake = DemoBake {
+        patches: args.patches,
+        bounces: args.bounces,
+        codec: crate::bake_cmd::codec_request(&args.codec, args.max_error),
+    };
+    bake_demo(&args.dir, &out, &bake, args.quiet)?;
     println!();
     crate::inspect::run(&crate::inspect::InspectArgs {
         file: out,

@@ -10,7 +10,6 @@ use std::time::Duration;
 
 use anyhow::{Context, Result};
 use bounce_core::format::Baked;
-use bounce_core::meta::Bounces;
 use bounce_engine::EngineChoice;
 use bounce_server::{Hub, HubConfig};
 use clap::Args;
@@ -109,9 +108,6 @@ fn parse_duration(s: &str) -> Result<Duration, String> {
     Duration::try_from_secs_f64(seconds).map_err(|e| format!("{s:?}: {e}"))
 }
 
-/// Patches of the demo bake: the same as `bounce demo`.
-const DEMO_PATCHES: u32 = 2000;
-
 pub fn run(args: &ServeArgs) -> Result<()> {
     init_logging();
     let engine: EngineChoice = args.engine.parse()?;
@@ -174,7 +170,12 @@ pub fn run(args: &ServeArgs) -> Result<()> {
                 "  HTTP  http://{http}   (health /healthz, metrics /metrics, scenes /v1/scenes)"
             ),
             format!(
-                "  page  http://{http}/   ({})",
+                "  page  http://{http}/{}   ({})",
+                // With one scene, the URL that opens it: the first thing a newcomer wants.
+                match names.as_slice() {
+                    [one] => format!("?scene={}", query_escape(one)),
+                    _ => String::new(),
+                },
                 match &args.web_dir {
                     Some(d) => format!("from {}", d.display()),
                     None => "built in".to_string(),
@@ -225,6 +226,19 @@ pub fn run(args: &ServeArgs) -> Result<()> {
     })?;
     info!("stopped");
     Ok(())
+}
+
+/// `s` percent-encoded for a URL's query: a scene is named after its file, which may hold
+/// anything. RFC 3986's unreserved characters stay as they are.
+fn query_escape(s: &str) -> String {
+    s.bytes()
+        .map(|b| match b {
+            b'A'..=b'Z' | b'a'..=b'z' | b'0'..=b'9' | b'-' | b'.' | b'_' | b'~' => {
+                char::from(b).to_string()
+            }
+            _ => format!("%{b:02X}"),
+        })
+        .collect()
 }
 
 /// Logs to stderr; `RUST_LOG` takes `tracing` target filters (`info`, `bounce_server=debug`).
@@ -288,12 +302,25 @@ fn demo_scenes(cache_dir: Option<PathBuf>) -> Result<PathBuf> {
     let demo = cache.join("demo");
     let scenes = demo.join("scenes");
     let baked = scenes.join("cornell-box.bounce");
+    let bake = crate::demo::DemoBake::default();
     // A cached bake from a bounce that did not keep the model is baked again: the page needs it.
+    // So is one made with another codec request (an older bounce's exact dense-f32): the demo
+    // serves what a bake gives by default.
     let cached = Baked::read(&baked)
         .map_err(|e| e.to_string())
-        .and_then(|b| match b.model {
-            Some(_) => Ok(()),
-            None => Err("it has no model for the browser page".to_string()),
+        .and_then(|b| {
+            let asked = bounce_core::bake::options_of(&b.meta.settings, false).codec;
+            if b.model.is_none() {
+                Err("it has no model for the browser page".to_string())
+            } else if asked != bake.codec {
+                Err(format!(
+                    "it was baked with codec {}, the demo now asks for {}",
+                    crate::bake_cmd::codec_request_label(&asked),
+                    crate::bake_cmd::codec_request_label(&bake.codec)
+                ))
+            } else {
+                Ok(())
+            }
         });
     match cached {
         Ok(()) => info!(file = %baked.display(), "demo scene from the cache"),
@@ -307,7 +334,7 @@ fn demo_scenes(cache_dir: Option<PathBuf>) -> Result<PathBuf> {
                 "bounce: baking the demo Cornell box into {} (first start only)",
                 demo.display()
             );
-            crate::demo::bake_demo(&demo, &baked, DEMO_PATCHES, Bounces::K(3), false)?;
+            crate::demo::bake_demo(&demo, &baked, &bake, false)?;
         }
     }
     Ok(scenes)
@@ -315,8 +342,15 @@ fn demo_scenes(cache_dir: Option<PathBuf>) -> Result<PathBuf> {
 
 #[cfg(test)]
 mod tests {
-    use super::parse_duration;
+    use super::{parse_duration, query_escape};
     use std::time::Duration;
+
+    #[test]
+    fn scene_names_are_escaped_for_the_page_url() {
+        assert_eq!(query_escape("cornell-box"), "cornell-box");
+        assert_eq!(query_escape("my level #2"), "my%20level%20%232");
+        assert_eq!(query_escape("é"), "%C3%A9");
+    }
 
     #[test]
     fn durations_read_with_their_units() {

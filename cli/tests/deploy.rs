@@ -155,6 +155,10 @@ fn the_bake_all_script_bakes_every_scene_once() {
         (100..300).contains(&first.layout.len()),
         "--patches 200 applied"
     );
+    // Without a codec in BOUNCE_BAKE_ARGS the compose bake takes bake's default: the smallest
+    // codec within 1% of the indirect light.
+    assert_eq!(first.meta.settings.codec, "auto");
+    assert_eq!(first.meta.settings.max_error, Some(0.01));
 
     // A second run keeps the newer baked file.
     let out = ok(&mut script());

@@ -11,9 +11,10 @@
 //!    room's indirect light must be essentially zero in the image.
 //!
 //! `bounce render` needs a GPU adapter (lavapipe will do): without one these fail, unless
-//! `BOUNCE_ALLOW_NO_GPU=1` says skipping is intended. The Mitsuba test needs `python3` with
-//! `mitsuba` (`pip install mitsuba`): without it, it fails, unless `BOUNCE_ALLOW_NO_MITSUBA=1` says
-//! skipping is intended. CI sets neither.
+//! `BOUNCE_ALLOW_NO_GPU=1` says skipping is intended. The Mitsuba test needs Python with Mitsuba 3
+//! (`scripts/test` installs it in the build directory; `bounce_testkit::python` finds it):
+//! without it, it fails, unless `BOUNCE_ALLOW_NO_MITSUBA=1` says skipping is intended. CI sets
+//! neither; both failures name `scripts/test`.
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
@@ -22,7 +23,7 @@ use bounce_core::format::Baked;
 use serde_json::{Value, json};
 
 mod common;
-use common::{bounce, cornell, ok, run, stderr};
+use common::{bounce, cornell, gpu_ran, ok, run};
 
 /// The point light of both tests' lights files, in glTF units (candela).
 const INTENSITY: f32 = 5.0;
@@ -94,15 +95,7 @@ fn read_pfm(path: &Path) -> Pfm {
 /// `bounce render` succeeded, or it could not find a GPU adapter and skipping is allowed
 /// (`false`: skip the test).
 fn rendered(out: &Output) -> bool {
-    if !out.status.success()
-        && std::env::var("BOUNCE_ALLOW_NO_GPU").as_deref() == Ok("1")
-        && stderr(out).contains("GPU adapter")
-    {
-        eprintln!("SKIPPED (BOUNCE_ALLOW_NO_GPU=1): {}", stderr(out));
-        return false;
-    }
-    assert!(out.status.success(), "bounce render: {}", stderr(out));
-    true
+    gpu_ran(out, "bounce render")
 }
 
 /// `bounce render SCENE --baked BAKED --lights LIGHTS --indirect MODE` to a PFM at 160×120.
@@ -117,29 +110,6 @@ fn render(scene: &Path, baked: &Path, lights: &Path, camera: &str, mode: &str, o
         .args(["--camera", camera, "--indirect", mode])
         .args(["--width", "160", "--height", "120", "--out"])
         .arg(out)))
-}
-
-/// Whether python3 can import mitsuba; without it the test fails unless
-/// BOUNCE_ALLOW_NO_MITSUBA=1 (`false`: skip).
-fn mitsuba_available() -> bool {
-    let probe = Command::new("python3")
-        .args(["-c", "import mitsuba"])
-        .output();
-    if matches!(&probe, Ok(o) if o.status.success()) {
-        return true;
-    }
-    let why = match &probe {
-        Ok(o) => String::from_utf8_lossy(&o.stderr).into_owned(),
-        Err(e) => e.to_string(),
-    };
-    if std::env::var("BOUNCE_ALLOW_NO_MITSUBA").as_deref() == Ok("1") {
-        eprintln!("SKIPPED (BOUNCE_ALLOW_NO_MITSUBA=1): python3 cannot import mitsuba: {why}");
-        return false;
-    }
-    panic!(
-        "python3 cannot import mitsuba ({why}): `pip install mitsuba`, or set \
-         BOUNCE_ALLOW_NO_MITSUBA=1 to skip"
-    );
 }
 
 fn point_light(dir: &Path, position: [f32; 3]) -> PathBuf {
@@ -157,7 +127,8 @@ fn bake(scene: &Path, out: &Path, args: &[&str]) {
         .arg(scene)
         .arg("-o")
         .arg(out)
-        .args(["--bounces", "all", "--quiet"])
+        // The exact transport: these tests measure the method, not a codec's error on top.
+        .args(["--bounces", "all", "--codec", "dense-f32", "--quiet"])
         .args(args));
 }
 
@@ -169,9 +140,9 @@ const CORNELL_FOV_Y: f32 = 40.0;
 
 #[test]
 fn indirect_only_matches_mitsuba_on_the_cornell_box() {
-    if !mitsuba_available() {
+    let Some(python) = bounce_testkit::mitsuba_python() else {
         return;
-    }
+    };
     let dir = tempfile::tempdir().unwrap();
     let lights = point_light(dir.path(), [0.0, 1.5, 0.0]);
     let baked = dir.path().join("cornell.bounce");
@@ -213,11 +184,11 @@ fn indirect_only_matches_mitsuba_on_the_cornell_box() {
     let job_path = dir.path().join("job.json");
     std::fs::write(&job_path, job.to_string()).unwrap();
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/mitsuba/render_indirect.py");
-    let out = Command::new("python3")
+    let out = Command::new(&python)
         .arg(&script)
         .arg(&job_path)
         .output()
-        .expect("running python3");
+        .unwrap_or_else(|e| panic!("running {}: {e}", python.display()));
     assert!(
         out.status.success(),
         "Mitsuba failed: {}",

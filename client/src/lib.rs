@@ -1,4 +1,4 @@
-//! `bounce-client`: the client library of DESIGN.md §2 "Clients", what a viewer (a window, a
+//! `bounce-client`: the client library of docs/design.md §2 "Clients", what a viewer (a window, a
 //! headless renderer, a tool) needs between a bounce server and its own shading.
 //!
 //! It owns:

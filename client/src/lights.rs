@@ -1,5 +1,5 @@
-//! Light configurations on the wire: `bounce-core`'s [`LightSet`] (DESIGN.md §5's JSON form) as
-//! proto messages for gRPC and as JSON for WebSocket and HTTP.
+//! Light configurations on the wire: `bounce-core`'s [`LightSet`] (docs/design.md §5's JSON form)
+//! as proto messages for gRPC and as JSON for WebSocket and HTTP.
 //!
 //! Nothing is validated here: the server is the one judge of a light configuration, and its
 //! refusal names the field (`lights[0].intensity: ...`).

@@ -1,5 +1,5 @@
-//! The six-direction irradiance volume of DESIGN.md §2 "Clients": how a client turns a frame of
-//! per-patch irradiance into something it can sample at any point of its own meshes.
+//! The six-direction irradiance volume of docs/design.md §2 "Clients": how a client turns a frame
+//! of per-patch irradiance into something it can sample at any point of its own meshes.
 //!
 //! # Convention (the viewer's shader does exactly this)
 //!
@@ -36,9 +36,9 @@
 //!   set when the voxel is separated from its neighbour in direction `f` ([`Volume::separators`];
 //!   an `R8Uint` 3D texture). They follow from the layout alone.
 //! - Sample at the surface point itself. The patch texel sits at the centre of the voxel the
-//!   surface lies in, so no offset is needed (DESIGN.md's "slightly off the surface" belongs to
-//!   conventions that store a patch in the empty voxel in front of it); an offset along the
-//!   normal of more than half a voxel leaves the patch's voxel.
+//!   surface lies in, so no offset is needed (an older convention's "slightly off the surface"
+//!   belongs to storing a patch in the empty voxel in front of it); an offset along the normal of
+//!   more than half a voxel leaves the patch's voxel.
 //!
 //! [`Volume::sample`] is the CPU twin of that shader code, for tests and tools. The shader reads
 //! the texels and weighs them itself (no hardware filter), so the two agree to f32 rounding of

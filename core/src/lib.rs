@@ -6,7 +6,7 @@
 //! does not own any GPU code, networking or command-line handling: those live in the crates that
 //! depend on this one.
 //!
-//! Conventions (see DESIGN.md §1): `F[i][j]` is the fraction of energy leaving patch `i` that
+//! Conventions (see docs/design.md §1): `F[i][j]` is the fraction of energy leaving patch `i` that
 //! arrives at patch `j`; the transport `T` maps initial exitance `B0` to indirect irradiance
 //! `E_ind = T B0`.
 

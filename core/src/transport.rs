@@ -1,4 +1,4 @@
-//! The multi-bounce transport matrix `T`: indirect irradiance `E_ind = T B0` (DESIGN.md §1).
+//! The multi-bounce transport matrix `T`: indirect irradiance `E_ind = T B0` (docs/design.md §1).
 //!
 //! `T_k = Σ_{h<k} F (D_ρ F)^h` is evaluated by Horner from the right,
 //! `T_{m+1} = F + T_m (D_ρ F)`, because then every row block of `T` needs only its own rows of

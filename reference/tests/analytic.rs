@@ -63,7 +63,8 @@ fn points() -> Vec<Point> {
 }
 
 /// Closed room, uniform albedo ρ and emitted exitance E, no lights: every surface receives
-/// `E (1 − ρ^k) / (1 − ρ)` with k bounces and `E / (1 − ρ)` with all of them (DESIGN §1).
+/// `E (1 − ρ^k) / (1 − ρ)` with k bounces and `E / (1 − ρ)` with all of them
+/// (docs/design.md §1).
 #[test]
 fn white_furnace() {
     let (rho, e) = (0.8f64, 2.0f64);

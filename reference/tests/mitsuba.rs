@@ -1,7 +1,8 @@
-//! The reference against an outside renderer: Mitsuba 3 (`pip install mitsuba`, which `.ci/run`
-//! installs) renders the Cornell box's indirect irradiance at the same points under the same
-//! point light, through its own path integrator (tests/mitsuba/irradiance.py). A test that
-//! cannot run Mitsuba fails, unless BOUNCE_ALLOW_NO_MITSUBA=1 says skipping is wanted (CI never
+//! The reference against an outside renderer: Mitsuba 3 (which `scripts/test` installs in a
+//! virtual environment in the build directory; `bounce_testkit::python` finds it) renders the
+//! Cornell box's indirect irradiance at the same points under the same point light, through its
+//! own path integrator (tests/mitsuba/irradiance.py). A test that cannot run Mitsuba fails,
+//! naming `scripts/test`, unless BOUNCE_ALLOW_NO_MITSUBA=1 says skipping is wanted (CI never
 //! sets it).
 
 use std::collections::BTreeMap;
@@ -88,23 +89,9 @@ fn mitsuba_job(dir: &Path, lights: &LightSet, bounces: u32) -> Value {
 
 #[test]
 fn the_reference_agrees_with_mitsuba_on_the_cornell_box() {
-    let probe = Command::new("python3")
-        .args(["-c", "import mitsuba"])
-        .output();
-    if !matches!(&probe, Ok(o) if o.status.success()) {
-        let why = match &probe {
-            Ok(o) => String::from_utf8_lossy(&o.stderr).into_owned(),
-            Err(e) => e.to_string(),
-        };
-        if std::env::var("BOUNCE_ALLOW_NO_MITSUBA").as_deref() == Ok("1") {
-            eprintln!("SKIPPED (BOUNCE_ALLOW_NO_MITSUBA=1): python3 cannot import mitsuba: {why}");
-            return;
-        }
-        panic!(
-            "python3 cannot import mitsuba ({why}): `pip install mitsuba`, or set \
-             BOUNCE_ALLOW_NO_MITSUBA=1 to skip"
-        );
-    }
+    let Some(python) = bounce_testkit::mitsuba_python() else {
+        return;
+    };
     let white = cornell()
         .triangles
         .iter()
@@ -133,12 +120,12 @@ fn the_reference_agrees_with_mitsuba_on_the_cornell_box() {
     )
     .unwrap();
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/mitsuba/irradiance.py");
-    let run = Command::new("python3")
+    let run = Command::new(&python)
         .arg(&script)
         .arg(&input)
         .arg(&output)
         .output()
-        .expect("running python3");
+        .unwrap_or_else(|e| panic!("running {}: {e}", python.display()));
     assert!(
         run.status.success(),
         "Mitsuba failed: {}",

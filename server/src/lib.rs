@@ -1,4 +1,4 @@
-//! `bounce-server`: the lighting service of DESIGN.md §2 "Serve" and §5.
+//! `bounce-server`: the lighting service of docs/design.md §2 "Serve" and §5.
 //!
 //! It owns what happens between a baked scene on disk and a viewer's frames: the scenes loaded
 //! from a directory and reloaded when they change ([`scenes`]), sessions (a scene, a light

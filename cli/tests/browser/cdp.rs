@@ -136,22 +136,18 @@ pub fn chromium_path() -> PathBuf {
         .map_or_else(|| PathBuf::from("/usr/bin/chromium"), PathBuf::from)
 }
 
-/// The chromium to test with. Without one this panics (CI must not skip silently), unless
-/// `BOUNCE_ALLOW_NO_BROWSER=1`, where it says why on stderr and returns `None`: the caller returns.
+/// The chromium to test with. Without one this panics (CI must not skip silently), naming
+/// `scripts/test`, which installs it, unless `BOUNCE_ALLOW_NO_BROWSER=1`, where it says why on
+/// stderr and returns `None`: the caller returns.
 pub fn chromium_or_skip() -> Option<PathBuf> {
     let path = chromium_path();
     if path.is_file() {
         return Some(path);
     }
-    let why = format!(
-        "no chromium at {} (install Debian's `chromium` package, or point $BOUNCE_CHROMIUM at one)",
-        path.display()
-    );
-    if std::env::var("BOUNCE_ALLOW_NO_BROWSER").as_deref() == Ok("1") {
-        eprintln!("skipping a browser test: {why}; BOUNCE_ALLOW_NO_BROWSER=1 allows that");
-        return None;
-    }
-    panic!("{why}; set BOUNCE_ALLOW_NO_BROWSER=1 to skip the browser tests instead");
+    bounce_testkit::missing(
+        bounce_testkit::Tool::Chromium,
+        format!("no chromium at {}", path.display()),
+    )
 }
 
 /// One message from the page's console or log.

@@ -1,7 +1,7 @@
 //! The browser viewer (web/public, served by `bounce serve`) in headless Chromium against a real
-//! server: it loads cleanly, draws the streamed indirect light where it belongs, shares a
-//! session with other tabs and a gRPC subscriber, draws what `bounce render` draws, explains
-//! refusals, and rides out a server restart.
+//! server: it loads cleanly, draws the streamed indirect light where it belongs, opens a scene
+//! from its name alone (`/?scene=NAME`), shares a session with other tabs and a gRPC subscriber,
+//! draws what `bounce render` draws, explains refusals, and rides out a server restart.
 
 use std::path::{Path, PathBuf};
 use std::time::Duration;
@@ -625,6 +625,103 @@ async fn refusals_and_missing_sessions_are_explained() {
         .await
         .unwrap();
     assert_eq!(shown, text);
+}
+
+/// The session ids the server lists for scene `box`, newest first.
+async fn box_sessions(serve: &Serve) -> Vec<String> {
+    let answer: Value = reqwest::get(format!("{}/v1/sessions?scene=box", serve.http))
+        .await
+        .and_then(|r| r.error_for_status())
+        .expect("the session list")
+        .json()
+        .await
+        .expect("JSON");
+    answer["sessions"]
+        .as_array()
+        .expect("a list of sessions")
+        .iter()
+        .map(|s| s["session_id"].as_str().expect("an id").to_owned())
+        .collect()
+}
+
+/// The session the page's address bar names.
+async fn session_in_address_bar(page: &Page) -> String {
+    let search = page.eval("location.search").await.expect("the address bar");
+    let search = search.as_str().expect("a string").to_owned();
+    search
+        .trim_start_matches('?')
+        .split('&')
+        .find_map(|kv| kv.strip_prefix("session="))
+        .unwrap_or_else(|| panic!("no session in {search}"))
+        .to_owned()
+}
+
+/// `/?scene=NAME`, the URL a newcomer types, opens the scene, not the list: on a new session
+/// when the scene has none, on its newest one otherwise; and it explains what it cannot do.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_scene_url_opens_the_scene_on_its_newest_session_or_a_new_one() {
+    let Some(browser) = crate::browser().await else {
+        return;
+    };
+    let serve = Serve::start(ServeOptions::default());
+    assert!(box_sessions(&serve).await.is_empty());
+
+    // No session yet: the page starts one, draws it, and names it in the address bar.
+    let url = format!("{}/?scene=box", serve.http);
+    let first = open(&browser, &url).await;
+    let drawn = wait_drawn(&first).await;
+    assert_eq!(drawn["lightsVersion"], 1, "{drawn}");
+    let made = box_sessions(&serve).await;
+    assert_eq!(made.len(), 1, "one session made: {made:?}");
+    assert_eq!(session_in_address_bar(&first).await, made[0]);
+    assert_no_errors(&first);
+
+    // A newer session: the same URL joins it rather than making a third.
+    let newer = serve.create_session(ceiling_light(), None).await;
+    let second = open(&browser, &url).await;
+    wait_drawn(&second).await;
+    assert_eq!(session_in_address_bar(&second).await, newer);
+    assert_eq!(box_sessions(&serve).await.len(), 2, "no session made");
+    assert_no_errors(&second);
+
+    // An unknown scene is named, with the ones there are.
+    let lost = open(&browser, &format!("{}/?scene=nope", serve.http)).await;
+    let text = lost
+        .wait_for("window.bounceError", WAIT)
+        .await
+        .expect("an error is shown");
+    assert!(
+        text.as_str()
+            .is_some_and(|t| t.contains("\"nope\"") && t.contains("box")),
+        "{text}"
+    );
+
+    // A server that needs a token for writes cannot start a session without one: the page says
+    // so; with the token it starts one, and the token leaves the address bar.
+    let guarded = Serve::start(ServeOptions {
+        token: Some("sesame"),
+        ..ServeOptions::default()
+    });
+    let url = format!("{}/?scene=box", guarded.http);
+    let refused = open(&browser, &url).await;
+    let text = refused
+        .wait_for("window.bounceError", WAIT)
+        .await
+        .expect("an error is shown");
+    assert!(text.as_str().is_some_and(|t| t.contains("token")), "{text}");
+    assert!(box_sessions(&guarded).await.is_empty());
+    let writer = open(&browser, &format!("{url}&token=sesame")).await;
+    wait_drawn(&writer).await;
+    assert_eq!(
+        session_in_address_bar(&writer).await,
+        box_sessions(&guarded).await[0]
+    );
+    let search = writer.eval("location.search").await.unwrap();
+    assert!(
+        search.as_str().is_some_and(|s| !s.contains("sesame")),
+        "{search}"
+    );
+    assert_no_errors(&writer);
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

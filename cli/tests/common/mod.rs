@@ -41,6 +41,22 @@ pub fn stderr(out: &Output) -> String {
     String::from_utf8_lossy(&out.stderr).into_owned()
 }
 
+/// A command that needs a GPU adapter (lavapipe will do) ran: `true` when it succeeded; `false`
+/// when it found no adapter and `BOUNCE_ALLOW_NO_GPU=1` allows skipping (the test returns). Any
+/// other failure fails the test; a missing adapter does too, naming `scripts/test`.
+pub fn gpu_ran(out: &Output, what: &str) -> bool {
+    if out.status.success() {
+        return true;
+    }
+    let err = stderr(out);
+    // The engine's "no GPU adapter found" and the renderer's "needs a GPU adapter".
+    if err.contains("GPU adapter") {
+        bounce_testkit::missing::<()>(bounce_testkit::Tool::GpuAdapter, format!("{what}: {err}"));
+        return false;
+    }
+    panic!("{what} failed:\n{err}");
+}
+
 /// `run`, and it succeeded.
 pub fn ok(cmd: &mut Command) -> Output {
     let out = run(cmd);

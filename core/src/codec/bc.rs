@@ -1,4 +1,4 @@
-//! BC1 and BC4 block compression of 8-bit transport-matrix "images" (DESIGN.md §3).
+//! BC1 and BC4 block compression of 8-bit transport-matrix "images" (docs/design.md §3).
 //!
 //! This module owns the bit formats only: encoding an RGB8 image to BC1 (via texpresso's
 //! iterative cluster fit), encoding an 8-bit single-channel image to BC4 (our own encoder),

@@ -1,6 +1,6 @@
-//! Codec error, measured two ways (DESIGN.md §4): on matrix entries, as the thesis tabulated it,
-//! and on the indirect irradiance `E_ind = T B0` for light configurations, which is what a viewer
-//! sees. Every channel counts (the thesis' own code compared only red).
+//! Codec error, measured two ways (docs/design.md §4): on matrix entries, as the thesis tabulated
+//! it, and on the indirect irradiance `E_ind = T B0` for light configurations, which is what a
+//! viewer sees. Every channel counts (the thesis' own code compared only red).
 
 use crate::matrix::DenseMatrix;
 use crate::patch::PatchLayout;

@@ -1,6 +1,6 @@
-//! Exact, texture-free building blocks of the thesis' "bc1" codec (DESIGN.md §3, steps 1–3):
-//! the sparse split of the largest entries, the 8-bit log quantisation, and the greedy
-//! row/column reordering with its permutation helpers.
+//! Exact, texture-free building blocks of the thesis' "bc1" codec (docs/design.md §3, steps 1–3):
+//! the sparse split of the largest entries, the 8-bit log quantisation, and the greedy row/column
+//! reordering with its permutation helpers.
 //!
 //! Everything here works on plain slices so the codec module can feed it one channel of a
 //! `DenseMatrix` (`data[c*n*n + i*n + j]`) without copying into another type.

@@ -572,8 +572,12 @@ mod tests {
     #[test]
     fn sheen_chair_imports_with_textures_and_unit_normals() {
         let path = Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../../shared/scenes/sheen-chair-sun/MixedLightingExample.gltf");
-        assert!(path.is_file(), "shared scene missing at {}", path.display());
+            .join("../assets/sheen-chair-sun/MixedLightingExample.gltf");
+        assert!(
+            path.is_file(),
+            "the sheen chair scene missing at {}",
+            path.display()
+        );
         let scene = import_path_with(&path, &SHADING).unwrap_or_else(|e| panic!("{e}"));
         let shading = scene.shading.as_ref().expect("shading was asked for");
         assert_eq!(shading.triangles.len(), scene.triangles.len());

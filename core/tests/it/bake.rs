@@ -1,5 +1,5 @@
-//! Every shared test scene bakes end to end at a small size: patches near the target, form-factor
-//! rows never above 1, and a finite, non-negative transport.
+//! Every scene in the repository's `assets/` bakes end to end at a small size: patches near the
+//! target, form-factor rows never above 1, and a finite, non-negative transport.
 
 use std::path::Path;
 
@@ -8,11 +8,11 @@ use bounce_core::meta::Bounces;
 use bounce_core::voxel::Resolution;
 
 #[test]
-fn every_shared_scene_bakes() {
-    let scenes = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/scenes");
+fn every_repository_scene_bakes() {
+    let scenes = Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets");
     assert!(
         scenes.is_dir(),
-        "shared scenes missing at {}",
+        "the repository's scenes missing at {}",
         scenes.display()
     );
     let files = [
@@ -23,6 +23,20 @@ fn every_shared_scene_bakes() {
         "sheen-chair-sun/MixedLightingExample.gltf",
         "small-room/IrradianceVolumeExample.glb",
     ];
+    // A scene added to assets/ is baked here too: the list must name every folder.
+    let mut folders: Vec<String> = std::fs::read_dir(&scenes)
+        .unwrap()
+        .map(|e| e.unwrap())
+        .filter(|e| e.path().is_dir())
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .collect();
+    folders.sort();
+    let mut listed: Vec<&str> = files.iter().filter_map(|f| f.split('/').next()).collect();
+    listed.sort();
+    assert_eq!(
+        folders, listed,
+        "every folder of assets/ is a scene this test bakes"
+    );
     for file in files {
         let options = BakeOptions {
             resolution: Resolution::TargetPatches(300),

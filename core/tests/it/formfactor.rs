@@ -1,4 +1,4 @@
-//! Form factors against Howell's analytic catalogue (DESIGN.md §1) and their invariants.
+//! Form factors against Howell's analytic catalogue (docs/design.md §1) and their invariants.
 
 use bounce_core::formfactor::{FormFactorError, MAX_RAYS, RayScene, form_factor_rows, stats};
 use bounce_core::matrix::DenseMatrix;

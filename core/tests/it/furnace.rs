@@ -1,6 +1,6 @@
 //! White furnace: a closed box of uniform albedo ρ, lit uniformly. Every ray from a wall lands on a
 //! wall, so `k` bounces return `ρ(1−ρ^k)/(1−ρ)` of the direct light as indirect irradiance and all
-//! bounces `ρ/(1−ρ)` (DESIGN.md §1). Runs the real voxeliser, ray caster and transport.
+//! bounces `ρ/(1−ρ)` (docs/design.md §1). Runs the real voxeliser, ray caster and transport.
 
 use bounce_core::formfactor::{RayScene, form_factors, stats};
 use bounce_core::meta::Bounces;

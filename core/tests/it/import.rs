@@ -1,6 +1,6 @@
-//! glTF import: the shared test scenes (counts, materials, lights, bounds, checked against the
-//! files through an independent reading with the `gltf` crate), and hand-made files for each rule
-//! the importer enforces.
+//! glTF import: the repository's test scenes (`assets/`) (counts, materials, lights, bounds,
+//! checked against the files through an independent reading with the `gltf` crate), and hand-made
+//! files for each rule the importer enforces.
 
 use std::path::{Path, PathBuf};
 
@@ -11,14 +11,14 @@ use glam::{Mat3, Mat4, Vec3};
 use serde_json::{Value, json};
 
 // ---------------------------------------------------------------------------------------------
-// Shared scenes
+// The repository's scenes
 // ---------------------------------------------------------------------------------------------
 
 fn scenes_dir() -> PathBuf {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/scenes");
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets");
     assert!(
         dir.join("README.md").is_file(),
-        "test scenes not found at {} (expected the shared scenes next to the workspace)",
+        "test scenes not found at {} (the repository's assets/ folder)",
         dir.display()
     );
     dir
@@ -91,7 +91,7 @@ const SCENES: &[Expected] = &[
 ];
 
 #[test]
-fn every_shared_scene_imports_with_the_readme_counts_and_bounds() {
+fn every_repository_scene_imports_with_the_readme_counts_and_bounds() {
     for e in SCENES {
         let s = scene(e.file);
         let r = &s.report;
@@ -173,8 +173,9 @@ fn scene_triangles_match_an_independent_reading_of_the_files() {
 
 type RefTriangle = ([Vec3; 3], Option<Vec3>);
 
-/// World-space triangles of a file whose scene is a flat list of nodes (true of all shared
-/// scenes), read with the `gltf` crate: corners, and the mean authored normal if there is one.
+/// World-space triangles of a file whose scene is a flat list of nodes (true of all the
+/// repository's scenes), read with the `gltf` crate: corners, and the mean authored normal if there
+/// is one.
 fn reference_triangles(path: &Path) -> Vec<RefTriangle> {
     let bytes = std::fs::read(path).unwrap();
     // Without validation: the chair requires KHR_texture_transform, which this build of `gltf`

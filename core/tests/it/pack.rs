@@ -339,7 +339,7 @@ fn the_repositorys_scenes_pack() {
     assert_same_scene(&cornell, &glb);
 
     // A .gltf with external JPEG textures and KHR_* material extensions.
-    let chair = repo_scene("../../shared/scenes/sheen-chair-sun/MixedLightingExample.gltf");
+    let chair = repo_scene("../assets/sheen-chair-sun/MixedLightingExample.gltf");
     let glb = pack_glb(&chair).expect("sheen chair packs");
     let (json, chunk) = chunks(&glb);
     let images = image_bytes(&json, &chunk);
@@ -362,6 +362,6 @@ fn the_repositorys_scenes_pack() {
     assert_eq!(a.lights, b.lights);
 
     // A GLB that is self-contained already passes through unchanged.
-    let room = repo_scene("../../shared/scenes/room-with-objects/room.glb");
+    let room = repo_scene("../assets/room-with-objects/room.glb");
     assert_eq!(pack_glb(&room).unwrap(), std::fs::read(&room).unwrap());
 }

@@ -1,7 +1,7 @@
-//! Numerical stress (issue 8, DESIGN.md §4): albedo near 1 in a closed box, scenes of one and two
-//! patches and of patches that see nothing, the same scene at 1e-3 and 1e4 units, and non-finite
-//! positions. Each case must stay finite and bounded, and say clearly when it cannot work.
-//! Every bake here is real (voxeliser, ray caster, transport) and small enough for seconds.
+//! Numerical stress (issue 8, docs/design.md §4): albedo near 1 in a closed box, scenes of one and
+//! two patches and of patches that see nothing, the same scene at 1e-3 and 1e4 units, and
+//! non-finite positions. Each case must stay finite and bounded, and say clearly when it cannot
+//! work. Every bake here is real (voxeliser, ray caster, transport) and small enough for seconds.
 
 use bounce_core::bake::{BakeError, BakeOptions, NoProgress, bake_scene, simplify};
 use bounce_core::codec::decode;
@@ -31,8 +31,8 @@ fn row_sums(t: &DenseMatrix) -> Vec<f64> {
 }
 
 /// `Σ_{h<k} s (ρ s)^h`: what `T_k · 1` is when every row of `F` sums to `s` (`k = None`: all
-/// bounces, `s/(1 − ρ s)`). Derived from `T_k = Σ_{h<k} F (D_ρ F)^h` (DESIGN.md §1): with
-/// `F 1 = s 1`, each factor `D_ρ F` multiplies the all-ones vector by `ρ s`.
+/// bounces, `s/(1 − ρ s)`). Derived from `T_k = Σ_{h<k} F (D_ρ F)^h` (docs/design.md §1):
+/// with `F 1 = s 1`, each factor `D_ρ F` multiplies the all-ones vector by `ρ s`.
 fn furnace_row_sum(rho: f64, s: f64, k: Option<u32>) -> f64 {
     let q = rho * s;
     match k {

@@ -60,8 +60,7 @@ fn grid_and_bvh_agree_on_the_cornell_box() {
 
 #[test]
 fn grid_and_bvh_agree_on_pandora() {
-    let path =
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/scenes/pandora/pandora.glb");
-    assert!(path.exists(), "shared scenes missing at {}", path.display());
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/pandora/pandora.glb");
+    assert!(path.exists(), "pandora missing at {}", path.display());
     compare(&path, 400, 256);
 }

@@ -37,13 +37,7 @@ pub(crate) fn baked() -> &'static Baked {
 pub(crate) fn gpu_engine() -> Option<Engine> {
     match Engine::new(EngineChoice::Gpu) {
         Ok(e) => Some(e),
-        Err(e) if std::env::var("BOUNCE_ALLOW_NO_GPU").as_deref() == Ok("1") => {
-            eprintln!("SKIPPED (BOUNCE_ALLOW_NO_GPU=1): {e}");
-            None
-        }
-        Err(e) => {
-            panic!("GPU engine tests need an adapter: {e}; set BOUNCE_ALLOW_NO_GPU=1 to skip")
-        }
+        Err(e) => bounce_testkit::missing(bounce_testkit::Tool::GpuAdapter, e),
     }
 }
 

@@ -1,4 +1,4 @@
-//! Numerical stress on the relight engines (issue 8, DESIGN.md §4): a thousand random light
+//! Numerical stress on the relight engines (issue 8, docs/design.md §4): a thousand random light
 //! configurations on the baked Cornell box, and the white furnace at albedo 0.999, on the CPU
 //! engine and the GPU engine (lavapipe in CI). Irradiance must stay finite and never negative.
 

@@ -32,11 +32,7 @@ fn context() -> Option<&'static GpuContext> {
             eprintln!("GPU tests on {}", ctx.adapter());
             Some(ctx)
         }
-        Err(e) if std::env::var("BOUNCE_ALLOW_NO_GPU").as_deref() == Ok("1") => {
-            eprintln!("SKIPPED (BOUNCE_ALLOW_NO_GPU=1): {e}");
-            None
-        }
-        Err(e) => panic!("GPU tests need an adapter: {e}; set BOUNCE_ALLOW_NO_GPU=1 to skip them"),
+        Err(e) => bounce_testkit::missing(bounce_testkit::Tool::GpuAdapter, e),
     }
 }
 

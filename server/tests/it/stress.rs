@@ -1,7 +1,7 @@
-//! Very bright lights end to end (issue 8, DESIGN.md §4): through the real server on loopback,
+//! Very bright lights end to end (issue 8, docs/design.md §4): through the real server on loopback,
 //! gRPC and WebSocket, a light bright enough to push the indirect irradiance past RGB9E5's range
-//! gives frames of finite values clamped to the format's largest, flagged in the frame header
-//! and counted in the metrics; never an infinity or a NaN on the wire.
+//! gives frames of finite values clamped to the format's largest, flagged in the frame header and
+//! counted in the metrics; never an infinity or a NaN on the wire.
 
 use bounce_server::frame::{FLAG_CLAMPED, FLAG_NON_FINITE, RGB9E5_MAX};
 

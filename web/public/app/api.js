@@ -40,7 +40,9 @@ const seg = encodeURIComponent;
 export const listScenes = () => json('GET', '/v1/scenes');
 export const layoutOf = (scene) => json('GET', `/v1/scenes/${seg(scene)}/layout`);
 export const modelUrl = (scene) => `/v1/scenes/${seg(scene)}/model`;
-export const listSessions = (scene) => json('GET', `/v1/sessions?scene=${seg(scene)}`);
+// Newest first; `limit` (1 to 1000) keeps the first few.
+export const listSessions = (scene, limit) =>
+  json('GET', `/v1/sessions?scene=${seg(scene)}${limit ? `&limit=${limit}` : ''}`);
 export const getSession = (id) => json('GET', `/v1/sessions/${seg(id)}`);
 export const createSession = (scene, lights, token) =>
   json('POST', '/v1/sessions', { body: { scene, lights: lights.lights }, token });

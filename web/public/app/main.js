@@ -1,5 +1,6 @@
-// The page's entry: without a session in the URL, the list of scenes and their sessions (open
-// one, or start a new one); with one, the viewer.
+// The page's entry: with a scene and a session in the URL, the viewer; with a scene alone
+// (`/?scene=cornell-box`), the viewer on that scene's newest session, or on a new one when it has
+// none; with neither, the list of scenes and their sessions (open one, or start a new one).
 //
 // URL parameters: scene, session, token (a write token; kept for this tab only), camera
 // (eye_x,eye_y,eye_z,target_x,target_y,target_z[,fov_deg], as `bounce render --camera`),
@@ -69,7 +70,11 @@ async function landing() {
   for (const s of answer.scenes) {
     const li = document.createElement('li');
     const title = document.createElement('h2');
-    title.textContent = s.name;
+    const open = document.createElement('a');
+    open.href = `?scene=${encodeURIComponent(s.name)}`;
+    open.title = 'open the newest session, or a new one';
+    open.textContent = s.name;
+    title.append(open);
     const facts = document.createElement('p');
     facts.textContent = `${s.patch_count} patches · ${s.codec}${s.has_model === false ? ' · no model kept: cannot be viewed here' : ''}`;
     const sessions = document.createElement('ul');
@@ -81,8 +86,7 @@ async function landing() {
     create.addEventListener('click', async () => {
       create.disabled = true;
       try {
-        const lights = s.lights?.length ? { lights: s.lights } : defaultLights(await layoutBounds(s.name));
-        const made = await createSession(s.name, lights, tok);
+        const made = await createSession(s.name, await startingLights(s), tok);
         location.search = `?scene=${encodeURIComponent(s.name)}&session=${encodeURIComponent(made.session_id)}`;
       } catch (e) {
         fail(`creating a session: ${e.message}`);
@@ -106,6 +110,39 @@ async function landing() {
         sessions.textContent = `sessions: ${e.message}`;
       });
   }
+}
+
+// A new session's lights: the scene's own (from its glTF), else a default light for its extent.
+async function startingLights(s) {
+  return s.lights?.length ? { lights: s.lights } : defaultLights(await layoutBounds(s.name));
+}
+
+// `?scene=NAME` alone: open the scene rather than the list. It joins the scene's newest session
+// (the one someone most likely just made, or shared), and starts one when there is none. The
+// address bar then names the session, so a reload or a copied link opens the same one; a write
+// token leaves the address bar, as it does everywhere (see token()).
+async function openScene(name) {
+  const tok = token();
+  const answer = await listScenes();
+  const s = answer.scenes.find((x) => x.name === name);
+  if (!s) {
+    const names = answer.scenes.map((x) => x.name).join(', ') || 'none';
+    throw new Error(`no scene "${name}" on this server (its scenes: ${names})`);
+  }
+  if (s.has_model === false) {
+    throw new Error(`scene "${name}" was baked without its model (bounce bake --no-model), so this page cannot draw it`);
+  }
+  let id = (await listSessions(name, 1)).sessions[0]?.session_id;
+  if (!id) {
+    if (answer.writes_need_token === true && !tok) {
+      throw new Error(`scene "${name}" has no session yet, and starting one needs this server's write token: open the page with &token=…`);
+    }
+    id = (await createSession(name, await startingLights(s), tok)).session_id;
+  }
+  params.delete('token');
+  params.set('session', id);
+  history.replaceState(null, '', `?${params}`);
+  return view(name, id);
 }
 
 // The scene's extent from its layout (the voxel grid), for a default light.
@@ -151,6 +188,8 @@ async function main() {
   try {
     if (scene && session) {
       await view(scene, session);
+    } else if (scene) {
+      await openScene(scene);
     } else {
       await landing();
     }
