@@ -1,7 +1,7 @@
 //! Direct irradiance: per patch, the light arriving straight from a [`LightSet`], with shadows.
 //!
 //! This module owns the per-patch `E_direct` and the initial exitance `B0 = L_e + ρ ⊙ E_direct`
-//! (DESIGN.md §1) that the transport turns into indirect light. Light validation belongs to
+//! (docs/design.md §1) that the transport turns into indirect light. Light validation belongs to
 //! [`crate::light`], ray casting to [`crate::rays`].
 //!
 //! Units and falloff are glTF `KHR_lights_punctual`'s, with `cosθ` taken against the patch's face
@@ -540,7 +540,7 @@ fn patch_irradiance(
     (sum / count as f32).min(Vec3::splat(f32::MAX)).to_array()
 }
 
-/// Initial exitance `B0 = L_e + ρ ⊙ E_direct` per patch (DESIGN.md §1).
+/// Initial exitance `B0 = L_e + ρ ⊙ E_direct` per patch (docs/design.md §1).
 ///
 /// # Panics
 /// If `e_direct` does not have one entry per patch: a caller's bug.

@@ -7,7 +7,7 @@ use bounce_core::patch::PatchLayout;
 
 /// `E_ind = Σ_{h<k} F (D_ρ F)^h B0` by `k` products with `F`: `E₁ = F B0`, then each step
 /// reflects the last bounce (`ρ ⊙ E_h`) and gathers it again. Equal to `T_k B0` in exact
-/// arithmetic (DESIGN.md §1); `k` products instead of one.
+/// arithmetic (docs/design.md §1); `k` products instead of one.
 pub fn jacobi(
     f: &dyn MatrixOp,
     layout: &PatchLayout,

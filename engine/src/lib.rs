@@ -1,5 +1,5 @@
 //! bounce's run-time relight engines: what turns a baked scene and a batch of light
-//! configurations into direct and indirect irradiance per patch (DESIGN.md §1, §2 "Serve").
+//! configurations into direct and indirect irradiance per patch (docs/design.md §1, §2 "Serve").
 //!
 //! [`Engine`] is the interface: `auto` opens the GPU when an adapter exists and the CPU otherwise,
 //! and says which it took; [`Engine::load`] makes a baked scene ready on it; [`Engine::relight`]

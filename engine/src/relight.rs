@@ -2,7 +2,7 @@
 //! [`Engine::relight`], which turns a batch of light configurations into direct and indirect
 //! irradiance per patch.
 //!
-//! A relight is DESIGN.md §1 end to end: per light set, direct irradiance with shadows,
+//! A relight is docs/design.md §1 end to end: per light set, direct irradiance with shadows,
 //! `B0 = L_e + ρ ⊙ E_direct`, then `E_ind = T · B0` for the whole batch in one product, on the GPU
 //! or the CPU. The batch is where a GPU wins: one pass over the matrix serves every light set.
 //!
