@@ -59,7 +59,10 @@ fn every_repository_scene_bakes() {
             t.data.iter().all(|v| v.is_finite() && *v >= 0.0),
             "{file}: transport has a negative or non-finite entry"
         );
-        assert_eq!(t.n, s.patches);
+        // The transport's rows are the elements (at least one a patch).
+        assert_eq!(t.n, baked.transport_layout().len());
+        assert_eq!(t.n, s.elements);
+        assert!(t.n >= s.patches);
         assert!(baked.layout.patches.iter().all(|p| {
             p.albedo.iter().all(|a| (0.0..=1.0).contains(a))
                 && (glam::Vec3::from(p.normal).length() - 1.0).abs() < 1e-3

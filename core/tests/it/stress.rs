@@ -362,13 +362,20 @@ fn cornell_glb(s: f32) -> Vec<u8> {
 /// Per patch direct and indirect irradiance of `baked` under `lights`, through the core's CPU
 /// direct light and the decoded transport (what the CPU engine does).
 fn relight(baked: &Baked, lights: &LightSet) -> (Vec<[f32; 3]>, Vec<[f32; 3]>) {
-    let shadow = ShadowScene::new(&baked.layout, baked.occupancy.as_deref());
-    let direct = direct_irradiance(&shadow, &baked.layout, lights, DEFAULT_SAMPLES);
-    let b0 = exitance_b0(&baked.layout, &direct);
+    let rows = baked.transport_layout();
+    let shadow = ShadowScene::new(rows, baked.occupancy.as_deref());
+    let direct = direct_irradiance(&shadow, rows, lights, DEFAULT_SAMPLES);
+    let b0 = exitance_b0(rows, &direct);
     let t = decode(&baked.transport).unwrap();
     let mut indirect = vec![[0.0; 3]; b0.len()];
     t.matvec_batch(&b0, &mut indirect).unwrap();
-    (direct, indirect)
+    match &baked.elements {
+        Some(e) => (
+            e.restrict_sampled(&baked.layout, &direct),
+            e.restrict(&baked.layout, &indirect),
+        ),
+        None => (direct, indirect),
+    }
 }
 
 fn rel_l2(a: &[[f32; 3]], b: &[[f32; 3]]) -> f64 {
