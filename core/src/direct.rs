@@ -91,7 +91,7 @@ impl ShadowScene {
     pub fn of_baked(baked: &crate::format::Baked) -> ShadowScene {
         match &baked.surface {
             Some(surface) => ShadowScene::surface(surface),
-            None => ShadowScene::new(&baked.layout, baked.occupancy.as_deref()),
+            None => ShadowScene::new(baked.transport_layout(), baked.occupancy.as_deref()),
         }
     }
 

@@ -141,8 +141,13 @@ impl Elements {
                 }
             }
             for ((o, acc), &t) in out.iter_mut().zip(&sum).zip(total) {
+                // An area sum a hair over the patch's (rounding) must not turn f32::MAX, which
+                // relights clamp to, into infinity; NaN is left alone, a bug to see.
                 *o = if t > 0.0 {
-                    acc.map(|v| (v / t) as f32)
+                    acc.map(|v| match (v / t) as f32 {
+                        f32::INFINITY => f32::MAX,
+                        x => x,
+                    })
                 } else {
                     [0.0; 3]
                 };

@@ -159,7 +159,7 @@ impl Engine {
                 Err(e) => return Err(e.into()),
             },
             (Some(ctx), None, Some(occupied)) => {
-                match GpuDirect::upload(ctx, &baked.layout, occupied) {
+                match GpuDirect::upload(ctx, baked.transport_layout(), occupied) {
                     Ok(d) => DirectLight::Gpu(Box::new(d)),
                     Err(e @ GpuError::TooLarge { .. }) => cpu_direct(Some(e.to_string())),
                     Err(e) => return Err(e.into()),

@@ -452,7 +452,11 @@ fn gpu_engine_lights_a_surface_bake_on_the_gpu() {
     });
     let count = gpu.samples.clamp(1, surface.per_patch);
     for (k, (g, c)) in on_gpu.iter().zip(&on_cpu).enumerate() {
-        let unshadowed = direct_irradiance(&open, &baked.layout, &sets[k], gpu.samples);
+        let mut unshadowed =
+            direct_irradiance(&open, baked.transport_layout(), &sets[k], gpu.samples);
+        if let Some(e) = &baked.elements {
+            unshadowed = e.restrict_sampled(&baked.layout, &unshadowed);
+        }
         let a = compare(&g.direct, &c.direct, &unshadowed, count);
         eprintln!("engine, surface bake, set {k}: {a:?}");
         assert!(c.direct.iter().flatten().any(|v| *v > 0.0));

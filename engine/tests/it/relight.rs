@@ -262,12 +262,22 @@ fn classic_radiosity_agrees_with_the_precomputed_transport() {
     let scene = cpu.load(baked).unwrap();
     let sets = light_sets(3);
     let lit = cpu.relight(&scene, &sets).unwrap();
-    let b0: Vec<[f32; 3]> = lit
+    // The iteration runs on the transport's rows (the elements), from their own direct light,
+    // and is restricted to the patches as a relight is.
+    let rows = baked.transport_layout();
+    let shadow = bounce_core::direct::ShadowScene::of_baked(baked);
+    let b0: Vec<[f32; 3]> = sets
         .iter()
-        .flat_map(|l| bounce_core::direct::exitance_b0(&baked.layout, &l.direct))
+        .flat_map(|set| {
+            let e = bounce_core::direct::direct_irradiance(&shadow, rows, set, cpu.samples);
+            bounce_core::direct::exitance_b0(rows, &e)
+        })
         .collect();
     let f = decode(baked.form_factors.as_ref().unwrap()).unwrap();
-    let by_jacobi = jacobi(f.as_ref(), &baked.layout, &b0, k).unwrap();
+    let mut by_jacobi = jacobi(f.as_ref(), rows, &b0, k).unwrap();
+    if let Some(e) = &baked.elements {
+        by_jacobi = e.restrict(&baked.layout, &by_jacobi);
+    }
     let by_t: Vec<[f32; 3]> = lit.iter().flat_map(|l| l.indirect.clone()).collect();
     let err = rel_l2(&by_jacobi, &by_t);
     // Same sums, associated differently (f32): well under a part in ten thousand.
