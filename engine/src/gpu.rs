@@ -22,7 +22,7 @@ pub use direct_surface::{
     GpuSample, GpuSurfaceDirect, RAYS_PER_PIECE, SURFACE_STACK, SURFACE_WG, SurfaceParams,
 };
 pub use error::GpuError;
-pub use kernel::{CHUNK, Params, ROWS};
+pub use kernel::{CHUNK, Params, ROWS, Split};
 pub use matrix::GpuMatrix;
 
 /// WGSL sources as compiled (the shared prelude plus the kernel's file), for tools and the naga

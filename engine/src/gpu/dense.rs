@@ -1,5 +1,6 @@
-//! `dense-f32` and `dense-f16` on the GPU: the stored bytes are the buffer (both codecs are
-//! little-endian, channel-major, row-major), read by `dense.wgsl`.
+//! `dense-f32` and `dense-f16` on the GPU: the stored bytes (little-endian, channel-major,
+//! row-major) go up as row bands, each as large as one storage binding allows and read by its
+//! own pass of `dense.wgsl`; a matrix that fits one binding is one band of the stored bytes.
 
 use bounce_core::codec::dense::DENSE_F16;
 use bounce_core::matrix::{DENSE_F32, EncodedMatrix};
@@ -7,30 +8,67 @@ use bounce_core::matrix::{DENSE_F32, EncodedMatrix};
 use bounce_core::codec::CodecError;
 
 use super::GpuError;
-use super::kernel::{ROWS, dense_source, pipeline, storage};
+use super::kernel::{ROWS, Split, dense_source, pipeline, storage};
 use super::matrix::{Bound, Pass};
 
-pub(super) fn upload(device: &wgpu::Device, m: &EncodedMatrix) -> Result<Pass, GpuError> {
+pub(super) fn upload(
+    device: &wgpu::Device,
+    m: &EncodedMatrix,
+    split: Split,
+) -> Result<Vec<Pass>, GpuError> {
     let half = match m.codec.as_str() {
         DENSE_F32 => false,
         DENSE_F16 => true,
         other => return Err(GpuError::UnsupportedCodec(other.to_string())),
     };
     check_payload(m, half)?;
-    let n = m.rows;
-    let matrix = storage(device, "dense matrix", &m.payload)?;
+    let (n, channels) = (m.rows as usize, m.channels as usize);
+    let width = if half { 2 } else { 4 };
+    // A band's bytes are `rows · n · channels · width` (f16 halves are indexed across the
+    // band's channel planes, so an odd plane needs no alignment).
+    let row_bytes = (n * channels * width) as u64;
+    let band = (split.binding_bytes / row_bytes.max(1)).min(n as u64) as usize;
+    if band == 0 && n > 0 {
+        return Err(GpuError::TooLarge {
+            what: "one dense matrix row",
+            needed: row_bytes,
+            limit: split.binding_bytes,
+        });
+    }
     let constants = [("HALF", if half { 1.0 } else { 0.0 })];
-    Ok(Pass {
-        pipeline: pipeline(
-            device,
-            "dense_matvec",
-            &dense_source(),
-            "dense_matvec",
-            &constants,
-        )?,
-        bound: vec![(3, Bound::Buffer(matrix))],
-        groups: n.div_ceil(ROWS),
-    })
+    let pipeline = pipeline(
+        device,
+        "dense_matvec",
+        &dense_source(),
+        "dense_matvec",
+        &constants,
+    )?;
+    let plane = n * n * width;
+    let mut passes = Vec::new();
+    let mut row0 = 0;
+    while row0 < n {
+        let rows = band.min(n - row0);
+        let matrix = if rows == n {
+            storage(device, "dense matrix", &m.payload)?
+        } else {
+            let (from, len) = (row0 * n * width, rows * n * width);
+            let bytes: Vec<u8> = (0..channels)
+                .flat_map(|c| &m.payload[c * plane + from..c * plane + from + len])
+                .copied()
+                .collect();
+            storage(device, "dense matrix band", &bytes)?
+        };
+        passes.push(Pass {
+            pipeline: pipeline.clone(),
+            bound: vec![(3, Bound::Buffer(matrix))],
+            groups: (rows as u32).div_ceil(ROWS),
+            row0: row0 as u32,
+            rows: rows as u32,
+            tile: 0,
+        });
+        row0 += rows;
+    }
+    Ok(passes)
 }
 
 /// The checks the CPU decoders make (length, finite entries), without decoding a copy.

@@ -31,6 +31,8 @@ pub enum GpuError {
         needed: u64,
         limit: u64,
     },
+    #[error("the device ran out of memory for the {what}: {message}")]
+    OutOfMemory { what: &'static str, message: String },
     #[error("kernel {kernel} did not compile: {message}")]
     Shader {
         kernel: &'static str,

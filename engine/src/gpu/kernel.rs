@@ -23,8 +23,55 @@ pub struct Params {
     pub sets: u32,
     pub groups_x: u32,
     pub nnz: u32,
-    pub pad: [u32; 3],
+    /// First matrix row of this pass, and how many rows it computes (a dense matrix larger than
+    /// one binding goes in row bands, one pass each).
+    pub row0: u32,
+    pub rows: u32,
+    /// Side of one block-image tile (block kernels; an image wider than a texture goes in
+    /// tiles, one array layer each).
+    pub tile: u32,
     pub max: [f32; 4],
+}
+
+/// How large one piece of an uploaded matrix may be: bytes in one storage binding, texels on a
+/// texture's side, layers in a texture array. [`Split::of`] reads them from the device; tests
+/// force smaller ones to exercise the bands and tiles on a software adapter.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Split {
+    pub binding_bytes: u64,
+    pub texture_side: u32,
+    pub texture_layers: u32,
+}
+
+impl Split {
+    /// The device's own limits (the context asks for the adapter's, not wgpu's defaults).
+    pub fn of(device: &wgpu::Device) -> Split {
+        let limits = device.limits();
+        Split {
+            binding_bytes: binding_limit(&limits),
+            texture_side: limits.max_texture_dimension_2d,
+            texture_layers: limits.max_texture_array_layers,
+        }
+    }
+
+    /// These limits, each no larger than the device's.
+    pub fn within(self, device: &wgpu::Device) -> Split {
+        let own = Split::of(device);
+        Split {
+            binding_bytes: self.binding_bytes.min(own.binding_bytes),
+            texture_side: self.texture_side.min(own.texture_side),
+            texture_layers: self.texture_layers.min(own.texture_layers),
+        }
+    }
+}
+
+/// One binding's byte limit. A binding's range is also addressed in u32 words by the kernels
+/// (byte offsets reach 4 GiB − 4 at most), so it never passes `u32::MAX`.
+fn binding_limit(limits: &wgpu::Limits) -> u64 {
+    limits
+        .max_storage_buffer_binding_size
+        .min(limits.max_buffer_size)
+        .min(u64::from(u32::MAX) & !3)
 }
 
 const COMMON: &str = include_str!("shaders/common.wgsl");
@@ -51,35 +98,59 @@ pub fn pipeline(
     entry: &str,
     constants: &[(&str, f64)],
 ) -> Result<wgpu::ComputePipeline, GpuError> {
-    // Error scopes are a stack per device, shared by every thread: two uploads compiling at once
-    // would pop each other's scope, so compilation is one at a time.
-    static COMPILING: Mutex<()> = Mutex::new(());
-    let _one = COMPILING
-        .lock()
-        .unwrap_or_else(|poisoned| poisoned.into_inner());
-    let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
-    let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-        label: Some(label),
-        source: wgpu::ShaderSource::Wgsl(source.into()),
+    let (pipeline, error) = scoped(device, wgpu::ErrorFilter::Validation, || {
+        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some(label),
+            source: wgpu::ShaderSource::Wgsl(source.into()),
+        });
+        device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some(label),
+            layout: None,
+            module: &module,
+            entry_point: Some(entry),
+            compilation_options: wgpu::PipelineCompilationOptions {
+                constants,
+                ..Default::default()
+            },
+            cache: None,
+        })
     });
-    let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-        label: Some(label),
-        layout: None,
-        module: &module,
-        entry_point: Some(entry),
-        compilation_options: wgpu::PipelineCompilationOptions {
-            constants,
-            ..Default::default()
-        },
-        cache: None,
-    });
-    match pollster::block_on(scope.pop()) {
+    match error {
         None => Ok(pipeline),
         Some(e) => Err(GpuError::Shader {
             kernel: label,
             message: e.to_string(),
         }),
     }
+}
+
+/// Run `f` inside an error scope of `filter` and return what the scope caught. Error scopes are a
+/// stack per device shared by every thread, so two threads' scopes would pop each other's: scopes
+/// are taken one thread at a time, and a scope opened inside another (a pipeline compiled during
+/// an upload) nests on the same thread without waiting on itself.
+pub fn scoped<T>(
+    device: &wgpu::Device,
+    filter: wgpu::ErrorFilter,
+    f: impl FnOnce() -> T,
+) -> (T, Option<wgpu::Error>) {
+    static SCOPES: Mutex<()> = Mutex::new(());
+    thread_local! {
+        static HELD: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+    }
+    let outer = !HELD.get();
+    let _one = outer.then(|| {
+        SCOPES
+            .lock()
+            .unwrap_or_else(|poisoned| poisoned.into_inner())
+    });
+    HELD.set(true);
+    let scope = device.push_error_scope(filter);
+    let out = f();
+    let error = pollster::block_on(scope.pop());
+    if outer {
+        HELD.set(false);
+    }
+    (out, error)
 }
 
 /// A read-only storage buffer holding `bytes`, refused when over the binding limit. Padded to a
@@ -112,10 +183,7 @@ pub fn check_binding(
     what: &'static str,
     bytes: u64,
 ) -> Result<(), GpuError> {
-    let limits = device.limits();
-    let limit = limits
-        .max_storage_buffer_binding_size
-        .min(limits.max_buffer_size);
+    let limit = binding_limit(&device.limits());
     if bytes > limit {
         return Err(GpuError::TooLarge {
             what,

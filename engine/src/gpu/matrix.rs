@@ -6,7 +6,7 @@ use std::sync::Mutex;
 use bounce_core::codec::CodecError;
 use bounce_core::matrix::EncodedMatrix;
 
-use super::kernel::{CHUNK, Params, check_binding, grid};
+use super::kernel::{CHUNK, Params, Split, check_binding, grid, scoped};
 use super::{GpuContext, GpuError, dense, logblock};
 
 /// A resource a pass binds besides the shared params, light and output buffers (bindings 0–2).
@@ -15,12 +15,17 @@ pub(super) enum Bound {
     Texture(wgpu::TextureView),
 }
 
-/// One dispatch per batch chunk: a pipeline, its own resources, and how many workgroups a chunk
-/// of light sets needs.
+/// One dispatch per batch chunk: a pipeline, its own resources, how many workgroups a chunk
+/// of light sets needs, and the part of the matrix it covers.
 pub(super) struct Pass {
     pub pipeline: wgpu::ComputePipeline,
     pub bound: Vec<(u32, Bound)>,
     pub groups: u32,
+    /// First matrix row and row count (a dense band); the whole matrix for the other passes.
+    pub row0: u32,
+    pub rows: u32,
+    /// Side of a block-image tile (block pass), else 0.
+    pub tile: u32,
 }
 
 /// Light, output and readback buffers for up to `sets` light sets, with the bind groups that
@@ -43,23 +48,60 @@ pub struct GpuMatrix {
     channels: u32,
     max: [f32; 4],
     nnz: u32,
-    /// The block or dense pass, then (bc1/bc4) the sparse pass that adds onto its output.
+    /// The dense passes (one per row band) or the block pass, then (bc1/bc4) the sparse pass
+    /// that adds onto the block pass's output.
     passes: Vec<Pass>,
+    /// How the matrix was cut to fit the device: row bands (dense) or tiles (block codecs).
+    pieces: usize,
     io: Mutex<Option<Io>>,
 }
 
 impl GpuMatrix {
     /// Upload an encoded matrix. Which kernel runs follows the codec; a codec without one is an
-    /// error, as is a matrix over the device's buffer or texture limits.
+    /// error. A matrix larger than one storage binding or one texture is cut into row bands or
+    /// tiles by the device's own limits; one the device cannot hold at all (too many tiles, out
+    /// of memory) is an error the caller can fall back from.
     pub fn upload(ctx: &GpuContext, m: &EncodedMatrix) -> Result<GpuMatrix, GpuError> {
+        GpuMatrix::upload_split(ctx, m, Split::of(&ctx.device))
+    }
+
+    /// [`GpuMatrix::upload`] under limits smaller than the device's (clamped to them): how tests
+    /// exercise the bands and tiles on an adapter whose real limits a small matrix never meets.
+    pub fn upload_split(
+        ctx: &GpuContext,
+        m: &EncodedMatrix,
+        split: Split,
+    ) -> Result<GpuMatrix, GpuError> {
         m.validate_shape().map_err(CodecError::from)?;
-        let (passes, max, nnz) = match m.codec.as_str() {
-            "dense-f32" | "dense-f16" => (vec![dense::upload(&ctx.device, m)?], [0.0; 4], 0),
-            "bc1" | "bc1-resid" | "bc4" | "log8" => {
-                let (block, sparse, max, nnz) = logblock::upload(ctx, m)?;
-                (std::iter::once(block).chain(sparse).collect(), max, nnz)
+        let split = split.within(&ctx.device);
+        // Allocation failures are reported through an error scope, not wgpu's default panic, so
+        // a scene the device cannot hold falls back instead of ending the process.
+        let (uploaded, error) = scoped(&ctx.device, wgpu::ErrorFilter::OutOfMemory, || {
+            match m.codec.as_str() {
+                "dense-f32" | "dense-f16" => {
+                    dense::upload(&ctx.device, m, split).map(|passes| (passes, [0.0; 4], 0))
+                }
+                "bc1" | "bc1-resid" | "bc4" | "log8" => {
+                    logblock::upload(ctx, m, split).map(|(block, sparse, max, nnz)| {
+                        (std::iter::once(block).chain(sparse).collect(), max, nnz)
+                    })
+                }
+                other => Err(GpuError::UnsupportedCodec(other.to_string())),
             }
-            other => return Err(GpuError::UnsupportedCodec(other.to_string())),
+        });
+        if let Some(e) = error {
+            return Err(GpuError::OutOfMemory {
+                what: "transport matrix",
+                message: e.to_string(),
+            });
+        }
+        let (passes, max, nnz): (Vec<Pass>, [f32; 4], u32) = uploaded?;
+        let pieces = match passes.first() {
+            Some(p) if p.tile > 0 => {
+                let width = m.rows.div_ceil(4) * 4;
+                (width.div_ceil(p.tile) as usize).pow(2)
+            }
+            _ => passes.len(),
         };
         Ok(GpuMatrix {
             device: ctx.device.clone(),
@@ -70,8 +112,15 @@ impl GpuMatrix {
             max,
             nnz,
             passes,
+            pieces,
             io: Mutex::new(None),
         })
+    }
+
+    /// Into how many pieces the matrix was cut to fit the device: dense row bands, or block
+    /// image tiles; 1 when it fits whole.
+    pub fn pieces(&self) -> usize {
+        self.pieces
     }
 
     pub fn n(&self) -> usize {
@@ -153,7 +202,9 @@ impl GpuMatrix {
                     sets,
                     groups_x,
                     nnz: self.nnz,
-                    pad: [0; 3],
+                    row0: pass.row0,
+                    rows: pass.rows,
+                    tile: pass.tile,
                     max: self.max,
                 };
                 self.queue.write_buffer(params, 0, bytemuck::bytes_of(&p));

@@ -23,5 +23,8 @@ pub(super) fn upload(device: &wgpu::Device, sp: &SparsePart) -> Result<Option<Pa
             (5, Bound::Buffer(values)),
         ],
         groups: sp.n as u32,
+        row0: 0,
+        rows: sp.n as u32,
+        tile: 0,
     }))
 }

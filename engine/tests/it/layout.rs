@@ -25,9 +25,9 @@ fn params_layout_matches_wgsl() {
         ("sets", std::mem::offset_of!(Params, sets)),
         ("groups_x", std::mem::offset_of!(Params, groups_x)),
         ("nnz", std::mem::offset_of!(Params, nnz)),
-        ("pad0", std::mem::offset_of!(Params, pad)),
-        ("pad1", std::mem::offset_of!(Params, pad) + 4),
-        ("pad2", std::mem::offset_of!(Params, pad) + 8),
+        ("row0", std::mem::offset_of!(Params, row0)),
+        ("rows", std::mem::offset_of!(Params, rows)),
+        ("tile", std::mem::offset_of!(Params, tile)),
         ("max", std::mem::offset_of!(Params, max)),
     ];
     for (name, source) in all_sources() {

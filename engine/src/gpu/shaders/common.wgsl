@@ -19,9 +19,13 @@ struct Params {
     groups_x: u32,
     // Sparse entries (sparse kernel only).
     nnz: u32,
-    pad0: u32,
-    pad1: u32,
-    pad2: u32,
+    // First matrix row of this pass and how many it computes: a dense matrix larger than one
+    // storage binding goes in row bands, one pass (and one buffer) each.
+    row0: u32,
+    rows: u32,
+    // Side of one block-image tile (block kernels): an image wider than the device's texture
+    // side goes in square tiles, each its own array layer (per channel for BC4 / raw codes).
+    tile: u32,
     // Per-channel maxima of the log quantisation (block kernels only).
     max: vec4<f32>,
 }

@@ -1,5 +1,6 @@
-// Dense batched matvec over `dense-f32` or `dense-f16`: `m[c * n * n + i * n + j]`, one or three
-// channels. Both come in as u32 words so one kernel serves both: f32 bit-cast, f16 unpacked with
+// Dense batched matvec over `dense-f32` or `dense-f16`: one row band of the matrix per pass,
+// `m[c * rows * n + (i - row0) * n + j]`, one or three channels (the stored payload is the whole
+// matrix channel-major; the host cuts it into bands that each fit one binding). Both come in as u32 words so one kernel serves both: f32 bit-cast, f16 unpacked with
 // unpack2x16float (no `shader-f16` feature needed, which lavapipe and some drivers lack).
 
 override HALF: bool = false;
@@ -20,8 +21,8 @@ fn entry(i: u32, j: u32) -> vec3<f32> {
     if params.channels == 1u {
         return vec3<f32>(value(at));
     }
-    let nn = n * n;
-    return vec3<f32>(value(at), value(nn + at), value(2u * nn + at));
+    let plane = params.rows * n;
+    return vec3<f32>(value(at), value(plane + at), value(2u * plane + at));
 }
 
 fn column(l: u32) -> u32 {
@@ -29,7 +30,7 @@ fn column(l: u32) -> u32 {
 }
 
 fn row(k: u32) -> u32 {
-    return k;
+    return params.row0 + k;
 }
 
 @compute @workgroup_size(64)

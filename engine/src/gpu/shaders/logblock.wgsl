@@ -23,18 +23,30 @@ fn dequantize(u: f32, top: f32) -> f32 {
     return select(top * exp(25.0 * u - 25.0), 0.0, u == 0.0);
 }
 
+// The image is cut into square tiles of side params.tile (one tile when it fits the device's
+// texture side), row-major; tile t holds layers t * L .. t * L + L, L = 1 for BC1 and the channel
+// count for BC4 and raw codes.
 fn entry(k: u32, l: u32) -> vec3<f32> {
-    let at = vec2<u32>(l, k);
+    let side = params.tile;
+    let width = (params.n + 3u) / 4u * 4u;
+    let across = (width + side - 1u) / side;
+    let at = vec2<u32>(l % side, k % side);
+    let tile = (k / side) * across + l / side;
     var u: vec3<f32>;
     if BC4 {
-        let r = textureLoad(blocks, at, 0u, 0).r;
+        let layer = tile * params.channels;
+        let r = textureLoad(blocks, at, layer, 0).r;
         if params.channels == 1u {
             u = vec3<f32>(r);
         } else {
-            u = vec3<f32>(r, textureLoad(blocks, at, 1u, 0).r, textureLoad(blocks, at, 2u, 0).r);
+            u = vec3<f32>(
+                r,
+                textureLoad(blocks, at, layer + 1u, 0).r,
+                textureLoad(blocks, at, layer + 2u, 0).r,
+            );
         }
     } else {
-        let t = textureLoad(blocks, at, 0u, 0);
+        let t = textureLoad(blocks, at, tile, 0);
         if t.a == 0.0 {
             return vec3<f32>(0.0);
         }

@@ -4,13 +4,15 @@
 //   entry(k, l) -> vec3<f32>  matrix value at storage row k, storage column l (per colour),
 //   column(l) -> u32          the patch whose light storage column l multiplies,
 //   row(k) -> u32             the patch storage row k lights.
-// Storage rows and columns are matrix rows and columns for dense kernels, image rows and
-// columns for block kernels.
+// Storage rows and columns are matrix rows and columns for dense kernels (rows counted from
+// the pass's band, params.row0), image rows and columns for block kernels. A pass computes
+// params.rows storage rows over all params.n columns.
 fn row_block(wid: vec3<u32>, tid: u32) {
     let n = params.n;
+    let rows = params.rows;
     let row0 = group_index(wid) * ROWS;
     // Whole workgroup leaves together, so the barriers below stay in uniform control flow.
-    if row0 >= n {
+    if row0 >= rows {
         return;
     }
     let base = wid.z * CHUNK;
@@ -26,7 +28,7 @@ fn row_block(wid: vec3<u32>, tid: u32) {
         }
         for (var r = 0u; r < ROWS; r++) {
             // Rows past the end repeat the last row; their sums are never stored.
-            let m = entry(min(row0 + r, n - 1u), l);
+            let m = entry(min(row0 + r, rows - 1u), l);
             for (var s = 0u; s < CHUNK; s++) {
                 acc[r * CHUNK + s] += m * xs[s];
             }
@@ -46,7 +48,7 @@ fn row_block(wid: vec3<u32>, tid: u32) {
             let slot = round + tid;
             let k = row0 + slot / CHUNK;
             let s = slot % CHUNK;
-            if k < n && s < sets {
+            if k < rows && s < sets {
                 store(base + s, row(k), red[tid * WG]);
             }
         }
