@@ -6,6 +6,7 @@
 //! [`GpuSurfaceDirect`] with shadows against the triangles of a surface-geometry bake, both twins
 //! of `bounce_core::direct::direct_irradiance`. Kernels live in `gpu/shaders/*.wgsl`.
 
+pub mod bandwidth;
 mod context;
 mod dense;
 mod direct;
@@ -31,4 +32,9 @@ pub mod sources {
     pub use super::direct::direct_source;
     pub use super::direct_surface::direct_surface_source;
     pub use super::kernel::{dense_source, logblock_source, sparse_source};
+
+    /// The bandwidth probe's kernel.
+    pub fn bandwidth_source() -> &'static str {
+        include_str!("gpu/shaders/bandwidth.wgsl")
+    }
 }

@@ -177,9 +177,22 @@ impl Engine {
         } else {
             ShadowSource::PatchesOnly
         };
-        let transport = match &self.gpu {
-            Some(ctx) => Transport::Gpu(Box::new(GpuMatrix::upload(ctx, &baked.transport)?)),
-            None => Transport::Cpu(codec::decode(&baked.transport)?),
+        // A matrix the device cannot hold (more tiles than a texture array has, no BC textures,
+        // out of memory) keeps this scene's product on the CPU; other scenes stay on the GPU.
+        let (transport, transport_fallback) = match &self.gpu {
+            Some(ctx) => match GpuMatrix::upload(ctx, &baked.transport) {
+                Ok(m) => (Transport::Gpu(Box::new(m)), None),
+                Err(
+                    e @ (GpuError::TooLarge { .. }
+                    | GpuError::MissingFeature { .. }
+                    | GpuError::OutOfMemory { .. }),
+                ) => (
+                    Transport::Cpu(codec::decode(&baked.transport)?),
+                    Some(e.to_string()),
+                ),
+                Err(e) => return Err(e.into()),
+            },
+            None => (Transport::Cpu(codec::decode(&baked.transport)?), None),
         };
         Ok(Scene {
             layout: baked.layout.clone(),
@@ -188,6 +201,7 @@ impl Engine {
             direct,
             shadow_source,
             transport,
+            transport_fallback,
             codec: baked.transport.codec.clone(),
             matrix_bytes: baked.transport.payload.len(),
         })
@@ -214,14 +228,7 @@ impl Engine {
         }
         let n = scene.rows.len();
         let start = Instant::now();
-        let direct: Vec<Vec<[f32; 3]>> = match &scene.direct {
-            DirectLight::Gpu(gpu) => gpu.irradiance(lights, self.samples)?,
-            DirectLight::GpuSurface(gpu) => gpu.irradiance(lights, self.samples)?,
-            DirectLight::Cpu(shadow, _) => lights
-                .iter()
-                .map(|set| direct_irradiance(shadow, &scene.rows, set, self.samples))
-                .collect(),
-        };
+        let direct = self.direct_on_rows(scene, lights)?;
         let b0: Vec<[f32; 3]> = direct
             .iter()
             .flat_map(|e| exitance_b0(&scene.rows, e))
@@ -263,6 +270,24 @@ impl Engine {
                 indirect_s,
             },
         ))
+    }
+
+    /// Direct irradiance on the transport's rows ([`Scene::rows`]), per light set, before it is
+    /// restricted to the patches: what `B0` and so `T · B0` are computed from. The light sets
+    /// are not validated here ([`Engine::relight`] does).
+    pub fn direct_on_rows(
+        &self,
+        scene: &Scene,
+        lights: &[LightSet],
+    ) -> Result<Vec<Vec<[f32; 3]>>, EngineError> {
+        Ok(match &scene.direct {
+            DirectLight::Gpu(gpu) => gpu.irradiance(lights, self.samples)?,
+            DirectLight::GpuSurface(gpu) => gpu.irradiance(lights, self.samples)?,
+            DirectLight::Cpu(shadow, _) => lights
+                .iter()
+                .map(|set| direct_irradiance(shadow, &scene.rows, set, self.samples))
+                .collect(),
+        })
     }
 
     /// Which engine computes `scene`'s direct light: this one's kind, but the CPU for a scene
@@ -310,6 +335,7 @@ pub struct Scene {
     direct: DirectLight,
     shadow_source: ShadowSource,
     transport: Transport,
+    transport_fallback: Option<String>,
     codec: String,
     matrix_bytes: usize,
 }
@@ -351,6 +377,28 @@ impl Scene {
         match &self.direct {
             DirectLight::Cpu(_, why) => why.as_deref(),
             DirectLight::Gpu(_) | DirectLight::GpuSurface(_) => None,
+        }
+    }
+
+    /// Where `T · B0` runs: the engine's own device, or the CPU for a matrix a GPU engine could
+    /// not hold.
+    pub fn transport_engine(&self) -> EngineKind {
+        match self.transport {
+            Transport::Gpu(_) => EngineKind::Gpu,
+            Transport::Cpu(_) => EngineKind::Cpu,
+        }
+    }
+
+    /// Why a scene on the GPU engine has its product on the CPU, if it does.
+    pub fn transport_fallback(&self) -> Option<&str> {
+        self.transport_fallback.as_deref()
+    }
+
+    /// Into how many pieces the GPU holds the matrix (row bands or texture tiles); 1 on the CPU.
+    pub fn transport_pieces(&self) -> usize {
+        match &self.transport {
+            Transport::Gpu(m) => m.pieces(),
+            Transport::Cpu(_) => 1,
         }
     }
 

@@ -16,7 +16,7 @@ use bounce_core::format::Baked;
 use bounce_core::light::LightSet;
 use bounce_engine::{Engine, EngineChoice, Scene};
 use tokio::sync::oneshot;
-use tracing::{debug, error, info};
+use tracing::{debug, error, info, warn};
 
 use crate::error::ServerError;
 use crate::frame::Frame;
@@ -169,9 +169,20 @@ fn open(
             ms = start.elapsed().as_secs_f64() * 1e3,
             "scene loaded"
         );
+        log_fallbacks(&name, &scene);
         loaded.push((name, scene));
     }
     Ok((engine, loaded))
+}
+
+/// A scene a GPU engine serves partly on the CPU says so once, with the reason.
+fn log_fallbacks(name: &str, scene: &bounce_engine::Scene) {
+    if let Some(why) = scene.transport_fallback() {
+        warn!(scene = %name, reason = why, "transport product on the CPU for this scene");
+    }
+    if let Some(why) = scene.direct_fallback() {
+        warn!(scene = %name, reason = why, "direct light on the CPU for this scene");
+    }
 }
 
 fn run(queue: &Queue, engine: &Engine, scenes: &mut Loaded, metrics: &Metrics) {
@@ -239,6 +250,7 @@ fn reload(engine: &Engine, scenes: &mut Loaded, job: ReloadJob, metrics: &Metric
         ms = start.elapsed().as_secs_f64() * 1e3,
         "scene loaded"
     );
+    log_fallbacks(&job.name, &loaded);
     let at = if job.scene < scenes.len() {
         scenes[job.scene] = (job.name, loaded);
         job.scene

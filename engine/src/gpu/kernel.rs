@@ -207,6 +207,35 @@ pub fn u32_bytes(values: &[u32]) -> &[u8] {
     bytemuck::cast_slice(values)
 }
 
+/// Wait for the queue, then copy `count` u32 words out of `readback` (a `MAP_READ` buffer the
+/// submitted work filled) and unmap it.
+pub fn read_words(
+    device: &wgpu::Device,
+    readback: &wgpu::Buffer,
+    count: usize,
+) -> Result<Vec<u32>, GpuError> {
+    let slice = readback.slice(..);
+    let (tx, rx) = std::sync::mpsc::channel();
+    slice.map_async(wgpu::MapMode::Read, move |r| {
+        // The receiver outlives the poll below; a send can only fail after it gave up.
+        let _ = tx.send(r);
+    });
+    device
+        .poll(wgpu::PollType::wait_indefinitely())
+        .map_err(|e| GpuError::Readback(e.to_string()))?;
+    rx.recv()
+        .map_err(|e| GpuError::Readback(e.to_string()))?
+        .map_err(|e| GpuError::Readback(e.to_string()))?;
+    let words = {
+        let view = slice
+            .get_mapped_range()
+            .map_err(|e| GpuError::Readback(e.to_string()))?;
+        bytemuck::cast_slice::<u8, u32>(&view)[..count].to_vec()
+    };
+    readback.unmap();
+    Ok(words)
+}
+
 /// Wait for the queue, then copy `count` RGB f32 triples out of `readback` (a `MAP_READ` buffer
 /// that the submitted work filled) and unmap it: the end of the direct-light kernels.
 pub fn read_rgb(

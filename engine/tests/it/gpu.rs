@@ -429,3 +429,16 @@ fn too_many_tiles_is_refused() {
         Ok(_) => panic!("27 layers uploaded into 8"),
     }
 }
+
+/// The bandwidth probe reads every word: its checksum is the CPU's wrapping sum of the buffer,
+/// on a size that is no multiple of a dispatch's stride.
+#[test]
+fn bandwidth_probe_reads_every_word() {
+    use bounce_engine::gpu::bandwidth::{checksum, measure, pattern};
+    let Some(ctx) = context() else { return };
+    let bytes = (3 << 20) + 48;
+    let b = measure(ctx, bytes, 2).unwrap();
+    assert_eq!(b.bytes, bytes);
+    assert_eq!(b.checksum, checksum((0..(bytes / 4) as u32).map(pattern)));
+    assert!(b.bytes_per_s.is_finite() && b.bytes_per_s > 0.0);
+}

@@ -252,3 +252,30 @@ fn direct_surface_structs_match_wgsl() {
     // One `shadow` workgroup writes whole words of visibility bits.
     assert_eq!(constant(&module, "WORDS") * 32, SURFACE_WG);
 }
+
+#[test]
+fn bandwidth_probe_layout_matches_wgsl() {
+    use bounce_engine::gpu::bandwidth::Probe;
+    let source = sources::bandwidth_source();
+    let module = parse("bandwidth", source);
+    let (members, span) = module
+        .types
+        .iter()
+        .find_map(|(_, ty)| match (&ty.name, &ty.inner) {
+            (Some(n), TypeInner::Struct { members, span }) if n == "Probe" => {
+                Some((members.clone(), *span))
+            }
+            _ => None,
+        })
+        .expect("struct Probe");
+    assert_eq!(span as usize, std::mem::size_of::<Probe>());
+    let wgsl: Vec<(String, usize)> = members
+        .iter()
+        .map(|m| (m.name.clone().unwrap_or_default(), m.offset as usize))
+        .collect();
+    let rust = vec![
+        ("len".to_string(), std::mem::offset_of!(Probe, len)),
+        ("groups".to_string(), std::mem::offset_of!(Probe, groups)),
+    ];
+    assert_eq!(wgsl, rust);
+}
