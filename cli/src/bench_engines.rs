@@ -6,15 +6,18 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
+use bounce_core::codec::dense::DenseOp;
+use bounce_core::codec::logblock::{self, LogBlock};
 use bounce_core::codec::{self, Codec};
 use bounce_core::direct::exitance_b0;
 use bounce_core::format::Baked;
 use bounce_core::light::{Light, LightSet};
-use bounce_core::matrix::DENSE_F32;
+use bounce_core::matrix::{DENSE_F32, DenseMatrix};
 use bounce_core::meta::Bounces;
 use bounce_core::patch::PatchLayout;
 use bounce_engine::baseline::jacobi;
-use bounce_engine::{Engine, EngineChoice, EngineKind};
+use bounce_engine::gpu::{GpuContext, GpuMatrix, Split, bandwidth};
+use bounce_engine::{Engine, EngineChoice};
 use clap::Args;
 use rayon::prelude::*;
 
@@ -42,6 +45,14 @@ pub struct BenchEnginesArgs {
     /// silently.
     #[arg(long, value_delimiter = ',', default_value = "cpu,gpu")]
     pub engines: Vec<String>,
+    /// Measure synthetic transports of these row counts instead of the file's own, comma
+    /// separated: sizes a small machine cannot bake in reasonable time. Entry (i, j) is the
+    /// file's T(i mod n, j mod n) · n / N, so rows keep their sums and the matrix its value and
+    /// sparsity profile; the light is the file's B0 tiled the same way. The block codecs encode
+    /// them without the reorder pass (its greedy chain is O(N³)), so their error is above what a
+    /// bake of that size would give; the bytes a product reads are the same.
+    #[arg(long, value_delimiter = ',', value_name = "N")]
+    pub synthetic: Vec<usize>,
     /// Write the table as CSV here too.
     #[arg(long, value_name = "OUT.csv")]
     pub csv: Option<PathBuf>,
@@ -51,6 +62,8 @@ pub struct BenchEnginesArgs {
 struct Row {
     engine: String,
     codec: String,
+    /// Rows (and columns) of the matrix.
+    rows: usize,
     batch: usize,
     times: Vec<f64>,
     /// Bytes one pass over the matrix reads, and passes per product.
@@ -60,9 +73,52 @@ struct Row {
     rel_max: f64,
 }
 
+/// Where a product runs: the CPU codec's operator, or the GPU kernels (with the device's own
+/// memory bandwidth, measured in this run).
+enum Device {
+    Cpu,
+    Gpu(Box<GpuContext>, f64),
+}
+
+enum Product {
+    Cpu(Box<dyn codec::MatrixOp>),
+    Gpu(Box<GpuMatrix>),
+}
+
+impl Product {
+    fn apply(&self, x: &[[f32; 3]], out: &mut [[f32; 3]]) -> Result<()> {
+        match self {
+            Product::Cpu(op) => op.matvec_batch(x, out)?,
+            Product::Gpu(m) => m.matvec_batch(x, out)?,
+        }
+        Ok(())
+    }
+
+    fn passes_for(&self, sets: usize) -> usize {
+        match self {
+            Product::Cpu(_) => usize::from(sets > 0),
+            Product::Gpu(_) => GpuMatrix::passes_for(sets),
+        }
+    }
+}
+
+/// A matrix to measure: the file's exact transport, or a synthetic one tiled from it, with its
+/// batch of `B0` and the exact product of that batch.
+struct Subject {
+    label: String,
+    exact: DenseMatrix,
+    b0: Vec<[f32; 3]>,
+    reference: Vec<[f32; 3]>,
+    /// Block codecs run their reorder pass (a real bake does; synthetic sizes skip it).
+    reorder: bool,
+}
+
 pub fn run(args: &BenchEnginesArgs) -> Result<()> {
-    if args.repeat == 0 || args.batches.contains(&0) {
-        bail!("--repeat and every --batches entry must be at least 1");
+    if args.repeat == 0 || args.batches.contains(&0) || args.synthetic.contains(&0) {
+        bail!("--repeat and every --batches and --synthetic entry must be at least 1");
+    }
+    if let Some(&big) = args.synthetic.iter().find(|&&n| n > MAX_SYNTHETIC) {
+        bail!("--synthetic {big}: at most {MAX_SYNTHETIC} rows (an n² entry index must fit u32)");
     }
     let baked =
         Baked::read(&args.baked).with_context(|| format!("reading {}", args.baked.display()))?;
@@ -74,30 +130,30 @@ pub fn run(args: &BenchEnginesArgs) -> Result<()> {
             baked.transport.codec
         );
     }
-    let n = baked.layout.len();
     let exact = baked.transport.decode()?;
-    let exact_op = codec::decode(&baked.transport)?;
     let max_batch = args.batches.iter().copied().max().unwrap_or(1);
 
-    // Light sets and their B0, once: direct light is the same CPU code for every engine.
+    // Light sets and their B0 on the transport's rows, once: direct light is the same CPU code
+    // for every engine.
     let cpu = Engine::new(EngineChoice::Cpu)?;
     let cpu_scene = cpu.load(&baked)?;
+    let n = cpu_scene.rows().len();
     let sets = bench_lights(&baked.layout, max_batch);
     let start = Instant::now();
-    let lit = cpu.relight(&cpu_scene, &sets)?;
+    let direct = cpu.direct_on_rows(&cpu_scene, &sets)?;
     let direct_per_set = start.elapsed().as_secs_f64() / sets.len() as f64;
-    let b0: Vec<[f32; 3]> = lit
+    let b0: Vec<[f32; 3]> = direct
         .iter()
-        .flat_map(|l| exitance_b0(&baked.layout, &l.direct))
+        .flat_map(|d| exitance_b0(cpu_scene.rows(), d))
         .collect();
-    let dark = b0.iter().filter(|v| **v == [0.0; 3]).count() as f64 / b0.len() as f64;
-    let mut reference = vec![[0.0f32; 3]; b0.len()];
-    exact_op.matvec_batch(&b0, &mut reference)?;
+    let dark = b0.iter().filter(|v| **v == [0.0; 3]).count() as f64 / b0.len().max(1) as f64;
     let bandwidth = memory_bandwidth();
     eprintln!(
-        "bench engines: {} ({n} patches, {} channel(s)); direct light {:.1} ms a light set \
-         (CPU, {} samples a patch; {:.0}% of B0 entries dark); CPU memory bandwidth {:.1} GB/s",
+        "bench engines: {} ({} patches, {n} transport rows, {} channel(s)); direct light {:.1} ms \
+         a light set (CPU, {} samples a patch; {:.0}% of B0 entries dark); CPU memory bandwidth \
+         {:.1} GB/s",
         args.baked.display(),
+        baked.layout.len(),
         exact.channels,
         direct_per_set * 1e3,
         cpu.samples,
@@ -105,69 +161,46 @@ pub fn run(args: &BenchEnginesArgs) -> Result<()> {
         bandwidth / 1e9
     );
 
+    let devices = open_devices(args)?;
     let mut rows: Vec<Row> = Vec::new();
-    for name in &args.engines {
-        let choice: EngineChoice = name.parse()?;
-        if choice == EngineChoice::Auto {
-            bail!("--engines takes cpu and gpu; auto would measure one of them twice");
-        }
-        let engine = match Engine::new(choice) {
-            Ok(e) => e,
-            Err(e) => {
-                eprintln!("  {name}: not measured: {e}");
-                continue;
-            }
+    if args.synthetic.is_empty() {
+        let reference = product(&exact, &b0)?;
+        let subject = Subject {
+            label: args.baked.display().to_string(),
+            exact,
+            b0,
+            reference,
+            reorder: true,
         };
-        eprintln!("  {name}: {}", engine.describe());
-        let mut direct_measured = false;
-        for codec_name in &args.codecs {
-            let codec = codec::configured(codec_name, None)?;
-            let mut variant = baked.clone();
-            variant.transport = encode(codec.as_ref(), &exact)?;
-            let scene = match engine.load(&variant) {
-                Ok(s) => s,
-                Err(e) => {
-                    eprintln!("    {codec_name}: not measured on {name}: {e}");
-                    continue;
-                }
+        rows.extend(direct_rows_all(args, &baked, &sets)?);
+        rows.extend(product_rows(args, &devices, &subject)?);
+        rows.extend(jacobi_rows(args, &baked, &subject.b0, &subject.reference)?);
+    } else {
+        for &size in &args.synthetic {
+            let start = Instant::now();
+            let exact = tile(&exact, size);
+            let b0 = tile_lights(&b0, n, size, max_batch);
+            let reference = product(&exact, &b0)?;
+            eprintln!(
+                "  synthetic {size}: {:.1} GB exact, tiled from {n} rows and multiplied in {:.1} s",
+                exact.bytes() as f64 / 1e9,
+                start.elapsed().as_secs_f64()
+            );
+            let subject = Subject {
+                label: format!("synthetic {size}"),
+                exact,
+                b0,
+                reference,
+                reorder: false,
             };
-            // Direct light does not depend on the codec: once, on the first scene that loads.
-            if !direct_measured {
-                rows.extend(direct_rows(args, &engine, &scene, &sets, &lit)?);
-                direct_measured = true;
-            }
-            for &batch in &args.batches {
-                let x = &b0[..batch * n];
-                let mut out = vec![[0.0f32; 3]; x.len()];
-                engine.indirect(&scene, x, &mut out)?;
-                let mut times = Vec::with_capacity(args.repeat);
-                for _ in 0..args.repeat {
-                    let start = Instant::now();
-                    engine.indirect(&scene, x, &mut out)?;
-                    times.push(start.elapsed().as_secs_f64());
-                }
-                let (rel_l2, rel_max) = errors(&out, &reference[..x.len()]);
-                rows.push(Row {
-                    engine: name.clone(),
-                    codec: codec_name.clone(),
-                    batch,
-                    times,
-                    bytes: scene.matrix_bytes(),
-                    passes: scene.passes_for(batch),
-                    rel_l2,
-                    rel_max,
-                });
-                report(rows.last());
-            }
-        }
-        if engine.kind() == EngineKind::Cpu {
-            rows.extend(jacobi_rows(args, &baked, &b0, &reference)?);
+            rows.extend(product_rows(args, &devices, &subject)?);
         }
     }
 
     let header = [
         "engine",
         "codec",
+        "rows",
         "batch",
         "latency_ms_p50",
         "latency_ms_p99",
@@ -175,18 +208,28 @@ pub fn run(args: &BenchEnginesArgs) -> Result<()> {
         "matrix_mb",
         "passes",
         "effective_gb_per_s",
-        "of_cpu_bandwidth",
+        "of_device_bandwidth",
         "eind_rel_l2",
         "eind_rel_max",
     ];
+    let gpu_bandwidth = devices.iter().find_map(|(_, d)| match d {
+        Device::Gpu(_, bw) => Some(*bw),
+        Device::Cpu => None,
+    });
     let table: Vec<Vec<String>> = rows
         .iter()
         .map(|r| {
             let (p50, p99) = percentiles(&r.times);
             let gbs = (r.bytes * r.passes) as f64 / p50;
+            let device_bw = if r.engine == "gpu" {
+                gpu_bandwidth
+            } else {
+                Some(bandwidth)
+            };
             vec![
                 r.engine.clone(),
                 r.codec.clone(),
+                r.rows.to_string(),
                 r.batch.to_string(),
                 format!("{:.3}", p50 * 1e3),
                 format!("{:.3}", p99 * 1e3),
@@ -198,10 +241,9 @@ pub fn run(args: &BenchEnginesArgs) -> Result<()> {
                 } else {
                     "-".to_string()
                 },
-                if r.engine == "cpu" && r.bytes > 0 {
-                    format!("{:.2}", gbs / bandwidth)
-                } else {
-                    "-".to_string()
+                match device_bw {
+                    Some(bw) if r.bytes > 0 => format!("{:.2}", gbs / bw),
+                    _ => "-".to_string(),
                 },
                 format!("{:.3e}", r.rel_l2),
                 format!("{:.3e}", r.rel_max),
@@ -209,6 +251,174 @@ pub fn run(args: &BenchEnginesArgs) -> Result<()> {
         })
         .collect();
     emit(&header, &table, args.csv.as_deref())
+}
+
+/// Entries of an n × n matrix are indexed in u32 by the codecs' sparse parts.
+const MAX_SYNTHETIC: usize = 65_535;
+
+/// The engines to measure, each opened once; a GPU that cannot be opened is reported.
+fn open_devices(args: &BenchEnginesArgs) -> Result<Vec<(String, Device)>> {
+    let mut devices = Vec::new();
+    for name in &args.engines {
+        match name.parse::<EngineChoice>()? {
+            EngineChoice::Auto => {
+                bail!("--engines takes cpu and gpu; auto would measure one of them twice")
+            }
+            EngineChoice::Cpu => {
+                eprintln!("  cpu: {} threads", rayon::current_num_threads());
+                devices.push((name.clone(), Device::Cpu));
+            }
+            EngineChoice::Gpu => match GpuContext::new() {
+                Ok(ctx) => {
+                    let split = Split::of(ctx.device());
+                    // 1 GiB (or the binding limit) read 10 times a submission.
+                    let bw = bandwidth::measure(&ctx, 1 << 30, 10)?;
+                    eprintln!(
+                        "  gpu: {}; one binding {:.0} MiB, texture side {}, {} layers; memory \
+                         read {:.1} GB/s ({:.0} MiB probe)",
+                        ctx.adapter(),
+                        split.binding_bytes as f64 / f64::from(1 << 20),
+                        split.texture_side,
+                        split.texture_layers,
+                        bw.bytes_per_s / 1e9,
+                        bw.bytes as f64 / f64::from(1 << 20)
+                    );
+                    devices.push((name.clone(), Device::Gpu(Box::new(ctx), bw.bytes_per_s)));
+                }
+                Err(e) => eprintln!("  {name}: not measured: {e}"),
+            },
+        }
+    }
+    Ok(devices)
+}
+
+/// Every codec × device × batch on one matrix.
+fn product_rows(
+    args: &BenchEnginesArgs,
+    devices: &[(String, Device)],
+    subject: &Subject,
+) -> Result<Vec<Row>> {
+    let n = subject.exact.n;
+    let mut rows = Vec::new();
+    for codec_name in &args.codecs {
+        let codec = if subject.reorder {
+            codec::configured(codec_name, None)?
+        } else {
+            without_reorder(codec_name)?
+        };
+        let encoded = encode(codec.as_ref(), &subject.exact)?;
+        for (name, device) in devices {
+            let loaded = match device {
+                Device::Cpu => codec::decode(&encoded)
+                    .map(Product::Cpu)
+                    .map_err(Into::into),
+                Device::Gpu(ctx, _) => GpuMatrix::upload(ctx, &encoded).map(|m| {
+                    if m.pieces() > 1 {
+                        eprintln!("    {codec_name}: {} pieces on the GPU", m.pieces());
+                    }
+                    Product::Gpu(Box::new(m))
+                }),
+            };
+            let product: Product = match loaded {
+                Ok(p) => p,
+                Err(e) => {
+                    eprintln!("    {codec_name}: not measured on {name}: {e}");
+                    continue;
+                }
+            };
+            for &batch in &args.batches {
+                let x = &subject.b0[..batch * n];
+                let mut out = vec![[0.0f32; 3]; x.len()];
+                product.apply(x, &mut out)?;
+                let mut times = Vec::with_capacity(args.repeat);
+                for _ in 0..args.repeat {
+                    let start = Instant::now();
+                    product.apply(x, &mut out)?;
+                    times.push(start.elapsed().as_secs_f64());
+                }
+                let (rel_l2, rel_max) = errors(&out, &subject.reference[..x.len()]);
+                rows.push(Row {
+                    engine: name.clone(),
+                    codec: codec_name.clone(),
+                    rows: n,
+                    batch,
+                    times,
+                    bytes: encoded.payload.len(),
+                    passes: product.passes_for(batch),
+                    rel_l2,
+                    rel_max,
+                });
+                report(&subject.label, rows.last());
+            }
+        }
+    }
+    Ok(rows)
+}
+
+/// A block codec as configured, but without the reorder pass; other codecs as they are.
+fn without_reorder(name: &str) -> Result<Box<dyn Codec>> {
+    let base = match name {
+        logblock::BC1 => LogBlock::bc1(),
+        logblock::BC4 => LogBlock::bc4(),
+        logblock::LOG8 => LogBlock::log8(),
+        logblock::BC1_RESID => LogBlock::bc1_resid(),
+        other => return Ok(codec::configured(other, None)?),
+    };
+    Ok(Box::new(LogBlock { passes: 0, ..base }))
+}
+
+/// The exact product of a batch, on the CPU.
+fn product(exact: &DenseMatrix, b0: &[[f32; 3]]) -> Result<Vec<[f32; 3]>> {
+    let op = DenseOp::from(exact.clone());
+    let mut out = vec![[0.0f32; 3]; b0.len()];
+    codec::MatrixOp::matvec_batch(&op, b0, &mut out)?;
+    Ok(out)
+}
+
+/// `T_N(i, j) = T(i mod n, j mod n) · n / N`.
+fn tile(exact: &DenseMatrix, size: usize) -> DenseMatrix {
+    let n = exact.n;
+    let scale = n as f32 / size as f32;
+    let mut m = DenseMatrix::zeros(size, exact.channels);
+    for c in 0..exact.channels {
+        let src = exact.channel(c);
+        m.channel_mut(c)
+            .par_chunks_mut(size)
+            .enumerate()
+            .for_each(|(i, row)| {
+                let from = &src[(i % n) * n..(i % n + 1) * n];
+                for (j, v) in row.iter_mut().enumerate() {
+                    *v = from[j % n] * scale;
+                }
+            });
+    }
+    m
+}
+
+/// `sets` light vectors of `size` rows from ones of `n` rows, each tiled.
+fn tile_lights(b0: &[[f32; 3]], n: usize, size: usize, sets: usize) -> Vec<[f32; 3]> {
+    (0..sets)
+        .flat_map(|k| (0..size).map(move |i| b0[k * n + i % n]))
+        .collect()
+}
+
+/// Direct light rows for every engine, on the file's own scene.
+fn direct_rows_all(args: &BenchEnginesArgs, baked: &Baked, sets: &[LightSet]) -> Result<Vec<Row>> {
+    let cpu = Engine::new(EngineChoice::Cpu)?;
+    let reference = cpu.relight(&cpu.load(baked)?, sets)?;
+    let mut rows = Vec::new();
+    for name in &args.engines {
+        let engine = match Engine::new(name.parse()?) {
+            Ok(e) => e,
+            Err(e) => {
+                eprintln!("  {name}: direct light not measured: {e}");
+                continue;
+            }
+        };
+        let scene = engine.load(baked)?;
+        rows.extend(direct_rows(args, &engine, &scene, sets, &reference)?);
+    }
+    Ok(rows)
 }
 
 fn encode(
@@ -225,11 +435,12 @@ fn encode(
     Ok(enc)
 }
 
-fn report(row: Option<&Row>) {
+fn report(label: &str, row: Option<&Row>) {
     if let Some(r) = row {
         let (p50, _) = percentiles(&r.times);
         eprintln!(
-            "    {} batch {}: {:.2} ms, E_ind rel L2 {:.2e}",
+            "    {label}, {} {} batch {}: {:.2} ms, E_ind rel L2 {:.2e}",
+            r.engine,
             r.codec,
             r.batch,
             p50 * 1e3,
@@ -267,6 +478,7 @@ fn direct_rows(
         rows.push(Row {
             engine: engine.kind().to_string(),
             codec: label.clone(),
+            rows: scene.layout.len(),
             batch,
             times,
             bytes: 0,
@@ -274,7 +486,7 @@ fn direct_rows(
             rel_l2,
             rel_max,
         });
-        report(rows.last());
+        report("direct light", rows.last());
     }
     Ok(rows)
 }
@@ -287,7 +499,8 @@ fn jacobi_rows(
     b0: &[[f32; 3]],
     reference: &[[f32; 3]],
 ) -> Result<Vec<Row>> {
-    let n = baked.layout.len();
+    let layout = baked.transport_layout();
+    let n = layout.len();
     let Some(ff) = &baked.form_factors else {
         eprintln!(
             "  jacobi-F: not measured: the file has no form factors (bake --keep-form-factors)"
@@ -302,17 +515,18 @@ fn jacobi_rows(
     let mut rows = Vec::new();
     for &batch in &args.batches {
         let x = &b0[..batch * n];
-        let mut out = jacobi(f.as_ref(), &baked.layout, x, k)?;
+        let mut out = jacobi(f.as_ref(), layout, x, k)?;
         let mut times = Vec::with_capacity(args.repeat);
         for _ in 0..args.repeat {
             let start = Instant::now();
-            out = jacobi(f.as_ref(), &baked.layout, x, k)?;
+            out = jacobi(f.as_ref(), layout, x, k)?;
             times.push(start.elapsed().as_secs_f64());
         }
         let (rel_l2, rel_max) = errors(&out, &reference[..x.len()]);
         rows.push(Row {
             engine: "cpu".to_string(),
             codec: format!("jacobi-F ({k} steps)"),
+            rows: n,
             batch,
             times,
             bytes: ff.payload.len(),
@@ -320,7 +534,7 @@ fn jacobi_rows(
             rel_l2,
             rel_max,
         });
-        report(rows.last());
+        report("classic radiosity", rows.last());
     }
     Ok(rows)
 }

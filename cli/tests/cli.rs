@@ -1113,3 +1113,79 @@ fn verify_and_reference_on_the_cornell_box() {
         stderr(&out)
     );
 }
+
+/// `bounce bench engines` on a small bake: the file's own transport (its rows are the
+/// elements, more than the patches) and a synthetic size tiled from it, both engines, every
+/// product measured against the exact one. The dense product must be exact to f32 rounding on
+/// both engines, the block codec within its codec error.
+#[test]
+fn bench_engines_measures_the_file_and_synthetic_sizes() {
+    let dir = tempfile::tempdir().unwrap();
+    let baked = dir.path().join("box.bounce");
+    let out = run(bounce()
+        .args(["bake", "--patches", "200", "--rays", "256"])
+        .args(["--codec", "dense-f32", "--quiet", "-o"])
+        .arg(&baked)
+        .arg(cornell()));
+    assert!(out.status.success(), "{}", stderr(&out));
+    let patches = inspect_json(&baked)["patches"].as_u64().unwrap() as usize;
+    for synthetic in [None, Some("300")] {
+        let csv = dir.path().join("engines.csv");
+        let mut cmd = bounce();
+        cmd.args(["bench", "engines"])
+            .arg(&baked)
+            .args([
+                "--codecs",
+                "dense-f32,bc1",
+                "--batches",
+                "1,9",
+                "--repeat",
+                "1",
+            ])
+            .arg("--csv")
+            .arg(&csv);
+        if let Some(n) = synthetic {
+            cmd.args(["--synthetic", n]);
+        }
+        let out = run(&mut cmd);
+        assert!(out.status.success(), "{}", stderr(&out));
+        let text = std::fs::read_to_string(&csv).unwrap();
+        let mut lines = text.lines();
+        let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+        let col = |name: &str| header.iter().position(|h| *h == name).unwrap();
+        let rows: Vec<Vec<String>> = lines
+            .map(|l| l.split(',').map(str::to_string).collect())
+            .collect();
+        let products: Vec<&Vec<String>> = rows
+            .iter()
+            .filter(|r| r[col("codec")] == "dense-f32" || r[col("codec")] == "bc1")
+            .collect();
+        let engines: Vec<&str> = products.iter().map(|r| r[col("engine")].as_str()).collect();
+        if !engines.contains(&"gpu") {
+            bounce_testkit::missing::<()>(bounce_testkit::Tool::GpuAdapter, stderr(&out));
+        }
+        let engine_count = if engines.contains(&"gpu") { 2 } else { 1 };
+        assert_eq!(products.len(), 2 * 2 * engine_count, "{text}");
+        for r in &products {
+            let n: usize = r[col("rows")].parse().unwrap();
+            match synthetic {
+                Some(s) => assert_eq!(n, s.parse::<usize>().unwrap()),
+                None => assert!(n > patches, "{n} transport rows, {patches} patches"),
+            }
+            let err: f64 = r[col("eind_rel_l2")].parse().unwrap();
+            let bound = if r[col("codec")] == "dense-f32" {
+                1e-5
+            } else {
+                0.1
+            };
+            assert!(err <= bound, "{r:?}");
+            let ms: f64 = r[col("latency_ms_p50")].parse().unwrap();
+            assert!(ms > 0.0, "{r:?}");
+        }
+        // The file's run also times direct light on each engine; a synthetic one has no scene.
+        let direct = rows
+            .iter()
+            .filter(|r| r[col("codec")].starts_with("direct light"));
+        assert_eq!(direct.count() > 0, synthetic.is_none(), "{text}");
+    }
+}
