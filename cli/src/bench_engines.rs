@@ -66,6 +66,9 @@ struct Row {
     rows: usize,
     batch: usize,
     times: Vec<f64>,
+    /// The device's own time for each timed product (GPU timestamp queries); empty where
+    /// there is none.
+    kernel_times: Vec<f64>,
     /// Bytes one pass over the matrix reads, and passes per product.
     bytes: usize,
     passes: usize,
@@ -92,6 +95,14 @@ impl Product {
             Product::Gpu(m) => m.matvec_batch(x, out)?,
         }
         Ok(())
+    }
+
+    /// Device time of the last product, where the device measures it.
+    fn kernel_seconds(&self) -> Option<f64> {
+        match self {
+            Product::Cpu(_) => None,
+            Product::Gpu(m) => m.last_kernel_seconds(),
+        }
     }
 
     fn passes_for(&self, sets: usize) -> usize {
@@ -204,10 +215,12 @@ pub fn run(args: &BenchEnginesArgs) -> Result<()> {
         "batch",
         "latency_ms_p50",
         "latency_ms_p99",
+        "kernel_ms_p50",
         "lightsets_per_s",
         "matrix_mb",
         "passes",
         "effective_gb_per_s",
+        "kernel_gb_per_s",
         "of_device_bandwidth",
         "eind_rel_l2",
         "eind_rel_max",
@@ -220,11 +233,15 @@ pub fn run(args: &BenchEnginesArgs) -> Result<()> {
         .iter()
         .map(|r| {
             let (p50, p99) = percentiles(&r.times);
-            let gbs = (r.bytes * r.passes) as f64 / p50;
-            let device_bw = if r.engine == "gpu" {
-                gpu_bandwidth
+            let read = (r.bytes * r.passes) as f64;
+            let gbs = read / p50;
+            let kernel = (!r.kernel_times.is_empty()).then(|| percentiles(&r.kernel_times).0);
+            // A GPU's share of its bandwidth is the kernels' own rate (the wall time also holds
+            // the light's upload and the readback); a CPU's is the wall rate.
+            let (device_bw, rate) = if r.engine == "gpu" {
+                (gpu_bandwidth, kernel.map(|k| read / k))
             } else {
-                Some(bandwidth)
+                (Some(bandwidth), Some(gbs))
             };
             vec![
                 r.engine.clone(),
@@ -233,6 +250,7 @@ pub fn run(args: &BenchEnginesArgs) -> Result<()> {
                 r.batch.to_string(),
                 format!("{:.3}", p50 * 1e3),
                 format!("{:.3}", p99 * 1e3),
+                kernel.map_or("-".to_string(), |k| format!("{:.3}", k * 1e3)),
                 format!("{:.1}", r.batch as f64 / p50),
                 format!("{:.1}", r.bytes as f64 / 1e6),
                 r.passes.to_string(),
@@ -241,8 +259,12 @@ pub fn run(args: &BenchEnginesArgs) -> Result<()> {
                 } else {
                     "-".to_string()
                 },
-                match device_bw {
-                    Some(bw) if r.bytes > 0 => format!("{:.2}", gbs / bw),
+                match kernel {
+                    Some(k) if r.bytes > 0 => format!("{:.2}", read / k / 1e9),
+                    _ => "-".to_string(),
+                },
+                match (device_bw, rate) {
+                    (Some(bw), Some(rate)) if r.bytes > 0 => format!("{:.2}", rate / bw),
                     _ => "-".to_string(),
                 },
                 format!("{:.3e}", r.rel_l2),
@@ -331,10 +353,12 @@ fn product_rows(
                 let mut out = vec![[0.0f32; 3]; x.len()];
                 product.apply(x, &mut out)?;
                 let mut times = Vec::with_capacity(args.repeat);
+                let mut kernel_times = Vec::with_capacity(args.repeat);
                 for _ in 0..args.repeat {
                     let start = Instant::now();
                     product.apply(x, &mut out)?;
                     times.push(start.elapsed().as_secs_f64());
+                    kernel_times.extend(product.kernel_seconds());
                 }
                 let (rel_l2, rel_max) = errors(&out, &subject.reference[..x.len()]);
                 rows.push(Row {
@@ -343,6 +367,7 @@ fn product_rows(
                     rows: n,
                     batch,
                     times,
+                    kernel_times,
                     bytes: encoded.payload.len(),
                     passes: product.passes_for(batch),
                     rel_l2,
@@ -481,6 +506,7 @@ fn direct_rows(
             rows: scene.layout.len(),
             batch,
             times,
+            kernel_times: Vec::new(),
             bytes: 0,
             passes: 0,
             rel_l2,
@@ -529,6 +555,7 @@ fn jacobi_rows(
             rows: n,
             batch,
             times,
+            kernel_times: Vec::new(),
             bytes: ff.payload.len(),
             passes: k as usize,
             rel_l2,

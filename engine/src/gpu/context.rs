@@ -52,7 +52,10 @@ impl GpuContext {
                 .map_err(|_| GpuError::NoAdapter {
                     backends: format!("{backends:?}"),
                 })?;
-        let features = adapter.features() & wgpu::Features::TEXTURE_COMPRESSION_BC;
+        // Timestamp queries time the products on the device itself (see
+        // `GpuMatrix::last_kernel_seconds`); they cost nothing where unused.
+        let features = adapter.features()
+            & (wgpu::Features::TEXTURE_COMPRESSION_BC | wgpu::Features::TIMESTAMP_QUERY);
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("bounce-engine"),
             required_features: features,

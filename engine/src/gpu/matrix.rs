@@ -32,11 +32,20 @@ pub(super) struct Pass {
 /// reference them.
 struct Io {
     sets: u32,
+    /// Timestamps around the compute pass, where the device has timestamp queries.
+    timer: Option<Timer>,
     x: wgpu::Buffer,
     out: wgpu::Buffer,
     readback: wgpu::Buffer,
     params: Vec<wgpu::Buffer>,
     groups: Vec<wgpu::BindGroup>,
+}
+
+/// Two timestamps (start and end of the product's compute pass), resolved and read back.
+struct Timer {
+    queries: wgpu::QuerySet,
+    resolve: wgpu::Buffer,
+    readback: wgpu::Buffer,
 }
 
 /// A transport matrix resident on the GPU, ready for batched products `E_ind = T · B0`.
@@ -51,6 +60,8 @@ pub struct GpuMatrix {
     /// The dense passes (one per row band) or the block pass, then (bc1/bc4) the sparse pass
     /// that adds onto the block pass's output.
     passes: Vec<Pass>,
+    /// Device time of the last `matvec_batch`'s compute passes, where it can be measured.
+    kernel_seconds: Mutex<Option<f64>>,
     /// How the matrix was cut to fit the device: row bands (dense) or tiles (block codecs).
     pieces: usize,
     io: Mutex<Option<Io>>,
@@ -113,8 +124,16 @@ impl GpuMatrix {
             nnz,
             passes,
             pieces,
+            kernel_seconds: Mutex::new(None),
             io: Mutex::new(None),
         })
+    }
+
+    /// Seconds the device spent in the last product's kernels (timestamp queries around its
+    /// compute passes, all slices of the batch summed): the product without the upload of the
+    /// light, the readback and the submission. `None` where the device has no timestamp queries.
+    pub fn last_kernel_seconds(&self) -> Option<f64> {
+        self.kernel_seconds.lock().ok().and_then(|k| *k)
     }
 
     /// Into how many pieces the matrix was cut to fit the device: dense row bands, or block
@@ -168,8 +187,13 @@ impl GpuMatrix {
             .io
             .lock()
             .map_err(|_| GpuError::Readback("a previous product panicked".into()))?;
+        let mut kernel = Some(0.0);
         for (xs, outs) in x.chunks(slice * n).zip(out.chunks_mut(slice * n)) {
-            self.run(&mut io, xs, outs)?;
+            let spent = self.run(&mut io, xs, outs)?;
+            kernel = kernel.zip(spent).map(|(a, b)| a + b);
+        }
+        if let Ok(mut k) = self.kernel_seconds.lock() {
+            *k = kernel;
         }
         Ok(())
     }
@@ -179,7 +203,7 @@ impl GpuMatrix {
         io: &mut Option<Io>,
         x: &[[f32; 3]],
         out: &mut [[f32; 3]],
-    ) -> Result<(), GpuError> {
+    ) -> Result<Option<f64>, GpuError> {
         let sets = (x.len() / self.n as usize) as u32;
         if io.as_ref().is_none_or(|io| io.sets < sets) {
             *io = Some(self.io_for(sets)?);
@@ -193,7 +217,14 @@ impl GpuMatrix {
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
         {
-            let mut cpass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
+            let mut cpass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: None,
+                timestamp_writes: io.timer.as_ref().map(|t| wgpu::ComputePassTimestampWrites {
+                    query_set: &t.queries,
+                    beginning_of_pass_write_index: Some(0),
+                    end_of_pass_write_index: Some(1),
+                }),
+            });
             for ((pass, params), group) in self.passes.iter().zip(&io.params).zip(&io.groups) {
                 let ([gx, gy, gz], groups_x) = grid(&self.device, pass.groups, sets);
                 let p = Params {
@@ -217,12 +248,25 @@ impl GpuMatrix {
         }
         let len = bytes.len() as u64;
         encoder.copy_buffer_to_buffer(&io.out, 0, &io.readback, 0, len);
+        if let Some(t) = &io.timer {
+            encoder.resolve_query_set(&t.queries, 0..2, &t.resolve, 0);
+            encoder.copy_buffer_to_buffer(&t.resolve, 0, &t.readback, 0, 16);
+        }
         self.queue.submit([encoder.finish()]);
         let slice = io.readback.slice(..len);
         let (tx, rx) = std::sync::mpsc::channel();
         slice.map_async(wgpu::MapMode::Read, move |r| {
             // The receiver outlives the poll below; a send can only fail after it gave up.
             let _ = tx.send(r);
+        });
+        let timed = io.timer.as_ref().map(|t| {
+            let (tx, rx) = std::sync::mpsc::channel();
+            t.readback
+                .slice(..)
+                .map_async(wgpu::MapMode::Read, move |r| {
+                    let _ = tx.send(r);
+                });
+            rx
         });
         self.device
             .poll(wgpu::PollType::wait_indefinitely())
@@ -237,7 +281,24 @@ impl GpuMatrix {
             bytemuck::cast_slice_mut::<[f32; 3], u8>(out).copy_from_slice(&view);
         }
         io.readback.unmap();
-        Ok(())
+        let (Some(t), Some(rx)) = (&io.timer, timed) else {
+            return Ok(None);
+        };
+        // A timing that did not come back costs the figure, not the product.
+        if !matches!(rx.recv(), Ok(Ok(()))) {
+            return Ok(None);
+        }
+        let ticks = {
+            let Ok(view) = t.readback.slice(..).get_mapped_range() else {
+                return Ok(None);
+            };
+            let stamps: &[u64] = bytemuck::cast_slice(&view);
+            stamps[1].saturating_sub(stamps[0])
+        };
+        t.readback.unmap();
+        Ok(Some(
+            ticks as f64 * f64::from(self.queue.get_timestamp_period()) * 1e-9,
+        ))
     }
 
     fn io_for(&self, sets: u32) -> Result<Io, GpuError> {
@@ -293,8 +354,32 @@ impl GpuMatrix {
                 })
             })
             .collect();
+        let timer = self
+            .device
+            .features()
+            .contains(wgpu::Features::TIMESTAMP_QUERY)
+            .then(|| Timer {
+                queries: self.device.create_query_set(&wgpu::QuerySetDescriptor {
+                    label: Some("product time"),
+                    ty: wgpu::QueryType::Timestamp,
+                    count: 2,
+                }),
+                resolve: self.device.create_buffer(&wgpu::BufferDescriptor {
+                    label: Some("product time"),
+                    size: 16,
+                    usage: U::QUERY_RESOLVE | U::COPY_SRC,
+                    mapped_at_creation: false,
+                }),
+                readback: self.device.create_buffer(&wgpu::BufferDescriptor {
+                    label: Some("product time readback"),
+                    size: 16,
+                    usage: U::MAP_READ | U::COPY_DST,
+                    mapped_at_creation: false,
+                }),
+            });
         Ok(Io {
             sets,
+            timer,
             x,
             out,
             readback,

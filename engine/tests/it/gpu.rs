@@ -442,3 +442,31 @@ fn bandwidth_probe_reads_every_word() {
     assert_eq!(b.checksum, checksum((0..(bytes / 4) as u32).map(pattern)));
     assert!(b.bytes_per_s.is_finite() && b.bytes_per_s > 0.0);
 }
+
+/// Where the device has timestamp queries (lavapipe and NVIDIA do), a product reports the time
+/// its kernels took: positive and within the product's wall time, which also holds the light's
+/// upload, the readback and the submission.
+#[test]
+fn products_time_their_kernels() {
+    let Some(ctx) = context() else { return };
+    let n = 130;
+    let enc = DenseF32.encode(&transport(n, 3, 41)).unwrap();
+    let m = GpuMatrix::upload(ctx, &enc).unwrap();
+    let x = lights(n, 9, 5);
+    gpu(&m, &x);
+    let start = std::time::Instant::now();
+    gpu(&m, &x);
+    let wall = start.elapsed().as_secs_f64();
+    let timed = ctx
+        .device()
+        .features()
+        .contains(wgpu::Features::TIMESTAMP_QUERY);
+    eprintln!("timestamp queries on {}: {timed}", ctx.adapter());
+    match m.last_kernel_seconds() {
+        Some(k) => assert!(timed && k > 0.0 && k <= wall, "kernel {k} s, wall {wall} s"),
+        None => assert!(
+            !timed,
+            "the device has timestamp queries but no time came back"
+        ),
+    }
+}
