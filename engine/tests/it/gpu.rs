@@ -136,22 +136,35 @@ fn dense_f16_matvec_matches_cpu() {
     dense_against_cpu(&DenseF16);
 }
 
-/// How far, relative, a texture unit's decode of a block texel may land from the CPU's: 1.5
-/// codes of the log quantisation, `e^{25·1.5/255} − 1`. The CPU decoder (bcdec) expands the
-/// 5- and 6-bit endpoints to 8 bits with rounding (up to ½ code) and interpolates the palette
-/// in integers with truncation (under 1 code); hardware may keep the exact values. Measured:
-/// lavapipe returns whole codes at most 1 off; an H100 (NVIDIA 580) lands up to 1.02 codes off.
-const CODE_STEP: f64 = 0.1584;
+/// How far, in codes of the log quantisation (a code is a factor `e^{25/255}`), a texture
+/// unit's decode of a block texel may land from the CPU's (bcdec's). Block decoding is the one
+/// place where a GPU does not compute what its CPU twin does: the formats leave the palette's
+/// rounding to the decoder.
+/// - Software (Mesa's lavapipe, what CI runs): bcdec expands 5- and 6-bit endpoints with
+///   rounding (up to ½ code) and interpolates in integers with truncation (under 1 code); Mesa
+///   returns whole codes at most 1 off. Bound: 1.5 codes.
+/// - Hardware: vendors interpolate BC1 in their own fixed point (rgbcx models NVIDIA's and AMD's
+///   BC1 as separate decoders). Measured on an H100 (NVIDIA 580): BC1 green and BC4 land up to
+///   about 3 codes off. Bound: 4 codes.
+///
+/// What this costs the service is the product's error, which averages over many entries: on the
+/// H100 a bc1 product is 1.2% (rel. L2) from the CPU's, and `bench engines` shows the GPU's
+/// error against the exact matrix within a few percent of the CPU's.
+fn code_step(ctx: &bounce_engine::gpu::GpuContext) -> f64 {
+    let codes = if ctx.adapter().software { 1.5 } else { 4.0 };
+    (25.0 * codes / 255.0f64).exp() - 1.0
+}
 
 /// The block kernels against the CPU decode of the same blocks. Texture hardware interpolates
 /// BC palettes with its own rounding (see `logblock.wgsl`), which may land up to 1.5 8-bit codes
-/// away from the CPU decoder (bcdec's rounding); a code is a factor `e^{25/255}` in value. Codes
+/// away from the CPU decoder (bcdec's rounding; see [`code_step`]). Codes
 /// 0 decode to exactly 0 on both (zero endpoints, BC1's transparent black). So every block entry
-/// is within CODE_STEP relative of the CPU's, the sparse entries are the same f32s, and with
-/// non-negative entries and lights every output is within CODE_STEP relative, plus f32 rounding.
+/// is within code_step relative of the CPU's, the sparse entries are the same f32s, and with
+/// non-negative entries and lights every output is within code_step relative, plus f32 rounding.
 /// Any larger deviation is a kernel bug (wrong texel, permutation or channel), not rounding.
 fn blocks_against_cpu(codec: LogBlock) {
     let Some(ctx) = context() else { return };
+    let step = code_step(ctx);
     for channels in [1, 3] {
         for n in SIZES {
             let enc = codec
@@ -166,7 +179,7 @@ fn blocks_against_cpu(codec: LogBlock) {
                     for c in 0..3 {
                         let (g, w) = (f64::from(g[c]), f64::from(w[c]));
                         assert!(
-                            (g - w).abs() <= (CODE_STEP + 1e-4) * w + 1e-30,
+                            (g - w).abs() <= (step + 1e-4) * w + 1e-30,
                             "{} n={n} ch={channels} sets={sets} out[{k}][{c}]: gpu {g:e} cpu {w:e}",
                             enc.codec
                         );
@@ -190,10 +203,11 @@ fn bc1_matvec_matches_cpu_decode() {
 /// `bc1-resid`: the same blocks plus corrections computed against the CPU decode, which may be
 /// negative. Where the GPU decodes a corrected texel a code away from the CPU, the correction no
 /// longer cancels that difference, so the bound is a code step of the block part alone:
-/// `|gpu − cpu| ≤ CODE_STEP · (cpu + Σ_j |correction_ij| x_j)` (the block part is `cpu − Σ corr·x`).
+/// `|gpu − cpu| ≤ code_step · (cpu + Σ_j |correction_ij| x_j)` (the block part is `cpu − Σ corr·x`).
 #[test]
 fn bc1_resid_matvec_matches_cpu_decode() {
     let Some(ctx) = context() else { return };
+    let step = code_step(ctx);
     for channels in [1, 3] {
         for n in SIZES {
             let enc = LogBlock::bc1_resid()
@@ -223,7 +237,7 @@ fn bc1_resid_matvec_matches_cpu_decode() {
                                 .sum();
                             let (g, w) =
                                 (f64::from(got[k * n + i][c]), f64::from(want[k * n + i][c]));
-                            let bound = (CODE_STEP + 1e-4) * (w.abs() + corr) + 1e-30;
+                            let bound = (step + 1e-4) * (w.abs() + corr) + 1e-30;
                             assert!(
                                 (g - w).abs() <= bound,
                                 "n={n} ch={channels} sets={sets} out[{k}][{i}][{c}]: gpu {g:e} cpu {w:e}"
@@ -242,11 +256,12 @@ fn bc4_matvec_matches_cpu_decode() {
 }
 
 /// The matrix the GPU effectively applies, read out column by column with one-hot lights (one
-/// batch of n sets), against the CPU decode: zeros stay exactly zero, others within CODE_STEP.
+/// batch of n sets), against the CPU decode: zeros stay exactly zero, others within code_step.
 /// No sparse part, so every entry comes from the texture.
 #[test]
 fn block_entries_decode_like_the_cpu() {
     let Some(ctx) = context() else { return };
+    let step = code_step(ctx);
     let n = 37;
     for base in [LogBlock::bc1(), LogBlock::bc4()] {
         for channels in [1, 3] {
@@ -272,7 +287,7 @@ fn block_entries_decode_like_the_cpu() {
                             assert_eq!(g, 0.0, "{} ch={channels} ({i},{k}) c{c}", enc.codec);
                         }
                         assert!(
-                            (g - w).abs() <= CODE_STEP * w * (1.0 + 1e-4),
+                            (g - w).abs() <= step * w * (1.0 + 1e-4),
                             "{} ch={channels} ({i},{k}) c{c}: gpu {g:e} cpu {w:e}",
                             enc.codec
                         );
@@ -365,6 +380,7 @@ fn small_split(n: usize, channels: usize, width: usize) -> Split {
 #[test]
 fn split_matrices_equal_whole_ones() {
     let Some(ctx) = context() else { return };
+    let step = code_step(ctx);
     let codecs: [(Box<dyn Codec>, usize); 6] = [
         (Box::new(DenseF32), 4),
         (Box::new(DenseF16), 2),
@@ -400,7 +416,7 @@ fn split_matrices_equal_whole_ones() {
                     );
                     let err = rel_l2(&got, &cpu(&enc, &x), n);
                     assert!(
-                        err <= CODE_STEP,
+                        err <= step,
                         "{} n={n} ch={channels}: rel L2 {err:e} against the CPU",
                         enc.codec
                     );

@@ -27,11 +27,18 @@ fn dequantize(u: f32, top: f32) -> f32 {
 // texture side), row-major; tile t holds layers t * L .. t * L + L, L = 1 for BC1 and the channel
 // count for BC4 and raw codes.
 fn entry(k: u32, l: u32) -> vec3<f32> {
+    var at = vec2<u32>(l, k);
+    var tile = 0u;
+    // Integer division by a run-time value is slow on every GPU: only a tiled image pays it
+    // (the branch is uniform, the same for every thread of a dispatch).
     let side = params.tile;
-    let width = (params.n + 3u) / 4u * 4u;
-    let across = (width + side - 1u) / side;
-    let at = vec2<u32>(l % side, k % side);
-    let tile = (k / side) * across + l / side;
+    if side < params.n {
+        let across = ((params.n + 3u) / 4u * 4u + side - 1u) / side;
+        let ty = k / side;
+        let tx = l / side;
+        at = vec2<u32>(l - tx * side, k - ty * side);
+        tile = ty * across + tx;
+    }
     var u: vec3<f32>;
     if BC4 {
         let layer = tile * params.channels;
