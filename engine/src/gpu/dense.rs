@@ -65,6 +65,7 @@ pub(super) fn upload(
             row0: row0 as u32,
             rows: rows as u32,
             tile: 0,
+            nnz: 0,
         });
         row0 += rows;
     }

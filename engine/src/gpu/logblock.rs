@@ -18,7 +18,7 @@ pub(super) fn upload(
     ctx: &GpuContext,
     m: &EncodedMatrix,
     split: Split,
-) -> Result<(Pass, Option<Pass>, [f32; 4], u32), GpuError> {
+) -> Result<(Pass, Vec<Pass>, [f32; 4]), GpuError> {
     let (device, queue) = (&ctx.device, &ctx.queue);
     let blocks = match m.codec.as_str() {
         "bc1" | "bc1-resid" => Blocks::Bc1,
@@ -61,14 +61,14 @@ pub(super) fn upload(
         row0: 0,
         rows: op.row_perm().len() as u32,
         tile,
+        nnz: 0,
     };
     // The table's top entry is the channel maximum itself (code 255 = max · e^0).
     let mut max = [0.0f32; 4];
     for (c, lut) in op.lut().iter().enumerate().take(3) {
         max[c] = lut[255];
     }
-    let nnz = op.sparse().nnz() as u32;
-    Ok((pass, sparse::upload(device, op.sparse())?, max, nnz))
+    Ok((pass, sparse::upload(device, op.sparse(), split)?, max))
 }
 
 /// The block image as a texture array: one tile when it fits the texture side, else square

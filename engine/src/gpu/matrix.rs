@@ -26,6 +26,8 @@ pub(super) struct Pass {
     pub rows: u32,
     /// Side of a block-image tile (block pass), else 0.
     pub tile: u32,
+    /// Entries of a sparse band (sparse passes), else 0.
+    pub nnz: u32,
 }
 
 /// Light, output and readback buffers for up to `sets` light sets, with the bind groups that
@@ -56,7 +58,6 @@ pub struct GpuMatrix {
     n: u32,
     channels: u32,
     max: [f32; 4],
-    nnz: u32,
     /// The dense passes (one per row band) or the block pass, then (bc1/bc4) the sparse pass
     /// that adds onto the block pass's output.
     passes: Vec<Pass>,
@@ -64,6 +65,8 @@ pub struct GpuMatrix {
     kernel_seconds: Mutex<Option<f64>>,
     /// How the matrix was cut to fit the device: row bands (dense) or tiles (block codecs).
     pieces: usize,
+    /// Row bands of the sparse part (block codecs; 0 when nothing was kept exactly).
+    sparse_bands: usize,
     io: Mutex<Option<Io>>,
 }
 
@@ -93,8 +96,9 @@ impl GpuMatrix {
                     dense::upload(&ctx.device, m, split).map(|passes| (passes, [0.0; 4], 0))
                 }
                 "bc1" | "bc1-resid" | "bc4" | "log8" => {
-                    logblock::upload(ctx, m, split).map(|(block, sparse, max, nnz)| {
-                        (std::iter::once(block).chain(sparse).collect(), max, nnz)
+                    logblock::upload(ctx, m, split).map(|(block, sparse, max)| {
+                        let bands = sparse.len();
+                        (std::iter::once(block).chain(sparse).collect(), max, bands)
                     })
                 }
                 other => Err(GpuError::UnsupportedCodec(other.to_string())),
@@ -106,13 +110,13 @@ impl GpuMatrix {
                 message: e.to_string(),
             });
         }
-        let (passes, max, nnz): (Vec<Pass>, [f32; 4], u32) = uploaded?;
+        let (passes, max, sparse_bands): (Vec<Pass>, [f32; 4], usize) = uploaded?;
         let pieces = match passes.first() {
             Some(p) if p.tile > 0 => {
                 let width = m.rows.div_ceil(4) * 4;
                 (width.div_ceil(p.tile) as usize).pow(2)
             }
-            _ => passes.len(),
+            _ => passes.len() - sparse_bands,
         };
         Ok(GpuMatrix {
             device: ctx.device.clone(),
@@ -121,12 +125,18 @@ impl GpuMatrix {
             n: m.rows,
             channels: m.channels,
             max,
-            nnz,
             passes,
+            sparse_bands,
             pieces,
             kernel_seconds: Mutex::new(None),
             io: Mutex::new(None),
         })
+    }
+
+    /// Into how many row bands the block codecs' exactly kept entries were cut (0 when none
+    /// were kept, 1 when they fit one binding).
+    pub fn sparse_bands(&self) -> usize {
+        self.sparse_bands
     }
 
     /// Seconds the device spent in the last product's kernels (timestamp queries around its
@@ -232,7 +242,7 @@ impl GpuMatrix {
                     channels: self.channels,
                     sets,
                     groups_x,
-                    nnz: self.nnz,
+                    nnz: pass.nnz,
                     row0: pass.row0,
                     rows: pass.rows,
                     tile: pass.tile,

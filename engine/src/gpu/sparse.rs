@@ -1,30 +1,86 @@
 //! The exactly kept entries of `bc1` / `bc4` (a CSR [`SparsePart`] in matrix order), added by
-//! `sparse.wgsl` onto the block product in a second dispatch of the same compute pass.
+//! `sparse.wgsl` onto the block product in further dispatches of the same compute pass: one per
+//! row band, each band's entries no larger than one storage binding.
 
 use bounce_core::codec::transform::SparsePart;
 
 use super::GpuError;
-use super::kernel::{pipeline, sparse_source, storage, u32_bytes};
+use super::kernel::{Split, pipeline, sparse_source, storage, u32_bytes};
 use super::matrix::{Bound, Pass};
 
-/// The pass, or `None` when nothing was kept.
-pub(super) fn upload(device: &wgpu::Device, sp: &SparsePart) -> Result<Option<Pass>, GpuError> {
-    if sp.nnz() == 0 {
-        return Ok(None);
+/// The passes, one per row band; none when nothing was kept.
+pub(super) fn upload(
+    device: &wgpu::Device,
+    sp: &SparsePart,
+    split: Split,
+) -> Result<Vec<Pass>, GpuError> {
+    let nnz = sp.nnz();
+    if nnz == 0 {
+        return Ok(Vec::new());
     }
-    let row_ptr = storage(device, "sparse row pointers", u32_bytes(&sp.row_ptr))?;
-    let col_idx = storage(device, "sparse columns", u32_bytes(&sp.col_idx))?;
-    let values = storage(device, "sparse values", bytemuck::cast_slice(&sp.values))?;
-    Ok(Some(Pass {
-        pipeline: pipeline(device, "sparse_add", &sparse_source(), "sparse_add", &[])?,
-        bound: vec![
-            (3, Bound::Buffer(row_ptr)),
-            (4, Bound::Buffer(col_idx)),
-            (5, Bound::Buffer(values)),
-        ],
-        groups: sp.n as u32,
-        row0: 0,
-        rows: sp.n as u32,
-        tile: 0,
-    }))
+    let channels = sp.channels;
+    let limit = split.binding_bytes as usize;
+    // The largest of a band's bindings: its values (4 bytes an entry a channel).
+    let bytes = |entries: usize| entries * 4 * channels;
+    let pipeline = pipeline(device, "sparse_add", &sparse_source(), "sparse_add", &[])?;
+    let mut passes = Vec::new();
+    let mut row0 = 0;
+    while row0 < sp.n {
+        let start = sp.row_ptr[row0] as usize;
+        let mut end_row = row0 + 1;
+        while end_row < sp.n
+            && bytes(sp.row_ptr[end_row + 1] as usize - start) <= limit
+            && 4 * (end_row + 2 - row0) <= limit
+        {
+            end_row += 1;
+        }
+        let (end, rows) = (sp.row_ptr[end_row] as usize, end_row - row0);
+        if bytes(end - start) > limit || 4 * (rows + 1) > limit {
+            return Err(GpuError::TooLarge {
+                what: "one row of the sparse part",
+                needed: bytes(end - start) as u64,
+                limit: split.binding_bytes,
+            });
+        }
+        let row_ptr: Vec<u32> = sp.row_ptr[row0..=end_row]
+            .iter()
+            .map(|&p| p - start as u32)
+            .collect();
+        let values: Vec<f32> = (0..channels)
+            .flat_map(|c| &sp.values[c * nnz + start..c * nnz + end])
+            .copied()
+            .collect();
+        passes.push(Pass {
+            pipeline: pipeline.clone(),
+            bound: vec![
+                (
+                    3,
+                    Bound::Buffer(storage(device, "sparse row pointers", u32_bytes(&row_ptr))?),
+                ),
+                (
+                    4,
+                    Bound::Buffer(storage(
+                        device,
+                        "sparse columns",
+                        u32_bytes(&sp.col_idx[start..end]),
+                    )?),
+                ),
+                (
+                    5,
+                    Bound::Buffer(storage(
+                        device,
+                        "sparse values",
+                        bytemuck::cast_slice(&values),
+                    )?),
+                ),
+            ],
+            groups: rows as u32,
+            row0: row0 as u32,
+            rows: rows as u32,
+            tile: 0,
+            nnz: (end - start) as u32,
+        });
+        row0 = end_row;
+    }
+    Ok(passes)
 }

@@ -1,5 +1,7 @@
 // Sparse part of the `bc1` / `bc4` codecs, added onto the block product: CSR in matrix order,
-// values channel-major (`values[c * nnz + e]`). A workgroup owns one row and one chunk of light
+// values channel-major (`values[c * nnz + e]`). A part larger than one binding goes in row bands,
+// one pass each: rows params.row0 .. + params.rows, with the band's own row pointers (from 0) and
+// entry count (params.nnz). A workgroup owns one row and one chunk of light
 // sets; its threads stride over the row's entries, each loaded once per chunk.
 
 @group(0) @binding(3) var<storage, read> row_ptr: array<u32>;
@@ -12,7 +14,7 @@ fn sparse_add(
     @builtin(local_invocation_index) tid: u32,
 ) {
     let i = group_index(wid);
-    if i >= params.n {
+    if i >= params.rows {
         return;
     }
     let base = wid.z * CHUNK;
@@ -40,7 +42,7 @@ fn sparse_add(
         }
         reduce_lanes(tid);
         if tid < LANES && round + tid < sets {
-            add(base + round + tid, i, red[tid * WG]);
+            add(base + round + tid, params.row0 + i, red[tid * WG]);
         }
         workgroupBarrier();
     }
