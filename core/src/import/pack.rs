@@ -170,10 +170,11 @@ pub fn pack_bytes(bytes: &[u8], base: Option<&Path>, path: &Path) -> Result<Vec<
             .or_else(|| sniff_mime(&data).map(str::to_owned))
             .ok_or_else(|| {
                 resource(
-                    what,
+                    what.clone(),
                     "unknown image type (not png, jpeg, webp or ktx2; give it a mimeType)".into(),
                 )
             })?;
+        check_image(&data, &mime).map_err(|e| resource(what, e))?;
         let at = append(&mut bin, &data);
         obj.remove("uri");
         obj.insert("bufferView".into(), json!(views.len()));
@@ -264,6 +265,20 @@ fn mime_of(uri: &str) -> Option<&'static str> {
 }
 
 /// The type an image's bytes announce, for a URI that says nothing.
+/// The packed model is served to browsers: an image goes in only if its bytes are the type it
+/// claims, and PNG and JPEG (the types bounce decodes) only if they decode.
+fn check_image(data: &[u8], mime: &str) -> Result<(), String> {
+    match sniff_mime(data) {
+        Some(found) if found == mime => {}
+        Some(found) => return Err(format!("its bytes are {found}, not {mime}")),
+        None => return Err(format!("its bytes are not a {mime} image")),
+    }
+    if matches!(mime, "image/png" | "image/jpeg") {
+        image::load_from_memory(data).map_err(|e| format!("it does not decode as {mime}: {e}"))?;
+    }
+    Ok(())
+}
+
 fn sniff_mime(data: &[u8]) -> Option<&'static str> {
     if data.starts_with(b"\x89PNG") {
         Some("image/png")

@@ -4,7 +4,7 @@
 //! panics on some malformed input (a GLB length field below the header size, a relative URI whose
 //! percent-escapes are not UTF-8).
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 /// The JSON chunk and the optional BIN chunk of a GLB file, or the whole input for `.gltf`.
 pub(crate) struct Container<'a> {
@@ -68,7 +68,18 @@ pub(crate) fn split(bytes: &[u8]) -> Result<Container<'_>, String> {
     Ok(Container { json, bin })
 }
 
-/// Reads what a URI names: a `data:` URI, a `file:` URI, or a path relative to `base`.
+/// The most bytes one buffer or image file may hold: a GLB's whole length field is a u32, and
+/// no scene bounce can bake needs more. A device file (`/dev/zero`) or a file that grows while it
+/// is read stops here rather than at the end of memory.
+pub(crate) const MAX_RESOURCE_BYTES: u64 = 1 << 31;
+
+/// Reads what a URI names: a `data:` URI, or a file beneath `base`, the glTF's own directory.
+///
+/// A glTF is input from outside, and what its URIs name ends up in the baked file's model, which
+/// the server hands to any browser. So a URI may not reach the rest of the machine: absolute
+/// paths, `file:` and every other scheme are refused, a relative path must resolve (after `..`
+/// and symbolic links) beneath `base`, and it must name a regular file of at most
+/// [`MAX_RESOURCE_BYTES`].
 pub(crate) fn read_uri(uri: &str, base: Option<&Path>) -> Result<Vec<u8>, String> {
     if let Some(rest) = uri.strip_prefix("data:") {
         let (header, payload) = rest.split_once(',').ok_or("data URI without a comma")?;
@@ -78,21 +89,61 @@ pub(crate) fn read_uri(uri: &str, base: Option<&Path>) -> Result<Vec<u8>, String
             Ok(percent_decode(payload))
         };
     }
-    let path = match scheme(uri) {
-        Some(s) if s.eq_ignore_ascii_case("file") => {
-            let rest = &uri[s.len() + 1..];
-            let rest = rest.strip_prefix("//").unwrap_or(rest);
-            PathBuf::from(String::from_utf8_lossy(&percent_decode(rest)).into_owned())
-        }
-        Some(s) => return Err(format!("unsupported URI scheme '{s}'")),
-        None => {
-            let base = base.ok_or_else(|| {
-                format!("'{uri}' is an external file, but no base directory was given")
-            })?;
-            base.join(String::from_utf8_lossy(&percent_decode(uri)).as_ref())
-        }
-    };
-    std::fs::read(&path).map_err(|e| format!("{}: {e}", path.display()))
+    if let Some(s) = scheme(uri) {
+        return Err(format!(
+            "URI scheme '{s}:' refused: a glTF's buffers and images must be data: URIs or files \
+             beneath its own directory"
+        ));
+    }
+    let base = base
+        .ok_or_else(|| format!("'{uri}' is an external file, but no base directory was given"))?;
+    let relative = String::from_utf8_lossy(&percent_decode(uri)).into_owned();
+    let relative = Path::new(&relative);
+    if relative.has_root() || relative.is_absolute() {
+        return Err(format!(
+            "'{uri}' is an absolute path; a glTF's files must be beneath its own directory"
+        ));
+    }
+    let root = base
+        .canonicalize()
+        .map_err(|e| format!("{}: {e}", base.display()))?;
+    let path = root.join(relative);
+    let resolved = path
+        .canonicalize()
+        .map_err(|e| format!("{}: {e}", path.display()))?;
+    if !resolved.starts_with(&root) {
+        return Err(format!(
+            "'{uri}' resolves to {}, outside the glTF's directory {}",
+            resolved.display(),
+            root.display()
+        ));
+    }
+    let meta = std::fs::metadata(&resolved).map_err(|e| format!("{}: {e}", resolved.display()))?;
+    if !meta.is_file() {
+        return Err(format!("{} is not a regular file", resolved.display()));
+    }
+    if meta.len() > MAX_RESOURCE_BYTES {
+        return Err(format!(
+            "{} holds {} bytes, over the limit of {MAX_RESOURCE_BYTES}",
+            resolved.display(),
+            meta.len()
+        ));
+    }
+    let file =
+        std::fs::File::open(&resolved).map_err(|e| format!("{}: {e}", resolved.display()))?;
+    let mut bytes = Vec::with_capacity(meta.len() as usize);
+    std::io::Read::read_to_end(
+        &mut std::io::Read::take(file, MAX_RESOURCE_BYTES + 1),
+        &mut bytes,
+    )
+    .map_err(|e| format!("{}: {e}", resolved.display()))?;
+    if bytes.len() as u64 > MAX_RESOURCE_BYTES {
+        return Err(format!(
+            "{} grew past the limit of {MAX_RESOURCE_BYTES} bytes while it was read",
+            resolved.display()
+        ));
+    }
+    Ok(bytes)
 }
 
 /// The URI's scheme, if it has one (RFC 3986: a letter, then letters, digits, `+`, `-`, `.`).
@@ -175,6 +226,57 @@ mod tests {
         assert_eq!(scheme("http://x"), Some("http"));
         assert_eq!(scheme("C:/x.bin"), None);
         assert_eq!(scheme("scene.bin"), None);
+    }
+
+    /// What a hostile glTF's URIs may name: only regular files beneath its own directory.
+    #[test]
+    fn uris_stay_beneath_the_gltf_directory() {
+        let dir = tempfile::tempdir().unwrap();
+        let scene = dir.path().join("scene");
+        std::fs::create_dir_all(scene.join("textures")).unwrap();
+        std::fs::write(scene.join("textures/albedo.png"), b"png").unwrap();
+        std::fs::write(scene.join("mesh bin.bin"), b"bin").unwrap();
+        std::fs::write(dir.path().join("secret.txt"), b"secret").unwrap();
+        std::os::unix::fs::symlink(dir.path().join("secret.txt"), scene.join("link.bin")).unwrap();
+        std::os::unix::fs::symlink("/etc/hostname", scene.join("etc.bin")).unwrap();
+        let base = Some(scene.as_path());
+
+        assert_eq!(read_uri("textures/albedo.png", base).unwrap(), b"png");
+        assert_eq!(
+            read_uri("textures/../mesh%20bin.bin", base).unwrap(),
+            b"bin"
+        );
+        assert_eq!(read_uri("data:,abc", base).unwrap(), b"abc");
+
+        let refused = |uri: &str, why: &str| {
+            let e = read_uri(uri, base).expect_err(uri);
+            assert!(e.contains(why), "{uri}: {e}");
+        };
+        refused("../secret.txt", "outside the glTF's directory");
+        refused("textures/../../secret.txt", "outside the glTF's directory");
+        refused("%2E%2E/secret.txt", "outside the glTF's directory");
+        refused("link.bin", "outside the glTF's directory");
+        refused("etc.bin", "outside the glTF's directory");
+        refused("/etc/passwd", "absolute path");
+        refused("%2Fetc%2Fpasswd", "absolute path");
+        refused("file:///etc/passwd", "scheme 'file:' refused");
+        refused("FILE:/etc/passwd", "scheme 'FILE:' refused");
+        refused("http://example.com/x.bin", "scheme 'http:' refused");
+        refused("textures", "not a regular file");
+        refused("missing.bin", "No such file");
+    }
+
+    /// A device file is refused before it is read: `/dev/zero` would read until memory ran out.
+    #[test]
+    fn device_files_are_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        std::os::unix::fs::symlink("/dev/zero", dir.path().join("zero.bin")).unwrap();
+        std::fs::create_dir(dir.path().join("dev")).unwrap();
+        let e = read_uri("zero.bin", Some(dir.path())).unwrap_err();
+        assert!(e.contains("outside the glTF's directory"), "{e}");
+        // The same device reached without a link: the base itself is /dev.
+        let e = read_uri("zero", Some(Path::new("/dev"))).unwrap_err();
+        assert!(e.contains("not a regular file"), "{e}");
     }
 
     #[test]

@@ -327,6 +327,43 @@ fn a_missing_file_or_bad_json_is_a_clear_error() {
     assert!(msg.contains("nowhere.gltf"), "{msg}");
 }
 
+/// A glTF is input from outside and its packed model is served to anyone: its URIs cannot pack
+/// a file from outside its directory, and an image must be what it claims and decode.
+#[test]
+fn a_hostile_gltf_packs_nothing_from_outside_and_no_broken_images() {
+    let outer = tempfile::tempdir().unwrap();
+    let dir = outer.path().join("scene");
+    std::fs::create_dir(&dir).unwrap();
+    let bin = triangle_bin();
+    std::fs::write(dir.join("tri.bin"), &bin).unwrap();
+    std::fs::write(outer.path().join("secret.png"), png_bytes()).unwrap();
+    std::fs::write(dir.join("notes.png"), b"not an image at all").unwrap();
+    let mut broken = png_bytes();
+    broken.truncate(24);
+    std::fs::write(dir.join("broken.png"), &broken).unwrap();
+    std::fs::write(dir.join("real.jpg"), png_bytes()).unwrap();
+    let gltf_path = dir.join("scene.gltf");
+    for (image, why) in [
+        ("../secret.png", "outside the glTF's directory"),
+        ("/etc/hostname", "absolute path"),
+        ("file:///etc/hostname", "scheme 'file:' refused"),
+        ("notes.png", "not a image/png image"),
+        ("broken.png", "does not decode as image/png"),
+        ("real.jpg", "its bytes are image/png, not image/jpeg"),
+    ] {
+        let doc = triangle_gltf("tri.bin", bin.len(), image);
+        std::fs::write(&gltf_path, serde_json::to_vec(&doc).unwrap()).unwrap();
+        let msg = pack_glb(&gltf_path).unwrap_err().to_string();
+        assert!(msg.contains(why), "{image}: {msg}");
+    }
+    // A buffer outside is refused the same way.
+    std::fs::write(outer.path().join("outside.bin"), &bin).unwrap();
+    let doc = triangle_gltf("../outside.bin", bin.len(), "x.png");
+    std::fs::write(&gltf_path, serde_json::to_vec(&doc).unwrap()).unwrap();
+    let msg = pack_glb(&gltf_path).unwrap_err().to_string();
+    assert!(msg.contains("outside the glTF's directory"), "{msg}");
+}
+
 fn repo_scene(rel: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join(rel)
 }
