@@ -137,6 +137,13 @@ impl Engine {
         &self.description
     }
 
+    /// Why this engine's GPU can no longer be trusted, if it cannot (an error no scope caught,
+    /// or the device lost): its owner should stop using it and open another engine. Always
+    /// `None` on the CPU engine.
+    pub fn device_fault(&self) -> Option<String> {
+        self.gpu.as_ref().and_then(GpuContext::fault)
+    }
+
     /// Why `auto` chose the CPU, if it did.
     pub fn fallback(&self) -> Option<&str> {
         self.fallback.as_deref()

@@ -63,6 +63,9 @@ impl HubConfig {
     }
 }
 
+/// How long a one-shot relight waits for the engine worker.
+pub const ONCE_DEADLINE: Duration = Duration::from_secs(30);
+
 /// A cheap handle: clones share one hub.
 #[derive(Clone)]
 pub struct Hub {
@@ -210,9 +213,24 @@ impl Hub {
         &self.inner.metrics
     }
 
-    /// Ready to serve: scenes loaded, sessions restored, not shutting down.
+    /// Ready to serve: scenes loaded, sessions restored, an engine solving (not while the
+    /// worker restarts one), not shutting down.
     pub fn is_ready(&self) -> bool {
-        self.inner.ready.load(Ordering::Acquire) && !*self.inner.shutdown.borrow()
+        self.inner.ready.load(Ordering::Acquire)
+            && self.inner.worker.serving()
+            && !*self.inner.shutdown.borrow()
+    }
+
+    /// Test hook: the engine's next relight fails, as a device readback error would.
+    #[cfg(feature = "fault-injection")]
+    pub fn inject_relight_failure(&self) {
+        self.inner.worker.inject_failure();
+    }
+
+    /// Test hook: the engine worker's next batch panics, as a driver fault would.
+    #[cfg(feature = "fault-injection")]
+    pub fn inject_worker_panic(&self) {
+        self.inner.worker.inject_panic();
     }
 
     fn scene_index(&self, name: &str) -> Result<usize, ServerError> {
@@ -413,7 +431,12 @@ impl Hub {
             lights,
             reply,
         });
-        answer.await.map_err(|_| ServerError::WorkerGone)?
+        // A deadline, so a worker that is restarting or stuck answers as unavailable rather
+        // than holding the request forever.
+        match tokio::time::timeout(ONCE_DEADLINE, answer).await {
+            Ok(answer) => answer.map_err(|_| ServerError::WorkerGone)?,
+            Err(_) => Err(ServerError::WorkerGone),
+        }
     }
 
     /// A receiver that turns `true` when the server shuts down.

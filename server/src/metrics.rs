@@ -86,6 +86,10 @@ pub struct Metrics {
     pub viewers: Family<TransportLabel, Gauge>,
     pub sessions: Gauge,
     pub sessions_expired: Counter,
+    /// Times the engine worker was restarted after a panic or a device fault.
+    pub worker_restarts: Counter,
+    /// Session relights that failed and were queued again.
+    pub relight_retries: Counter,
     /// Light changes accepted (a repeat of the current lights does not count).
     pub light_updates: Counter,
     /// Requests refused: bad input, unknown names, missing token, limits.
@@ -164,6 +168,18 @@ impl Metrics {
             "Sessions removed after nobody watched or wrote for the expiry time",
             sessions_expired.clone(),
         );
+        let worker_restarts = Counter::default();
+        registry.register(
+            "worker_restarts",
+            "Engine worker restarts after a panic or a GPU fault",
+            worker_restarts.clone(),
+        );
+        let relight_retries = Counter::default();
+        registry.register(
+            "relight_retries",
+            "Session relights that failed and were queued again",
+            relight_retries.clone(),
+        );
         let light_updates = Counter::default();
         registry.register(
             "light_updates",
@@ -216,6 +232,8 @@ impl Metrics {
             viewers,
             sessions,
             sessions_expired,
+            worker_restarts,
+            relight_retries,
             light_updates,
             requests_refused,
             scene_reloads,

@@ -110,6 +110,12 @@ impl Session {
         (s.lights.clone(), s.version, s.changed_at)
     }
 
+    /// Back into the worker's queue after a failed or lost relight. Returns whether the caller
+    /// must queue it (a newer change has not queued it already).
+    pub(crate) fn requeue(&self) -> bool {
+        !std::mem::replace(&mut self.state().queued, true)
+    }
+
     /// The same snapshot without leaving the queue, for solving again after a scene reload.
     pub(crate) fn snapshot(&self) -> (LightSet, u64, Instant) {
         let s = self.state();

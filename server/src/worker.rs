@@ -5,16 +5,25 @@
 //! a device (GPU); the async side only touches a mutex and a condition variable. The engine is
 //! created on this thread, so it never has to cross threads. One worker per engine: a second
 //! device would get a second worker.
+//!
+//! The thread supervises itself. A panic in a batch (a driver's, or wgpu's on an error nothing
+//! caught) or a fault the GPU reports ends that engine: the thread opens a new one on the same
+//! baked files and goes on, the sessions of the lost batch queued again, one-shot callers told;
+//! a GPU engine that faults, or panics twice in a row, is replaced by the CPU engine. While no
+//! engine serves, [`Worker::serving`] is false and the hub is not ready. A relight that fails
+//! without a panic is tried again for its sessions after [`RETRY_AFTER`].
 
 use std::collections::BTreeMap;
+use std::panic::AssertUnwindSafe;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc;
 use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 use std::thread::JoinHandle;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use bounce_core::format::Baked;
 use bounce_core::light::LightSet;
-use bounce_engine::{Engine, EngineChoice, Scene};
+use bounce_engine::{Engine, EngineChoice, EngineKind, Scene};
 use tokio::sync::oneshot;
 use tracing::{debug, error, info, warn};
 
@@ -26,6 +35,12 @@ use crate::session::Session;
 /// Light sets per `relight` call at most: bounds the batch's memory (`batch × patches` vectors)
 /// and how long one scene's batch holds up the next scene.
 pub const MAX_BATCH: usize = 64;
+
+/// A session whose relight failed is solved again after this long.
+pub const RETRY_AFTER: Duration = Duration::from_millis(250);
+
+/// Panics in a row after which a GPU worker gives way to the CPU engine.
+const GPU_PANICS: u32 = 2;
 
 /// A one-shot relight: a scene and lights, the frame back through `reply`.
 pub(crate) struct OnceJob {
@@ -49,18 +64,43 @@ struct Work {
     sessions: Vec<Arc<Session>>,
     once: Vec<OnceJob>,
     reloads: Vec<ReloadJob>,
+    /// Sessions whose relight failed, and when to solve them again.
+    retry: Vec<(Instant, Arc<Session>)>,
     stop: bool,
+}
+
+impl Work {
+    fn idle(&self) -> bool {
+        self.sessions.is_empty() && self.once.is_empty() && self.reloads.is_empty()
+    }
 }
 
 #[derive(Default)]
 struct Queue {
     work: Mutex<Work>,
     wake: Condvar,
+    /// An engine is open and solving; false while the worker (re)starts or after it gave up.
+    serving: AtomicBool,
+    /// Sessions of the batch in progress: queued again if the batch panics.
+    in_flight: Mutex<Vec<Arc<Session>>>,
+    /// Test hook (`fault-injection`): the next batch panics.
+    panic_next: AtomicBool,
+    /// Test hook (`fault-injection`): the next relight fails with an engine error.
+    fail_next: AtomicBool,
 }
 
 impl Queue {
     fn lock(&self) -> MutexGuard<'_, Work> {
         self.work.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// Sessions back into the queue (those a newer change has not queued already).
+    fn requeue(&self, sessions: impl IntoIterator<Item = Arc<Session>>) {
+        let mut w = self.lock();
+        w.sessions
+            .extend(sessions.into_iter().filter(|s| s.requeue()));
+        drop(w);
+        self.wake.notify_one();
     }
 }
 
@@ -82,20 +122,7 @@ impl Worker {
         let q = Arc::clone(&queue);
         let thread = std::thread::Builder::new()
             .name("bounce-engine".into())
-            .spawn(move || {
-                let opened = open(choice, scenes);
-                let (engine, mut loaded) = match opened {
-                    Ok((engine, loaded)) => {
-                        let _ = ready_tx.send(Ok(engine.describe().to_string()));
-                        (engine, loaded)
-                    }
-                    Err(e) => {
-                        let _ = ready_tx.send(Err(e));
-                        return;
-                    }
-                };
-                run(&q, &engine, &mut loaded, &metrics);
-            })
+            .spawn(move || supervise(&q, choice, scenes, &metrics, ready_tx))
             .map_err(|_| ServerError::WorkerGone)?;
         let description = ready_rx.recv().map_err(|_| ServerError::WorkerGone)??;
         Ok((
@@ -105,6 +132,24 @@ impl Worker {
             },
             description,
         ))
+    }
+
+    /// Whether an engine is open and solving (false while the worker restarts, or after it
+    /// stopped or gave up).
+    pub fn serving(&self) -> bool {
+        self.queue.serving.load(Ordering::Acquire)
+    }
+
+    /// Test hook: the next batch panics, as a driver fault would.
+    #[cfg_attr(not(feature = "fault-injection"), allow(dead_code))]
+    pub fn inject_panic(&self) {
+        self.queue.panic_next.store(true, Ordering::Release);
+    }
+
+    /// Test hook: the next relight fails, as a device readback error would.
+    #[cfg_attr(not(feature = "fault-injection"), allow(dead_code))]
+    pub fn inject_failure(&self) {
+        self.queue.fail_next.store(true, Ordering::Release);
     }
 
     /// Queues a session whose lights changed (the caller checked it was not queued already).
@@ -147,10 +192,90 @@ impl Drop for Worker {
 /// Names are kept beside the engine's scenes for logs and errors.
 type Loaded = Vec<(String, Scene)>;
 
-fn open(
+/// The worker thread: an engine opened on `scenes`, run until told to stop, and opened again
+/// (on the CPU after a GPU fault) whenever a batch panics or the device faults.
+fn supervise(
+    queue: &Queue,
     choice: EngineChoice,
-    scenes: Vec<(String, Baked)>,
-) -> Result<(Engine, Loaded), ServerError> {
+    mut scenes: Vec<(String, Baked)>,
+    metrics: &Metrics,
+    ready: mpsc::Sender<Result<String, ServerError>>,
+) {
+    let mut ready = Some(ready);
+    let mut choice = choice;
+    let mut panics = 0u32;
+    loop {
+        let (engine, mut loaded) = match open(choice, &scenes) {
+            Ok(opened) => opened,
+            Err(e) => {
+                if let Some(tx) = ready.take() {
+                    let _ = tx.send(Err(e));
+                    return;
+                }
+                if choice == EngineChoice::Cpu {
+                    error!(error = %e, "the CPU engine did not open again; the worker stops");
+                    return;
+                }
+                error!(error = %e, "the engine did not open again; trying the CPU engine");
+                choice = EngineChoice::Cpu;
+                continue;
+            }
+        };
+        if let Some(tx) = ready.take() {
+            let _ = tx.send(Ok(engine.describe().to_string()));
+        }
+        queue.serving.store(true, Ordering::Release);
+        let outcome = std::panic::catch_unwind(AssertUnwindSafe(|| {
+            run(queue, &engine, &mut loaded, &mut scenes, metrics)
+        }));
+        queue.serving.store(false, Ordering::Release);
+        let reason = match outcome {
+            Ok(Stopped::Asked) => return,
+            Ok(Stopped::DeviceFault(why)) => {
+                // A device that faulted is not tried again.
+                choice = EngineChoice::Cpu;
+                why
+            }
+            Err(payload) => {
+                panics += 1;
+                if engine.kind() == EngineKind::Gpu && panics >= GPU_PANICS {
+                    choice = EngineChoice::Cpu;
+                }
+                panic_message(payload.as_ref())
+            }
+        };
+        metrics.worker_restarts.inc();
+        let lost = std::mem::take(&mut *queue.in_flight.lock().unwrap_or_else(|e| e.into_inner()));
+        error!(
+            reason = %reason,
+            engine = %engine.describe(),
+            next = ?choice,
+            sessions_requeued = lost.len(),
+            "the engine worker lost its engine; opening one again"
+        );
+        queue.requeue(lost);
+        drop(loaded);
+        drop(engine);
+    }
+}
+
+/// Why [`run`] returned.
+enum Stopped {
+    /// [`Worker::stop`].
+    Asked,
+    /// The GPU reported a fault: this engine must not be used again.
+    DeviceFault(String),
+}
+
+fn panic_message(payload: &(dyn std::any::Any + Send)) -> String {
+    payload
+        .downcast_ref::<&str>()
+        .map(|s| (*s).to_string())
+        .or_else(|| payload.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "a panic without a message".to_string())
+}
+
+fn open(choice: EngineChoice, scenes: &[(String, Baked)]) -> Result<(Engine, Loaded), ServerError> {
     let engine = Engine::new(choice).map_err(|e| ServerError::Engine(Box::new(e)))?;
     if let Some(why) = engine.fallback() {
         info!(reason = why, "no GPU engine");
@@ -158,7 +283,7 @@ fn open(
     let mut loaded = Vec::with_capacity(scenes.len());
     for (name, baked) in scenes {
         let start = Instant::now();
-        let scene = engine.load(&baked).map_err(|source| ServerError::Load {
+        let scene = engine.load(baked).map_err(|source| ServerError::Load {
             name: name.clone(),
             source: Box::new(source),
         })?;
@@ -169,8 +294,8 @@ fn open(
             ms = start.elapsed().as_secs_f64() * 1e3,
             "scene loaded"
         );
-        log_fallbacks(&name, &scene);
-        loaded.push((name, scene));
+        log_fallbacks(name, &scene);
+        loaded.push((name.clone(), scene));
     }
     Ok((engine, loaded))
 }
@@ -185,20 +310,53 @@ fn log_fallbacks(name: &str, scene: &bounce_engine::Scene) {
     }
 }
 
-fn run(queue: &Queue, engine: &Engine, scenes: &mut Loaded, metrics: &Metrics) {
+fn run(
+    queue: &Queue,
+    engine: &Engine,
+    scenes: &mut Loaded,
+    baked: &mut Vec<(String, Baked)>,
+    metrics: &Metrics,
+) -> Stopped {
     loop {
         let work = {
             let mut w = queue.lock();
-            while w.sessions.is_empty() && w.once.is_empty() && w.reloads.is_empty() && !w.stop {
-                w = queue.wake.wait(w).unwrap_or_else(|e| e.into_inner());
+            loop {
+                if w.stop {
+                    return Stopped::Asked;
+                }
+                // Failed sessions whose time has come go back into the queue.
+                let now = Instant::now();
+                let (due, later): (Vec<_>, Vec<_>) = std::mem::take(&mut w.retry)
+                    .into_iter()
+                    .partition(|(at, _)| *at <= now);
+                w.retry = later;
+                w.sessions.extend(due.into_iter().map(|(_, s)| s));
+                if !w.idle() {
+                    break;
+                }
+                w = match w.retry.iter().map(|(at, _)| *at).min() {
+                    Some(at) => {
+                        let wait = at.saturating_duration_since(now);
+                        queue
+                            .wake
+                            .wait_timeout(w, wait)
+                            .unwrap_or_else(|e| e.into_inner())
+                            .0
+                    }
+                    None => queue.wake.wait(w).unwrap_or_else(|e| e.into_inner()),
+                };
             }
-            if w.stop {
-                return;
+            Work {
+                sessions: std::mem::take(&mut w.sessions),
+                once: std::mem::take(&mut w.once),
+                reloads: std::mem::take(&mut w.reloads),
+                retry: Vec::new(),
+                stop: false,
             }
-            std::mem::take(&mut *w)
         };
+        *queue.in_flight.lock().unwrap_or_else(|e| e.into_inner()) = work.sessions.clone();
         for job in work.reloads {
-            reload(engine, scenes, job, metrics);
+            reload(engine, scenes, baked, job, metrics, queue);
         }
         // Per scene, its sessions and one-shot jobs: each scene is one batch.
         let mut by_scene: BTreeMap<usize, (Vec<Arc<Session>>, Vec<OnceJob>)> = BTreeMap::new();
@@ -224,15 +382,37 @@ fn run(queue: &Queue, engine: &Engine, scenes: &mut Loaded, metrics: &Metrics) {
                     ))
                 });
                 let once = once.into_iter().map(|j| (Target::Once(j.reply), j.lights));
-                solve_scene(engine, name, loaded, targets.chain(once).collect(), metrics);
+                solve_scene(
+                    engine,
+                    name,
+                    loaded,
+                    targets.chain(once).collect(),
+                    metrics,
+                    queue,
+                );
+            }
+            if let Some(why) = engine.device_fault() {
+                return Stopped::DeviceFault(why);
             }
         }
+        queue
+            .in_flight
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .clear();
     }
 }
 
 /// A changed scene onto the engine, in place of the old one only once it loaded; then its
 /// sessions solved again so viewers see the new matrix.
-fn reload(engine: &Engine, scenes: &mut Loaded, job: ReloadJob, metrics: &Metrics) {
+fn reload(
+    engine: &Engine,
+    scenes: &mut Loaded,
+    baked: &mut Vec<(String, Baked)>,
+    job: ReloadJob,
+    metrics: &Metrics,
+    queue: &Queue,
+) {
     let start = Instant::now();
     let loaded = match engine.load(&job.baked) {
         Ok(scene) => scene,
@@ -251,11 +431,14 @@ fn reload(engine: &Engine, scenes: &mut Loaded, job: ReloadJob, metrics: &Metric
         "scene loaded"
     );
     log_fallbacks(&job.name, &loaded);
+    // The file is kept beside the engine's copy: a restarted engine loads it again.
     let at = if job.scene < scenes.len() {
-        scenes[job.scene] = (job.name, loaded);
+        scenes[job.scene] = (job.name.clone(), loaded);
+        baked[job.scene] = (job.name, job.baked);
         job.scene
     } else {
-        scenes.push((job.name, loaded));
+        scenes.push((job.name.clone(), loaded));
+        baked.push((job.name, job.baked));
         scenes.len() - 1
     };
     let _ = job.reply.send(Ok(()));
@@ -274,7 +457,7 @@ fn reload(engine: &Engine, scenes: &mut Loaded, job: ReloadJob, metrics: &Metric
             (target, lights)
         })
         .collect();
-    solve_scene(engine, name, scene, items, metrics);
+    solve_scene(engine, name, scene, items, metrics, queue);
 }
 
 /// One item of a batch: where its frame goes.
@@ -296,7 +479,11 @@ fn solve_scene(
     scene: &Scene,
     items: Vec<(Target, LightSet)>,
     metrics: &Metrics,
+    queue: &Queue,
 ) {
+    if queue.panic_next.swap(false, Ordering::AcqRel) {
+        panic!("injected fault: the engine worker panics in a batch of scene '{name}'");
+    }
     let (targets, sets): (Vec<Target>, Vec<LightSet>) = items.into_iter().unzip();
     let label = SceneLabel {
         scene: name.to_string(),
@@ -304,7 +491,13 @@ fn solve_scene(
     let mut targets = targets.into_iter();
     for batch in sets.chunks(MAX_BATCH) {
         let start = Instant::now();
-        let result = engine.relight(scene, batch);
+        let result = if queue.fail_next.swap(false, Ordering::AcqRel) {
+            Err(bounce_engine::EngineError::Gpu(
+                bounce_engine::gpu::GpuError::Readback("injected fault".into()),
+            ))
+        } else {
+            engine.relight(scene, batch)
+        };
         let solve_s = start.elapsed().as_secs_f64();
         metrics
             .relight_seconds
@@ -328,18 +521,29 @@ fn solve_scene(
                 }
             }
             Err(source) => {
-                // Lights were validated on the way in, so this is an engine fault: report it to
-                // one-shot callers and in the log; sessions keep their last frame.
+                // Lights were validated on the way in, so this is an engine fault: one-shot
+                // callers are told, sessions keep their last frame and are solved again after
+                // RETRY_AFTER.
                 error!(scene = name, error = %source, "relight failed");
                 let msg = source.to_string();
+                let mut retry = Vec::new();
                 for target in batch_targets {
-                    if let Target::Once(reply) = target {
-                        let _ = reply.send(Err(ServerError::Relight {
-                            scene: name.to_string(),
-                            message: msg.clone(),
-                        }));
+                    match target {
+                        Target::Once(reply) => {
+                            let _ = reply.send(Err(ServerError::Relight {
+                                scene: name.to_string(),
+                                message: msg.clone(),
+                            }));
+                        }
+                        Target::Session { session, .. } => {
+                            if session.requeue() {
+                                retry.push((Instant::now() + RETRY_AFTER, session));
+                            }
+                        }
                     }
                 }
+                metrics.relight_retries.inc_by(retry.len() as u64);
+                queue.lock().retry.extend(retry);
             }
         }
     }

@@ -1,4 +1,14 @@
+use std::sync::{Arc, Mutex};
+
 use super::GpuError;
+
+/// Keeps the first fault: later ones are usually its consequences.
+fn record(fault: &Mutex<Option<String>>, message: String) {
+    let mut f = fault.lock().unwrap_or_else(|e| e.into_inner());
+    if f.is_none() {
+        *f = Some(message);
+    }
+}
 
 /// Which adapter a context runs on, for logs and for callers that treat software adapters
 /// differently (lavapipe is correct but no faster than the CPU engine).
@@ -28,6 +38,8 @@ pub struct GpuContext {
     pub(super) device: wgpu::Device,
     pub(super) queue: wgpu::Queue,
     summary: AdapterSummary,
+    /// The first error no scope caught, or the device's loss, on a device this context opened.
+    fault: Arc<Mutex<Option<String>>>,
 }
 
 impl GpuContext {
@@ -66,7 +78,27 @@ impl GpuContext {
             adapter: adapter.get_info().name,
             source,
         })?;
-        Ok(GpuContext::from_device(device, queue, &adapter.get_info()))
+        let ctx = GpuContext::from_device(device, queue, &adapter.get_info());
+        // wgpu's default for an error no scope catches (out of memory in a dispatch, a device
+        // lost) is a panic on whichever thread polls. A service records it instead, and its
+        // owner reads `fault()` after each batch and moves to another engine.
+        let fault = Arc::clone(&ctx.fault);
+        ctx.device
+            .on_uncaptured_error(Arc::new(move |e: wgpu::Error| {
+                record(&fault, format!("uncaptured GPU error: {e}"));
+            }));
+        let fault = Arc::clone(&ctx.fault);
+        ctx.device.set_device_lost_callback(move |reason, message| {
+            record(&fault, format!("GPU device lost ({reason:?}): {message}"));
+        });
+        Ok(ctx)
+    }
+
+    /// Why this context's device can no longer be trusted, if it cannot: an error that no error
+    /// scope caught, or the device's loss. Only a context from [`GpuContext::new`] records these
+    /// (one from [`GpuContext::from_device`] leaves the device's handlers to its owner).
+    pub fn fault(&self) -> Option<String> {
+        self.fault.lock().unwrap_or_else(|e| e.into_inner()).clone()
     }
 
     /// A context on a device the caller opened (e.g. a renderer's, or a test's software one).
@@ -90,6 +122,7 @@ impl GpuContext {
             device,
             queue,
             summary,
+            fault: Arc::new(Mutex::new(None)),
         }
     }
 

@@ -124,10 +124,11 @@ pub fn pipeline(
     }
 }
 
-/// Run `f` inside an error scope of `filter` and return what the scope caught. Error scopes are a
-/// stack per device shared by every thread, so two threads' scopes would pop each other's: scopes
-/// are taken one thread at a time, and a scope opened inside another (a pipeline compiled during
-/// an upload) nests on the same thread without waiting on itself.
+/// Run `f` inside an error scope of `filter` and return what the scope caught. wgpu requires
+/// scopes to pop in the order they were pushed, and uploads running on several threads at once
+/// broke that here ("Mismatched pop_error_scope call" in the engine's tests): scopes are taken
+/// one thread at a time, and a scope opened inside another (a pipeline compiled during an upload)
+/// nests on the same thread without waiting on itself.
 pub fn scoped<T>(
     device: &wgpu::Device,
     filter: wgpu::ErrorFilter,

@@ -302,3 +302,85 @@ async fn connections_past_the_limit_are_closed_and_counted() {
     list(b).await.expect("the second connection still serves");
     server.stop().await;
 }
+
+/// Waits until the session has published `version`.
+async fn published(hub: &Hub, id: &str, version: u64) {
+    let session = hub.session(id).expect("session");
+    let start = Instant::now();
+    while session.published_version() < version {
+        assert!(
+            start.elapsed() < PATIENCE,
+            "version {version} never published (at {})",
+            session.published_version()
+        );
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+}
+
+/// A worker whose batch panics (a driver fault, wgpu's panic on an error nothing caught) is
+/// restarted: the session whose batch was lost still gets its frame, the server is ready again,
+/// one-shot relights work, and the restart is counted. Before supervision the worker thread died
+/// with the panic and the session never got its frame.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_panicking_engine_worker_is_restarted_and_its_sessions_solved() {
+    let server = TestServer::start().await;
+    let mut c = server.client().await;
+    let (id, v1) = create_session(&mut c, vec![point(5.0)]).await;
+    published(&server.hub, &id, v1).await;
+
+    server.hub.inject_worker_panic();
+    let v = c
+        .set_lights(proto::SetLightsRequest {
+            session_id: id.clone(),
+            lights: vec![point(9.0)],
+            token: String::new(),
+        })
+        .await
+        .expect("set lights")
+        .into_inner();
+    assert_eq!(v.lights_version, 2);
+    published(&server.hub, &id, 2).await;
+    assert_eq!(server.hub.metrics().worker_restarts.get(), 1);
+    assert!(server.hub.is_ready());
+    let ready = reqwest::get(server.url("/readyz")).await.expect("readyz");
+    assert_eq!(ready.status(), 200);
+    let frame = server
+        .hub
+        .relight_once(SCENE, light_set(3.0))
+        .await
+        .expect("a one-shot relight after the restart");
+    assert!(frame.irradiance().iter().flatten().any(|&v| v > 0.0));
+    // And the restarted worker keeps serving later changes.
+    c.set_lights(proto::SetLightsRequest {
+        session_id: id.clone(),
+        lights: vec![point(2.0)],
+        token: String::new(),
+    })
+    .await
+    .expect("set lights");
+    published(&server.hub, &id, 3).await;
+    server.stop().await;
+}
+
+/// A relight that fails (an engine error, no panic) is tried again for its session: the viewer
+/// gets the frame for its change, and the retry is counted. Before, the session kept its old
+/// frame until the next change.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_failed_relight_is_retried() {
+    let server = TestServer::start().await;
+    let mut c = server.client().await;
+    let (id, v1) = create_session(&mut c, vec![point(5.0)]).await;
+    published(&server.hub, &id, v1).await;
+    server.hub.inject_relight_failure();
+    c.set_lights(proto::SetLightsRequest {
+        session_id: id.clone(),
+        lights: vec![point(7.0)],
+        token: String::new(),
+    })
+    .await
+    .expect("set lights");
+    published(&server.hub, &id, 2).await;
+    assert_eq!(server.hub.metrics().relight_retries.get(), 1);
+    assert_eq!(server.hub.metrics().worker_restarts.get(), 0);
+    server.stop().await;
+}
