@@ -85,6 +85,15 @@ pub struct ServeArgs {
         env = "BOUNCE_MAX_CONNECTIONS"
     )]
     pub max_connections: usize,
+    /// Sessions held at most; creating one more is refused (429 / RESOURCE_EXHAUSTED) until
+    /// idle ones expire.
+    #[arg(
+        long,
+        value_name = "N",
+        default_value_t = 10_000,
+        env = "BOUNCE_MAX_SESSIONS"
+    )]
+    pub max_sessions: usize,
 }
 
 /// `250ms`, `90s`, `30m`, `24h`, or plain seconds.
@@ -134,6 +143,7 @@ pub fn run(args: &ServeArgs) -> Result<()> {
     }
     config.web_dir = args.web_dir.clone();
     config.max_connections = args.max_connections;
+    config.max_sessions = args.max_sessions;
     config.reload_interval = (!args.reload_every.is_zero()).then_some(args.reload_every);
     // Blocking (reads files, may upload to a GPU): before the runtime serves.
     let hub = Hub::start(&config)

@@ -74,6 +74,10 @@ fn default_outer_cone() -> f32 {
 /// patch, so a configuration far beyond this is a mistake or an attack, not a lighting setup.
 pub const MAX_LIGHTS: usize = 256;
 
+/// Bytes a light's `name` may hold: a name labels a light in a viewer's list, and every stored
+/// session and every reply carries it, so a client cannot grow them without bound.
+pub const MAX_NAME_BYTES: usize = 256;
+
 /// Why a light configuration was refused. Messages name the offending field by its JSON path
 /// (`lights[2].intensity`), so a server can hand them to the client as they are.
 #[derive(Debug, Clone, PartialEq, Error)]
@@ -174,6 +178,22 @@ pub(crate) type FieldError = (&'static str, String);
 impl Light {
     /// As [`LightSet::validate`] for one light; the error names the field.
     pub(crate) fn validate(&self) -> Result<(), FieldError> {
+        let name = match self {
+            Light::Directional { name, .. }
+            | Light::Point { name, .. }
+            | Light::Spot { name, .. } => name,
+        };
+        if let Some(name) = name
+            && name.len() > MAX_NAME_BYTES
+        {
+            return Err((
+                "name",
+                format!(
+                    "{} bytes, more than the {MAX_NAME_BYTES} a name may hold",
+                    name.len()
+                ),
+            ));
+        }
         match self {
             Light::Directional {
                 direction,
@@ -524,6 +544,24 @@ mod tests {
         let e = err(r#"{"lights": [], "ambient": 1}"#);
         assert_eq!(e.path(), "ambient");
         assert!(e.to_string().contains("unknown field"), "{e}");
+    }
+
+    /// A light's name is bounded: every stored session and every reply carries it.
+    #[test]
+    fn long_names_are_refused() {
+        let named = |len: usize| {
+            format!(
+                r#"{{"lights": [{{"type":"point","position":[0,0,0],"intensity":1,"name":"{}"}}]}}"#,
+                "é".repeat(len / 2)
+            )
+        };
+        assert!(LightSet::from_json(&named(MAX_NAME_BYTES)).is_ok());
+        let e = LightSet::from_json(&named(MAX_NAME_BYTES + 2)).unwrap_err();
+        assert_eq!(e.path(), "lights[0].name", "{e}");
+        assert!(
+            e.to_string().contains("258 bytes, more than the 256"),
+            "{e}"
+        );
     }
 
     #[test]

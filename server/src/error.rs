@@ -45,6 +45,9 @@ pub enum ServerError {
     Invalid(String),
     #[error("this server needs a token for writes; none or a wrong one was given")]
     Unauthenticated,
+    /// A limit of the server reached (sessions, queued requests); the message says which.
+    #[error("{0}")]
+    Exhausted(String),
     #[error(transparent)]
     Store(#[from] crate::store::StoreError),
     /// A baked file that failed validation on reload: the previous scene keeps serving.
@@ -77,6 +80,7 @@ impl From<ServerError> for tonic::Status {
                 Status::invalid_argument(e.to_string())
             }
             ServerError::Unauthenticated => Status::unauthenticated(e.to_string()),
+            ServerError::Exhausted(_) => Status::resource_exhausted(e.to_string()),
             ServerError::WorkerGone | ServerError::Store(_) => Status::unavailable(e.to_string()),
             _ => Status::internal(e.to_string()),
         }

@@ -187,6 +187,8 @@ pub enum ErrorCode {
     Unauthenticated,
     /// A request body or WebSocket message over [`MAX_REQUEST_BYTES`].
     TooLarge,
+    /// A limit of the server reached (sessions, queued requests): 429.
+    Exhausted,
     Unavailable,
     Internal,
 }
@@ -198,6 +200,7 @@ impl ErrorCode {
             ServerError::UnknownScene(_) | ServerError::UnknownSession(_) => ErrorCode::NotFound,
             ServerError::Lights(_) | ServerError::Invalid(_) => ErrorCode::InvalidArgument,
             ServerError::Unauthenticated => ErrorCode::Unauthenticated,
+            ServerError::Exhausted(_) => ErrorCode::Exhausted,
             ServerError::WorkerGone | ServerError::Store(_) => ErrorCode::Unavailable,
             _ => ErrorCode::Internal,
         }
@@ -209,7 +212,7 @@ impl ErrorCode {
             ErrorCode::InvalidArgument => "invalid_argument",
             ErrorCode::NotFound => "not_found",
             ErrorCode::Unauthenticated => "unauthenticated",
-            ErrorCode::TooLarge => "resource_exhausted",
+            ErrorCode::TooLarge | ErrorCode::Exhausted => "resource_exhausted",
             ErrorCode::Unavailable => "unavailable",
             ErrorCode::Internal => "internal",
         }
@@ -221,6 +224,7 @@ impl ErrorCode {
             ErrorCode::NotFound => StatusCode::NOT_FOUND,
             ErrorCode::Unauthenticated => StatusCode::UNAUTHORIZED,
             ErrorCode::TooLarge => StatusCode::PAYLOAD_TOO_LARGE,
+            ErrorCode::Exhausted => StatusCode::TOO_MANY_REQUESTS,
             ErrorCode::Unavailable => StatusCode::SERVICE_UNAVAILABLE,
             ErrorCode::Internal => StatusCode::INTERNAL_SERVER_ERROR,
         }
@@ -268,6 +272,7 @@ impl ApiError {
     pub fn from_rejection(status: StatusCode, message: String) -> ApiError {
         let code = match status {
             StatusCode::PAYLOAD_TOO_LARGE => ErrorCode::TooLarge,
+            StatusCode::TOO_MANY_REQUESTS => ErrorCode::Exhausted,
             StatusCode::UNAUTHORIZED => ErrorCode::Unauthenticated,
             s if s.is_server_error() => ErrorCode::Internal,
             _ => ErrorCode::InvalidArgument,

@@ -44,11 +44,13 @@ pub struct HubConfig {
     pub reload_interval: Option<Duration>,
     /// Open connections each front end accepts; past it a new connection is closed at once.
     pub max_connections: usize,
+    /// Sessions the hub holds at most; creating one more is refused (`resource_exhausted`).
+    pub max_sessions: usize,
 }
 
 impl HubConfig {
     /// Defaults: sessions in memory only, expiring after a day idle; no token; the scene
-    /// directory checked every two seconds; 4,096 connections per front end.
+    /// directory checked every two seconds; 4,096 connections per front end; 10,000 sessions.
     pub fn new(scenes_dir: impl Into<PathBuf>, engine: EngineChoice) -> HubConfig {
         HubConfig {
             scenes_dir: scenes_dir.into(),
@@ -59,6 +61,7 @@ impl HubConfig {
             web_dir: None,
             reload_interval: Some(Duration::from_secs(2)),
             max_connections: 4096,
+            max_sessions: 10_000,
         }
     }
 }
@@ -85,6 +88,7 @@ struct Inner {
     web_dir: Option<PathBuf>,
     session_ttl: Duration,
     max_connections: usize,
+    max_sessions: usize,
     ready: AtomicBool,
     /// `true` once shutting down: every frame stream ends.
     shutdown: watch::Sender<bool>,
@@ -154,6 +158,7 @@ impl Hub {
                 web_dir: config.web_dir.clone(),
                 session_ttl: config.session_ttl,
                 max_connections: config.max_connections.max(1),
+                max_sessions: config.max_sessions,
                 ready: AtomicBool::new(false),
                 shutdown: watch::Sender::new(false),
                 janitor: Mutex::new(None),
@@ -344,6 +349,15 @@ impl Hub {
         lights: LightSet,
     ) -> Result<Arc<Session>, ServerError> {
         let index = self.scene_index(scene)?;
+        // A soft cap (two creations racing may both pass it): what it bounds is memory and the
+        // worker's batches, not an exact count.
+        let held = self.session_count();
+        if held >= self.inner.max_sessions {
+            return Err(ServerError::Exhausted(format!(
+                "the server holds {held} sessions, its limit (--max-sessions); reuse one or wait \
+                 for idle ones to expire"
+            )));
+        }
         let id = uuid::Uuid::new_v4().simple().to_string();
         if let Some(store) = &self.inner.store {
             let record = StoredSession {
@@ -430,7 +444,7 @@ impl Hub {
             scene,
             lights,
             reply,
-        });
+        })?;
         // A deadline, so a worker that is restarting or stuck answers as unavailable rather
         // than holding the request forever.
         match tokio::time::timeout(ONCE_DEADLINE, answer).await {

@@ -36,6 +36,10 @@ use crate::session::Session;
 /// and how long one scene's batch holds up the next scene.
 pub const MAX_BATCH: usize = 64;
 
+/// One-shot relights waiting for the engine at most (sessions need no bound: a session is in
+/// the queue once, whatever its writes, and the hub caps their number).
+pub const MAX_ONCE_QUEUED: usize = 4 * MAX_BATCH;
+
 /// A session whose relight failed is solved again after this long.
 pub const RETRY_AFTER: Duration = Duration::from_millis(250);
 
@@ -158,9 +162,19 @@ impl Worker {
         self.queue.wake.notify_one();
     }
 
-    pub fn enqueue_once(&self, job: OnceJob) {
-        self.queue.lock().once.push(job);
+    /// Queues a one-shot relight, or refuses it when [`MAX_ONCE_QUEUED`] wait already: sessions
+    /// merge their changes, but each one-shot request is its own light set.
+    pub fn enqueue_once(&self, job: OnceJob) -> Result<(), ServerError> {
+        let mut w = self.queue.lock();
+        if w.once.len() >= MAX_ONCE_QUEUED {
+            return Err(ServerError::Exhausted(format!(
+                "{MAX_ONCE_QUEUED} one-shot relights are already waiting for the engine"
+            )));
+        }
+        w.once.push(job);
+        drop(w);
         self.queue.wake.notify_one();
+        Ok(())
     }
 
     pub fn enqueue_reload(&self, job: ReloadJob) {

@@ -495,3 +495,37 @@ async fn connections_past_the_limit_are_closed_and_counted() {
     }
     server.stop().await;
 }
+
+/// The hub holds at most `max_sessions`: one more is refused on both front ends, as
+/// `resource_exhausted` (429 over HTTP), and the sessions it holds go on serving.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn sessions_past_the_limit_are_refused() {
+    let mut config = HubConfig::new(scenes_dir(), EngineChoice::Cpu);
+    config.max_sessions = 2;
+    let server = TestServer::start_with(config).await;
+    let mut c = server.client().await;
+    let (first, _) = create_session(&mut c, vec![point(5.0)]).await;
+    create_session(&mut c, vec![point(6.0)]).await;
+    let refused = c
+        .create_session(proto::CreateSessionRequest {
+            scene: SCENE.into(),
+            lights: vec![point(7.0)],
+        })
+        .await
+        .expect_err("a third session");
+    assert_eq!(refused.code(), Code::ResourceExhausted, "{refused:?}");
+    assert!(refused.message().contains("--max-sessions"), "{refused:?}");
+    let http = reqwest::Client::new();
+    let r = http
+        .post(server.url("/v1/sessions"))
+        .json(&json!({"scene": SCENE, "lights": [json_point(5.0)]}))
+        .send()
+        .await
+        .expect("POST");
+    assert_eq!(r.status(), 429);
+    let body: serde_json::Value = r.json().await.expect("json");
+    assert_eq!(body["code"], "resource_exhausted");
+    assert!(server.hub.session(&first).is_ok());
+    assert_eq!(server.hub.session_count(), 2);
+    server.stop().await;
+}
