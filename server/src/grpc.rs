@@ -91,7 +91,7 @@ impl Bounce for BounceService {
             .collect();
         Ok(Response::new(proto::ListScenesResponse {
             scenes,
-            engine: self.hub.engine().to_string(),
+            engine: self.hub.engine(),
         }))
     }
 

@@ -7,7 +7,7 @@
 //! | `GET /healthz` | 200 `ok` while the process serves |
 //! | `GET /readyz` | 200 when the hub is ready, 503 once it shuts down |
 //! | `GET /metrics` | the Prometheus text exposition |
-//! | `GET /v1/scenes` | `{"engine", "writes_need_token", "scenes": [{"name", "patch_count", "codec", "has_model"}]}` |
+//! | `GET /v1/scenes` | `{"engine", "writes_need_token", "scenes": [{"name", "patch_count", "codec", "has_model", "fallback"}]}` (`fallback`: why a GPU engine runs part of the scene on the CPU, else null) |
 //! | `GET /v1/scenes/{name}/layout` | the proto `Layout`'s fields as JSON |
 //! | `GET /v1/scenes/{name}/model` | the scene's model, one GLB (`model/gltf-binary`); 404 when it has none |
 //! | `GET /v1/sessions?scene=NAME&limit=N` | `{"sessions": [{"session_id", "scene", "lights_version", "viewers"}]}`, newest first |
@@ -400,6 +400,9 @@ struct SceneEntry {
     codec: String,
     /// Whether `GET /v1/scenes/{name}/model` has a model to give.
     has_model: bool,
+    /// Why a GPU engine runs part of this scene on the CPU (a matrix or a triangle set over what
+    /// the device holds), or null.
+    fallback: Option<String>,
 }
 
 async fn list_scenes(State(state): State<AppState>) -> Json<SceneList> {
@@ -412,10 +415,11 @@ async fn list_scenes(State(state): State<AppState>) -> Json<SceneList> {
             patch_count: s.layout.len(),
             codec: s.codec.clone(),
             has_model: s.model.is_some(),
+            fallback: state.hub.scene_fallback(&s.name),
         })
         .collect();
     Json(SceneList {
-        engine: state.hub.engine().to_string(),
+        engine: state.hub.engine(),
         writes_need_token: state.hub.has_token(),
         scenes,
     })

@@ -17,7 +17,7 @@ use tracing::{info, warn};
 
 use crate::error::ServerError;
 use crate::frame::Frame;
-use crate::metrics::{EngineLabel, Metrics, Outcome, ReloadLabel, Transport};
+use crate::metrics::{Metrics, Outcome, ReloadLabel, Transport};
 use crate::scenes::{self, SceneInfo};
 use crate::session::Session;
 use crate::store::{Store, StoredSession};
@@ -122,12 +122,6 @@ impl Hub {
             .unzip();
         let metrics = Arc::new(Metrics::new());
         let (worker, engine) = Worker::start(config.engine, baked, Arc::clone(&metrics))?;
-        metrics
-            .engine
-            .get_or_create(&EngineLabel {
-                engine: engine.clone(),
-            })
-            .set(1);
         for s in &skipped {
             metrics
                 .scene_reloads
@@ -210,8 +204,15 @@ impl Hub {
     }
 
     /// The engine relighting, as it describes itself (`cpu (2 threads)`).
-    pub fn engine(&self) -> &str {
-        &self.inner.engine
+    /// The engine solving now, as it describes itself: the one opened at start, or the CPU
+    /// engine a restart fell back to.
+    pub fn engine(&self) -> String {
+        self.inner.worker.engine()
+    }
+
+    /// Why scene `name` runs partly on the CPU under a GPU engine, if it does.
+    pub fn scene_fallback(&self, name: &str) -> Option<String> {
+        self.inner.worker.fallback(name)
     }
 
     pub fn metrics(&self) -> &Arc<Metrics> {

@@ -87,6 +87,10 @@ struct Queue {
     serving: AtomicBool,
     /// Sessions of the batch in progress: queued again if the batch panics.
     in_flight: Mutex<Vec<Arc<Session>>>,
+    /// The engine solving now, as it describes itself (it changes when a restart falls back).
+    engine: Mutex<String>,
+    /// Per scene name, why part of its work runs on the CPU under a GPU engine.
+    fallbacks: Mutex<BTreeMap<String, String>>,
     /// Test hook (`fault-injection`): the next batch panics.
     panic_next: AtomicBool,
     /// Test hook (`fault-injection`): the next relight fails with an engine error.
@@ -136,6 +140,26 @@ impl Worker {
             },
             description,
         ))
+    }
+
+    /// The engine solving now, as it describes itself.
+    pub fn engine(&self) -> String {
+        self.queue
+            .engine
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .clone()
+    }
+
+    /// Why scene `name` runs partly on the CPU under a GPU engine (its matrix or its direct light
+    /// over what the device holds), if it does.
+    pub fn fallback(&self, name: &str) -> Option<String> {
+        self.queue
+            .fallbacks
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .get(name)
+            .cloned()
     }
 
     /// Whether an engine is open and solving (false while the worker restarts, or after it
@@ -235,6 +259,24 @@ fn supervise(
                 continue;
             }
         };
+        *queue.engine.lock().unwrap_or_else(|e| e.into_inner()) = engine.describe().to_string();
+        // The gauge names the engine solving now, the replacement after a fallback.
+        metrics.engine.clear();
+        metrics
+            .engine
+            .get_or_create(&crate::metrics::EngineLabel {
+                engine: engine.describe().to_string(),
+            })
+            .set(1);
+        {
+            let mut notes = queue.fallbacks.lock().unwrap_or_else(|e| e.into_inner());
+            notes.clear();
+            for (name, scene) in &loaded {
+                if let Some(note) = fallback_note(scene) {
+                    notes.insert(name.clone(), note);
+                }
+            }
+        }
         if let Some(tx) = ready.take() {
             let _ = tx.send(Ok(engine.describe().to_string()));
         }
@@ -312,6 +354,22 @@ fn open(choice: EngineChoice, scenes: &[(String, Baked)]) -> Result<(Engine, Loa
         loaded.push((name.clone(), scene));
     }
     Ok((engine, loaded))
+}
+
+/// What a scene a GPU engine serves partly on the CPU says in `/v1/scenes`.
+fn fallback_note(scene: &Scene) -> Option<String> {
+    let parts: Vec<String> = [
+        scene
+            .transport_fallback()
+            .map(|why| format!("transport on the CPU: {why}")),
+        scene
+            .direct_fallback()
+            .map(|why| format!("direct light on the CPU: {why}")),
+    ]
+    .into_iter()
+    .flatten()
+    .collect();
+    (!parts.is_empty()).then(|| parts.join("; "))
 }
 
 /// A scene a GPU engine serves partly on the CPU says so once, with the reason.
@@ -445,6 +503,13 @@ fn reload(
         "scene loaded"
     );
     log_fallbacks(&job.name, &loaded);
+    {
+        let mut notes = queue.fallbacks.lock().unwrap_or_else(|e| e.into_inner());
+        match fallback_note(&loaded) {
+            Some(note) => notes.insert(job.name.clone(), note),
+            None => notes.remove(&job.name),
+        };
+    }
     // The file is kept beside the engine's copy: a restarted engine loads it again.
     let at = if job.scene < scenes.len() {
         scenes[job.scene] = (job.name.clone(), loaded);

@@ -102,7 +102,7 @@ async fn scenes_and_layout_match_grpc() {
         .scenes
         .iter()
         // `has_model` is HTTP's alone: the browser page is its client.
-        .map(|s| json!({"name": s.name, "patch_count": s.patch_count, "codec": s.codec, "has_model": true}))
+        .map(|s| json!({"name": s.name, "patch_count": s.patch_count, "codec": s.codec, "has_model": true, "fallback": null}))
         .collect();
     assert_eq!(scenes["scenes"], Value::Array(want));
     assert_eq!(scenes["writes_need_token"], false);

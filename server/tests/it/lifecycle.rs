@@ -384,3 +384,37 @@ async fn a_failed_relight_is_retried() {
     assert_eq!(server.hub.metrics().worker_restarts.get(), 0);
     server.stop().await;
 }
+
+/// A GPU engine that panics twice in a row gives way to the CPU engine: the server says so in
+/// `/v1/scenes` and goes on solving. (On lavapipe in CI; a real GPU behaves the same.)
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_gpu_worker_that_keeps_panicking_falls_back_to_the_cpu() {
+    let config = HubConfig::new(scenes_dir(), EngineChoice::Gpu);
+    let hub = match tokio::task::spawn_blocking(move || Hub::start(&config))
+        .await
+        .expect("join")
+    {
+        Ok(hub) => hub,
+        Err(e) => {
+            bounce_testkit::missing::<()>(bounce_testkit::Tool::GpuAdapter, e.to_string());
+            return;
+        }
+    };
+    assert!(hub.engine().starts_with("gpu"), "{}", hub.engine());
+    let session = hub
+        .create_session(SCENE, light_set(5.0))
+        .await
+        .expect("session");
+    published(&hub, &session.id, 1).await;
+    for (k, intensity) in [(2u64, 6.0f32), (3, 7.0)] {
+        hub.inject_worker_panic();
+        hub.set_lights(&session.id, light_set(intensity))
+            .await
+            .expect("set lights");
+        published(&hub, &session.id, k).await;
+    }
+    assert_eq!(hub.metrics().worker_restarts.get(), 2);
+    assert!(hub.engine().starts_with("cpu"), "{}", hub.engine());
+    assert!(hub.is_ready());
+    hub.shutdown();
+}
