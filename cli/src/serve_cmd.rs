@@ -14,7 +14,7 @@ use bounce_engine::EngineChoice;
 use bounce_server::{Hub, HubConfig};
 use clap::Args;
 use tokio::sync::watch;
-use tracing::info;
+use tracing::{info, warn};
 
 #[derive(Args, Debug)]
 pub struct ServeArgs {
@@ -94,6 +94,16 @@ pub struct ServeArgs {
         env = "BOUNCE_MAX_SESSIONS"
     )]
     pub max_sessions: usize,
+    /// A web origin besides the server's own (`https://app.example.com`) whose pages may create
+    /// sessions and change lights; repeat for more. Requests without an Origin (gRPC, scripts)
+    /// are not affected.
+    #[arg(
+        long = "allow-origin",
+        value_name = "ORIGIN",
+        env = "BOUNCE_ALLOW_ORIGIN",
+        value_delimiter = ','
+    )]
+    pub allow_origins: Vec<String>,
 }
 
 /// `250ms`, `90s`, `30m`, `24h`, or plain seconds.
@@ -144,6 +154,7 @@ pub fn run(args: &ServeArgs) -> Result<()> {
     config.web_dir = args.web_dir.clone();
     config.max_connections = args.max_connections;
     config.max_sessions = args.max_sessions;
+    config.allowed_origins = args.allow_origins.clone();
     config.reload_interval = (!args.reload_every.is_zero()).then_some(args.reload_every);
     // Blocking (reads files, may upload to a GPU): before the runtime serves.
     let hub = Hub::start(&config)
@@ -203,6 +214,20 @@ pub fn run(args: &ServeArgs) -> Result<()> {
             let _ = out.write_all(banner.as_bytes()).and_then(|()| out.flush());
         }
         info!(%grpc, %http, "listening");
+        // Loopback is the default; an address others can reach without a token is a choice
+        // the operator should see made.
+        let exposed: Vec<String> = [grpc, http]
+            .iter()
+            .filter(|a| !a.ip().is_loopback())
+            .map(ToString::to_string)
+            .collect();
+        if !exposed.is_empty() && !hub.has_token() {
+            warn!(
+                addresses = %exposed.join(", "),
+                "reachable beyond this machine with no write token: anyone who reaches it can \
+                 create sessions and change lights (set --token)"
+            );
+        }
 
         // One stop for both front ends: the signal, or either of them ending on an error.
         let stop = watch::Sender::new(false);

@@ -161,6 +161,10 @@ fn router(hub: Hub, sockets: TaskTracker) -> Router {
         // Routes first: the page's files answer only what no route takes.
         .fallback_service(compressed(axum::routing::any(web::serve)).with_state(state.clone()))
         .layer(axum::extract::DefaultBodyLimit::max(MAX_REQUEST_BYTES))
+        .layer(axum::middleware::from_fn_with_state(
+            state.clone(),
+            check_origin,
+        ))
         .layer(axum::middleware::map_response_with_state(
             hub,
             count_refusals,
@@ -189,6 +193,8 @@ pub enum ErrorCode {
     TooLarge,
     /// A limit of the server reached (sessions, queued requests): 429.
     Exhausted,
+    /// A write from a web page of another origin: 403.
+    Forbidden,
     Unavailable,
     Internal,
 }
@@ -214,6 +220,7 @@ impl ErrorCode {
             ErrorCode::Unauthenticated => "unauthenticated",
             ErrorCode::TooLarge | ErrorCode::Exhausted => "resource_exhausted",
             ErrorCode::Unavailable => "unavailable",
+            ErrorCode::Forbidden => "permission_denied",
             ErrorCode::Internal => "internal",
         }
     }
@@ -226,6 +233,7 @@ impl ErrorCode {
             ErrorCode::TooLarge => StatusCode::PAYLOAD_TOO_LARGE,
             ErrorCode::Exhausted => StatusCode::TOO_MANY_REQUESTS,
             ErrorCode::Unavailable => StatusCode::SERVICE_UNAVAILABLE,
+            ErrorCode::Forbidden => StatusCode::FORBIDDEN,
             ErrorCode::Internal => StatusCode::INTERNAL_SERVER_ERROR,
         }
     }
@@ -273,6 +281,7 @@ impl ApiError {
         let code = match status {
             StatusCode::PAYLOAD_TOO_LARGE => ErrorCode::TooLarge,
             StatusCode::TOO_MANY_REQUESTS => ErrorCode::Exhausted,
+            StatusCode::FORBIDDEN => ErrorCode::Forbidden,
             StatusCode::UNAUTHORIZED => ErrorCode::Unauthenticated,
             s if s.is_server_error() => ErrorCode::Internal,
             _ => ErrorCode::InvalidArgument,
@@ -324,6 +333,64 @@ async fn count_refusals(State(hub): State<Hub>, response: Response) -> Response 
             .inc();
     }
     response
+}
+
+/// Refuses a write from a web page of another site: a request that can change something (any
+/// method but GET, HEAD and OPTIONS, and a WebSocket upgrade, whose socket takes writes) and
+/// carries an `Origin` must come from the server's own origin (the `Host` it was sent to) or one
+/// on the `--allow-origin` list. Without this a page anywhere could create sessions and change
+/// lights through a visitor's browser (a cross-site `text/plain` POST needs no preflight, and
+/// browsers do not apply CORS to WebSockets). Requests without an `Origin` (gRPC, curl, the
+/// native viewer) are not web pages and pass; the write token, when set, still applies to them.
+async fn check_origin(
+    State(state): State<AppState>,
+    request: axum::extract::Request,
+    next: axum::middleware::Next,
+) -> Response {
+    let method = request.method();
+    let upgrade = request
+        .headers()
+        .get(header::UPGRADE)
+        .and_then(|v| v.to_str().ok())
+        .is_some_and(|v| v.eq_ignore_ascii_case("websocket"));
+    let writes = !matches!(
+        *method,
+        axum::http::Method::GET | axum::http::Method::HEAD | axum::http::Method::OPTIONS
+    ) || upgrade;
+    if writes && let Some(origin) = request.headers().get(header::ORIGIN) {
+        let origin = origin.to_str().unwrap_or("");
+        // Behind a proxy that rewrites `Host`, the host the page was served from is in
+        // `X-Forwarded-Host` (a cross-site page cannot set it without a preflight, which this
+        // server does not answer).
+        let host = |name: &str| {
+            request
+                .headers()
+                .get(name)
+                .and_then(|v| v.to_str().ok())
+                .unwrap_or("")
+        };
+        let own =
+            same_origin(origin, host("host")) || same_origin(origin, host("x-forwarded-host"));
+        if !own && !state.hub.origin_allowed(origin) {
+            return ApiError::new(
+                ErrorCode::Forbidden,
+                format!(
+                    "writes from pages of origin '{origin}' are refused: only this server's own \
+                     pages and origins given with --allow-origin may write"
+                ),
+            )
+            .into_response();
+        }
+    }
+    next.run(request).await
+}
+
+/// Whether `origin` (`scheme://host[:port]`) names the host a request was sent to.
+fn same_origin(origin: &str, host: &str) -> bool {
+    let Some((scheme, rest)) = origin.split_once("://") else {
+        return false;
+    };
+    matches!(scheme, "http" | "https") && !host.is_empty() && rest.eq_ignore_ascii_case(host)
 }
 
 /// The write token a request presents: `Authorization: Bearer T`, else `?token=T` (browsers

@@ -46,6 +46,9 @@ pub struct HubConfig {
     pub max_connections: usize,
     /// Sessions the hub holds at most; creating one more is refused (`resource_exhausted`).
     pub max_sessions: usize,
+    /// Web origins (`https://app.example.com`) besides the server's own whose pages may write
+    /// over HTTP and WebSocket (see [`crate::http`]'s origin check).
+    pub allowed_origins: Vec<String>,
 }
 
 impl HubConfig {
@@ -62,6 +65,7 @@ impl HubConfig {
             reload_interval: Some(Duration::from_secs(2)),
             max_connections: 4096,
             max_sessions: 10_000,
+            allowed_origins: Vec::new(),
         }
     }
 }
@@ -89,6 +93,7 @@ struct Inner {
     session_ttl: Duration,
     max_connections: usize,
     max_sessions: usize,
+    allowed_origins: Vec<String>,
     ready: AtomicBool,
     /// `true` once shutting down: every frame stream ends.
     shutdown: watch::Sender<bool>,
@@ -153,6 +158,11 @@ impl Hub {
                 session_ttl: config.session_ttl,
                 max_connections: config.max_connections.max(1),
                 max_sessions: config.max_sessions,
+                allowed_origins: config
+                    .allowed_origins
+                    .iter()
+                    .map(|o| o.trim_end_matches('/').to_ascii_lowercase())
+                    .collect(),
                 ready: AtomicBool::new(false),
                 shutdown: watch::Sender::new(false),
                 janitor: Mutex::new(None),
@@ -330,6 +340,13 @@ impl Hub {
     /// Open connections each front end accepts.
     pub fn max_connections(&self) -> usize {
         self.inner.max_connections
+    }
+
+    /// Whether a page from `origin` (an `Origin` header's value) other than the server's own
+    /// may write: it is on the `--allow-origin` list.
+    pub fn origin_allowed(&self, origin: &str) -> bool {
+        let origin = origin.trim_end_matches('/').to_ascii_lowercase();
+        self.inner.allowed_origins.contains(&origin)
     }
 
     /// Whether writes need a token.

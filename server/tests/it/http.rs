@@ -529,3 +529,95 @@ async fn sessions_past_the_limit_are_refused() {
     assert_eq!(server.hub.session_count(), 2);
     server.stop().await;
 }
+
+/// A web page of another site cannot write through a visitor's browser: a POST or a WebSocket
+/// upgrade carrying a foreign `Origin` is refused (403 `permission_denied`), whatever its content
+/// type, while the server's own pages, the `--allow-origin` list and clients that send no Origin
+/// (gRPC, scripts) write as before. Before the check, a cross-site `text/plain` POST created a
+/// session.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn writes_from_foreign_web_origins_are_refused() {
+    let mut config = HubConfig::new(scenes_dir(), EngineChoice::Cpu);
+    config.allowed_origins = vec!["https://app.example.com/".into()];
+    let server = TestServer::start_with(config).await;
+    let http = reqwest::Client::new();
+    let body = json!({"scene": SCENE, "lights": [json_point(5.0)]}).to_string();
+    let post = |origin: Option<String>, content_type: &str| {
+        let mut r = http
+            .post(server.url("/v1/sessions"))
+            .header("content-type", content_type.to_string())
+            .body(body.clone());
+        if let Some(o) = origin {
+            r = r.header("origin", o);
+        }
+        r.send()
+    };
+    let before = server.hub.session_count();
+    for content_type in ["text/plain", "application/json"] {
+        let r = post(Some("http://evil.example".into()), content_type)
+            .await
+            .expect("POST");
+        assert_eq!(r.status(), StatusCode::FORBIDDEN, "{content_type}");
+        let v: Value = r.json().await.expect("json");
+        assert_eq!(v["code"], "permission_denied");
+        assert!(
+            v["message"].as_str().unwrap().contains("evil.example"),
+            "{v}"
+        );
+    }
+    assert_eq!(server.hub.session_count(), before, "no session was created");
+    let own = format!("http://{}", server.http_addr);
+    for origin in [
+        Some(own.clone()),
+        Some("https://APP.example.com".into()),
+        None,
+    ] {
+        let r = post(origin.clone(), "application/json")
+            .await
+            .expect("POST");
+        assert_eq!(r.status(), StatusCode::CREATED, "{origin:?}");
+    }
+    // Reads from anywhere stay open.
+    let r = http
+        .get(server.url("/v1/scenes"))
+        .header("origin", "http://evil.example")
+        .send()
+        .await
+        .expect("GET");
+    assert_eq!(r.status(), StatusCode::OK);
+
+    // A WebSocket takes writes, so its upgrade is checked the same way.
+    let id = server.http_session(&http, 5.0).await;
+    let url = format!("ws://{}/v1/sessions/{id}/ws", server.http_addr);
+    let mut request =
+        tokio_tungstenite::tungstenite::client::IntoClientRequest::into_client_request(
+            url.as_str(),
+        )
+        .expect("request");
+    request
+        .headers_mut()
+        .insert("origin", "http://evil.example".parse().expect("header"));
+    match tokio_tungstenite::connect_async(request).await {
+        Err(tokio_tungstenite::tungstenite::Error::Http(response)) => {
+            assert_eq!(response.status(), StatusCode::FORBIDDEN.as_u16());
+        }
+        other => panic!(
+            "a foreign origin's upgrade was not refused: {:?}",
+            other.map(|_| ())
+        ),
+    }
+    let mut request =
+        tokio_tungstenite::tungstenite::client::IntoClientRequest::into_client_request(
+            url.as_str(),
+        )
+        .expect("request");
+    request
+        .headers_mut()
+        .insert("origin", own.parse().expect("header"));
+    let (stream, _) = tokio_tungstenite::connect_async(request)
+        .await
+        .expect("the server's own page connects");
+    let client = WsClient::over(stream).await;
+    assert_eq!(client.hello["type"], "hello");
+    server.stop().await;
+}
