@@ -74,7 +74,8 @@ pub async fn serve_http(
             hub.max_connections(),
             Transport::Http,
             Arc::clone(hub.metrics()),
-        ),
+        )
+        .with_first_byte_timeout(hub.first_byte_timeout()),
     };
     let stopping = async move {
         shutdown.await;

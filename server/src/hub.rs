@@ -46,6 +46,8 @@ pub struct HubConfig {
     pub max_connections: usize,
     /// Sessions the hub holds at most; creating one more is refused (`resource_exhausted`).
     pub max_sessions: usize,
+    /// A connection that sends nothing this long after it opens is closed.
+    pub first_byte_timeout: Duration,
     /// Web origins (`https://app.example.com`) besides the server's own whose pages may write
     /// over HTTP and WebSocket (see [`crate::http`]'s origin check).
     pub allowed_origins: Vec<String>,
@@ -66,6 +68,7 @@ impl HubConfig {
             max_connections: 4096,
             max_sessions: 10_000,
             allowed_origins: Vec::new(),
+            first_byte_timeout: Duration::from_secs(10),
         }
     }
 }
@@ -94,6 +97,7 @@ struct Inner {
     max_connections: usize,
     max_sessions: usize,
     allowed_origins: Vec<String>,
+    first_byte_timeout: Duration,
     ready: AtomicBool,
     /// `true` once shutting down: every frame stream ends.
     shutdown: watch::Sender<bool>,
@@ -163,6 +167,7 @@ impl Hub {
                     .iter()
                     .map(|o| o.trim_end_matches('/').to_ascii_lowercase())
                     .collect(),
+                first_byte_timeout: config.first_byte_timeout,
                 ready: AtomicBool::new(false),
                 shutdown: watch::Sender::new(false),
                 janitor: Mutex::new(None),
@@ -335,6 +340,11 @@ impl Hub {
             Some(token) if presented.is_some_and(|p| constant_time_eq(p, token)) => Ok(()),
             Some(_) => Err(ServerError::Unauthenticated),
         }
+    }
+
+    /// How long a new connection may stay silent before it is closed.
+    pub fn first_byte_timeout(&self) -> Duration {
+        self.inner.first_byte_timeout
     }
 
     /// Open connections each front end accepts.

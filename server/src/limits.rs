@@ -3,11 +3,17 @@
 //! so a flood of idle sockets cannot exhaust the server's file descriptors or memory.
 //!
 //! Front ends take the limit from [`crate::Hub::max_connections`].
+//!
+//! A connection must also send its first byte within [`crate::Hub::first_byte_timeout`], or it
+//! is closed: without that, as many connections as the limit that never send anything lock
+//! every client out for good.
 
+use std::future::Future;
 use std::io;
 use std::pin::Pin;
 use std::sync::Arc;
 use std::task::{Context, Poll};
+use std::time::Duration;
 
 use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
 use tokio::net::TcpStream;
@@ -23,6 +29,7 @@ pub struct ConnectionLimit {
     max: usize,
     transport: Transport,
     metrics: Arc<Metrics>,
+    first_byte: Option<Duration>,
 }
 
 impl ConnectionLimit {
@@ -32,7 +39,14 @@ impl ConnectionLimit {
             max,
             transport,
             metrics,
+            first_byte: None,
         }
+    }
+
+    /// Connections that send nothing for `timeout` after they are accepted are closed.
+    pub fn with_first_byte_timeout(mut self, timeout: Duration) -> ConnectionLimit {
+        self.first_byte = Some(timeout);
+        self
     }
 
     /// `stream` wrapped with a permit, or `None` (counted and logged; the caller drops the
@@ -42,6 +56,9 @@ impl ConnectionLimit {
             Ok(permit) => Some(Limited {
                 inner: stream,
                 _permit: permit,
+                silent: self
+                    .first_byte
+                    .map(|t| (Box::pin(tokio::time::sleep(t)), t)),
             }),
             Err(_) => {
                 self.metrics
@@ -64,10 +81,12 @@ impl ConnectionLimit {
     }
 }
 
-/// An accepted connection holding its permit; reads and writes go straight to the stream.
+/// An accepted connection holding its permit; reads and writes go straight to the stream, and
+/// until its first byte arrives a read also waits on the first-byte deadline.
 pub struct Limited<S> {
     inner: S,
     _permit: OwnedSemaphorePermit,
+    silent: Option<(Pin<Box<tokio::time::Sleep>>, Duration)>,
 }
 
 impl<S> Limited<S> {
@@ -82,7 +101,25 @@ impl<S: AsyncRead + Unpin> AsyncRead for Limited<S> {
         cx: &mut Context<'_>,
         buf: &mut ReadBuf<'_>,
     ) -> Poll<io::Result<()>> {
-        Pin::new(&mut self.inner).poll_read(cx, buf)
+        let before = buf.filled().len();
+        let read = Pin::new(&mut self.inner).poll_read(cx, buf);
+        match &read {
+            Poll::Ready(_) if buf.filled().len() > before => self.silent = None,
+            Poll::Pending => {
+                if let Some((deadline, after)) = &mut self.silent
+                    && deadline.as_mut().poll(cx).is_ready()
+                {
+                    let after = *after;
+                    self.silent = None;
+                    return Poll::Ready(Err(io::Error::new(
+                        io::ErrorKind::TimedOut,
+                        format!("no byte in the {after:?} after the connection opened"),
+                    )));
+                }
+            }
+            Poll::Ready(_) => {}
+        }
+        read
     }
 }
 

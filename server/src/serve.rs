@@ -55,7 +55,8 @@ pub async fn serve_grpc(
         hub.max_connections(),
         Transport::Grpc,
         Arc::clone(hub.metrics()),
-    );
+    )
+    .with_first_byte_timeout(hub.first_byte_timeout());
     let incoming = TcpListenerStream::new(listener).filter_map(move |s| match s {
         Ok(s) => {
             let _ = s.set_nodelay(true);

@@ -418,3 +418,50 @@ async fn a_gpu_worker_that_keeps_panicking_falls_back_to_the_cpu() {
     assert!(hub.is_ready());
     hub.shutdown();
 }
+
+/// Connections that never send a byte are closed after the first-byte timeout, so as many of
+/// them as the connection limit lock nobody out for long. Before, they held their places
+/// forever: with the limit taken, every later client was turned away.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn silent_connections_are_closed_and_free_their_places() {
+    use tokio::io::AsyncReadExt;
+    let mut config = HubConfig::new(scenes_dir(), EngineChoice::Cpu);
+    config.max_connections = 3;
+    config.first_byte_timeout = Duration::from_millis(400);
+    let server = TestServer::start_with(config).await;
+    let mut silent = Vec::new();
+    for _ in 0..3 {
+        silent.push(
+            tokio::net::TcpStream::connect(server.http_addr)
+                .await
+                .expect("connect"),
+        );
+    }
+    // Every place is held by a silent socket: a request now may be turned away. The server
+    // closes the silent ones once their timeout passes, and then requests are served.
+    let http = reqwest::Client::new();
+    let deadline = Instant::now() + PATIENCE;
+    loop {
+        match http.get(server.url("/healthz")).send().await {
+            Ok(r) if r.status() == 200 => break,
+            _ => {
+                assert!(
+                    Instant::now() < deadline,
+                    "silent sockets were never closed"
+                );
+                tokio::time::sleep(Duration::from_millis(100)).await;
+            }
+        }
+    }
+    for mut s in silent {
+        let mut byte = [0u8; 1];
+        let read = tokio::time::timeout(PATIENCE, s.read(&mut byte))
+            .await
+            .expect("the server closes a silent socket");
+        assert!(matches!(read, Ok(0) | Err(_)), "{read:?}");
+    }
+    // gRPC clients, which speak first, are not affected.
+    let mut c = server.client().await;
+    create_session(&mut c, vec![point(5.0)]).await;
+    server.stop().await;
+}
