@@ -96,6 +96,9 @@ struct Inner {
     session_ttl: Duration,
     max_connections: usize,
     max_sessions: usize,
+    /// Stored sessions whose scene is not served, and since when: restored if it comes back,
+    /// removed from the store after the session TTL.
+    orphans: Mutex<Vec<(String, StoredSession, Instant)>>,
     allowed_origins: Vec<String>,
     first_byte_timeout: Duration,
     ready: AtomicBool,
@@ -162,6 +165,7 @@ impl Hub {
                 session_ttl: config.session_ttl,
                 max_connections: config.max_connections.max(1),
                 max_sessions: config.max_sessions,
+                orphans: Mutex::new(Vec::new()),
                 allowed_origins: config
                     .allowed_origins
                     .iter()
@@ -185,17 +189,28 @@ impl Hub {
         Ok(hub)
     }
 
-    /// Brings back the stored sessions whose scene is served; the others stay in the store (their
-    /// scene may come back) and are reported.
+    /// Brings back the stored sessions whose scene is served. The others wait, in the store,
+    /// for their scene to come back (a hot reload that adds it restores them) for one session
+    /// TTL, then expire like an idle session. A record with invalid lights is removed.
     fn restore(&self, stored: Vec<(String, StoredSession)>) {
         let mut restored = 0usize;
         for (id, s) in stored {
             let Ok(scene) = self.scene_index(&s.scene) else {
-                warn!(session = %id, scene = %s.scene, "stored session's scene is not served; kept in the store");
+                warn!(session = %id, scene = %s.scene, "stored session's scene is not served; kept for one session TTL in case it comes back");
+                self.inner
+                    .orphans
+                    .lock()
+                    .unwrap_or_else(|e| e.into_inner())
+                    .push((id, s, Instant::now()));
                 continue;
             };
             if let Err(e) = s.lights.validate() {
-                warn!(session = %id, error = %e, "stored session has invalid lights; skipped");
+                warn!(session = %id, error = %e, "stored session has invalid lights; removed");
+                if let Some(store) = &self.inner.store
+                    && let Err(e) = store.delete_blocking(&id)
+                {
+                    warn!(session = %id, error = %e, "removing a stored session");
+                }
                 continue;
             }
             let session = Arc::new(Session::new(id.clone(), scene, s.lights, s.version));
@@ -413,6 +428,11 @@ impl Hub {
     ) -> Result<LightsVersion, ServerError> {
         let session = self.session(id)?;
         let _writing = session.write_lock().await;
+        // Expiry may have removed it while this write waited: storing it now would bring a
+        // deleted session back on the next start.
+        if session.is_expired() {
+            return Err(ServerError::UnknownSession(id.to_string()));
+        }
         let Some(version) = session.next_version(&lights) else {
             session.touch();
             return Ok(LightsVersion {
@@ -517,11 +537,17 @@ impl Hub {
             .collect();
         let mut removed = 0;
         for s in idle {
+            // Under the session's write lock, so a write that raced with expiry either lands
+            // first (and the session is no longer idle) or sees it expired and stores nothing.
+            let Some(_writing) = s.try_write_lock() else {
+                continue;
+            };
             // Checked again under the map's lock: a viewer may have come in meanwhile.
             let mut map = self.write_sessions();
             if s.viewers() > 0 || s.idle_for() < ttl {
                 continue;
             }
+            s.mark_expired();
             map.remove(&s.id);
             drop(map);
             if let Some(store) = &self.inner.store
@@ -530,6 +556,24 @@ impl Hub {
                 warn!(session = %s.id, error = %e, "removing an expired session from the store");
             }
             info!(session = %s.id, "session expired");
+            removed += 1;
+        }
+        // Stored sessions whose scene never came back.
+        let gone: Vec<String> = {
+            let mut orphans = self.inner.orphans.lock().unwrap_or_else(|e| e.into_inner());
+            let (gone, kept): (Vec<_>, Vec<_>) = std::mem::take(&mut *orphans)
+                .into_iter()
+                .partition(|(_, _, since)| since.elapsed() >= ttl);
+            *orphans = kept;
+            gone.into_iter().map(|(id, _, _)| id).collect()
+        };
+        for id in gone {
+            if let Some(store) = &self.inner.store
+                && let Err(e) = store.delete_blocking(&id)
+            {
+                warn!(session = %id, error = %e, "removing an expired stored session");
+            }
+            info!(session = %id, "stored session expired: its scene did not come back");
             removed += 1;
         }
         if removed > 0 {
@@ -604,7 +648,22 @@ impl Hub {
         } else {
             scenes.push(Arc::new(info));
         }
+        drop(scenes);
         info!(scene = name, file = %path.display(), new = existing.is_none(), "scene reloaded");
+        if existing.is_none() {
+            // Stored sessions that waited for this scene come back with it.
+            let waiting: Vec<(String, StoredSession)> = {
+                let mut orphans = self.inner.orphans.lock().unwrap_or_else(|e| e.into_inner());
+                let (mine, others): (Vec<_>, Vec<_>) = std::mem::take(&mut *orphans)
+                    .into_iter()
+                    .partition(|(_, s, _)| s.scene == name);
+                *orphans = others;
+                mine.into_iter().map(|(id, s, _)| (id, s)).collect()
+            };
+            if !waiting.is_empty() {
+                self.restore(waiting);
+            }
+        }
         Ok(())
     }
 

@@ -25,6 +25,8 @@ pub struct Session {
     frames: watch::Sender<Option<Frame>>,
     /// Held across a write's store commit, so writes to one session are stored in order.
     writing: tokio::sync::Mutex<()>,
+    /// Removed by expiry: a write that waited on `writing` meanwhile must not store it again.
+    expired: std::sync::atomic::AtomicBool,
 }
 
 struct State {
@@ -56,6 +58,7 @@ impl Session {
             }),
             frames: watch::Sender::new(None),
             writing: tokio::sync::Mutex::new(()),
+            expired: std::sync::atomic::AtomicBool::new(false),
         }
     }
 
@@ -67,6 +70,22 @@ impl Session {
     /// Held by a writer from [`Session::next_version`] to [`Session::apply`].
     pub(crate) async fn write_lock(&self) -> tokio::sync::MutexGuard<'_, ()> {
         self.writing.lock().await
+    }
+
+    /// The write lock if no write holds it: expiry skips a session being written (a write
+    /// makes it busy anyway).
+    pub(crate) fn try_write_lock(&self) -> Option<tokio::sync::MutexGuard<'_, ()>> {
+        self.writing.try_lock().ok()
+    }
+
+    /// Marks the session removed by expiry (under its write lock).
+    pub(crate) fn mark_expired(&self) {
+        self.expired
+            .store(true, std::sync::atomic::Ordering::Release);
+    }
+
+    pub fn is_expired(&self) -> bool {
+        self.expired.load(std::sync::atomic::Ordering::Acquire)
     }
 
     /// The version `lights` would get, or `None` when they equal the current lights: a client

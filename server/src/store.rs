@@ -21,6 +21,9 @@ use crate::metrics::Metrics;
 
 /// Session id → JSON [`StoredSession`].
 const SESSIONS: TableDefinition<&str, &[u8]> = TableDefinition::new("sessions");
+/// Records this server could not read, moved out of `sessions` at open so they are not read
+/// (and logged) on every start, but kept: a newer server may read them, an operator may look.
+const UNREADABLE: TableDefinition<&str, &[u8]> = TableDefinition::new("sessions_unreadable");
 
 /// The file name inside the data directory.
 pub const FILE_NAME: &str = "sessions.redb";
@@ -82,6 +85,7 @@ impl Store {
         txn.commit().map_err(|e| open_err(e.into()))?;
 
         let mut sessions = Vec::new();
+        let mut unreadable = Vec::new();
         let read = db.begin_read().map_err(|e| open_err(e.into()))?;
         let table = read.open_table(SESSIONS).map_err(|e| open_err(e.into()))?;
         for entry in table.iter().map_err(|e| open_err(e.into()))? {
@@ -89,11 +93,27 @@ impl Store {
             let id = k.value().to_string();
             match serde_json::from_slice::<StoredSession>(v.value()) {
                 Ok(s) => sessions.push((id, s)),
-                Err(e) => warn!(session = %id, error = %e, "unreadable stored session skipped"),
+                Err(e) => {
+                    warn!(session = %id, error = %e, "unreadable stored session moved to the sessions_unreadable table");
+                    unreadable.push((id, v.value().to_vec()));
+                }
             }
         }
         drop(table);
         drop(read);
+        if !unreadable.is_empty() {
+            let txn = db.begin_write().map_err(|e| open_err(e.into()))?;
+            {
+                let mut from = txn.open_table(SESSIONS).map_err(|e| open_err(e.into()))?;
+                let mut to = txn.open_table(UNREADABLE).map_err(|e| open_err(e.into()))?;
+                for (id, bytes) in &unreadable {
+                    to.insert(id.as_str(), bytes.as_slice())
+                        .map_err(|e| open_err(e.into()))?;
+                    from.remove(id.as_str()).map_err(|e| open_err(e.into()))?;
+                }
+            }
+            txn.commit().map_err(|e| open_err(e.into()))?;
+        }
 
         let (tx, rx) = mpsc::channel::<Write>();
         let thread = std::thread::Builder::new()

@@ -465,3 +465,91 @@ async fn silent_connections_are_closed_and_free_their_places() {
     create_session(&mut c, vec![point(5.0)]).await;
     server.stop().await;
 }
+
+/// Stored sessions do not outlive their use: one whose scene is not served waits one session TTL
+/// for it (a hot reload that adds the scene brings it back), then is removed from the store; a
+/// record that no longer parses is moved out of the sessions table (kept, not read again).
+/// Before, both stayed in the store forever.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn stored_sessions_of_absent_scenes_expire_and_unreadable_ones_are_set_aside() {
+    let data = tempfile::tempdir().expect("tempdir");
+    let config = |dir: PathBuf, ttl: Duration| {
+        let mut c = HubConfig::new(dir, EngineChoice::Cpu);
+        c.data_dir = Some(data.path().to_path_buf());
+        c.session_ttl = ttl;
+        c.reload_interval = Some(Duration::from_millis(50));
+        c
+    };
+    let day = Duration::from_secs(86_400);
+    let first = TestServer::start_with(config(scenes_dir(), day)).await;
+    let mut c = first.client().await;
+    let (s1, _) = create_session(&mut c, vec![point(5.0)]).await;
+    first.stop().await;
+    // A record this server cannot read.
+    {
+        let db = redb::Database::create(data.path().join("sessions.redb")).expect("open store");
+        let txn = db.begin_write().expect("txn");
+        {
+            let table: redb::TableDefinition<&str, &[u8]> = redb::TableDefinition::new("sessions");
+            let mut t = txn.open_table(table).expect("table");
+            t.insert("junk", b"{not a session".as_slice())
+                .expect("insert");
+        }
+        txn.commit().expect("commit");
+    }
+    // Another directory: the session's scene is absent, then appears.
+    let other = tempfile::tempdir().expect("tempdir");
+    let baked = scenes_dir().join(format!("{SCENE}.bounce"));
+    std::fs::copy(&baked, other.path().join("other-scene.bounce")).expect("copy");
+    let second = TestServer::start_with(config(other.path().to_path_buf(), day)).await;
+    assert!(second.hub.session(&s1).is_err(), "its scene is not served");
+    std::fs::copy(&baked, other.path().join(format!("{SCENE}.bounce"))).expect("copy");
+    let deadline = Instant::now() + PATIENCE;
+    while second.hub.session(&s1).is_err() {
+        assert!(
+            Instant::now() < deadline,
+            "the session never came back with its scene"
+        );
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    second.stop().await;
+
+    // Absent again, with a short TTL: the stored session expires.
+    let third_dir = tempfile::tempdir().expect("tempdir");
+    std::fs::copy(&baked, third_dir.path().join("other-scene.bounce")).expect("copy");
+    let third = TestServer::start_with(config(
+        third_dir.path().to_path_buf(),
+        Duration::from_millis(200),
+    ))
+    .await;
+    let deadline = Instant::now() + PATIENCE;
+    while third.hub.metrics().sessions_expired.get() < 1 {
+        assert!(
+            Instant::now() < deadline,
+            "the orphaned session never expired"
+        );
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    third.stop().await;
+
+    let fourth = TestServer::start_with(config(scenes_dir(), day)).await;
+    assert!(
+        fourth.hub.session(&s1).is_err(),
+        "an expired record came back"
+    );
+    fourth.stop().await;
+    let db = redb::Database::create(data.path().join("sessions.redb")).expect("open store");
+    let read = redb::ReadableDatabase::begin_read(&db).expect("read");
+    let table = |name: &'static str| {
+        let t: redb::TableDefinition<&str, &[u8]> = redb::TableDefinition::new(name);
+        read.open_table(t).expect("table")
+    };
+    use redb::ReadableTable;
+    assert!(table("sessions").get("junk").expect("get").is_none());
+    assert!(
+        table("sessions_unreadable")
+            .get("junk")
+            .expect("get")
+            .is_some()
+    );
+}
