@@ -544,7 +544,6 @@ async fn stored_sessions_of_absent_scenes_expire_and_unreadable_ones_are_set_asi
         let t: redb::TableDefinition<&str, &[u8]> = redb::TableDefinition::new(name);
         read.open_table(t).expect("table")
     };
-    use redb::ReadableTable;
     assert!(table("sessions").get("junk").expect("get").is_none());
     assert!(
         table("sessions_unreadable")
