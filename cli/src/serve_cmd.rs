@@ -70,9 +70,19 @@ pub struct ServeArgs {
     pub reload_every: Duration,
     /// Writes (creating sessions, changing lights, one-shot relights) must present this token:
     /// `authorization: Bearer T` (gRPC metadata or HTTP header) or, over HTTP, `?token=T`.
-    /// Viewing needs none.
+    /// Viewing needs none unless --read-token is set.
     #[arg(long, value_name = "T", env = "BOUNCE_TOKEN", hide_env_values = true)]
     pub token: Option<String>,
+    /// Reads of scenes and sessions (listing, layouts, models, frame streams, over gRPC, HTTP
+    /// and WebSocket) must present this token or the write token. Health, readiness, metrics
+    /// and the page's files stay open; open the page with `?token=T`.
+    #[arg(
+        long,
+        value_name = "T",
+        env = "BOUNCE_READ_TOKEN",
+        hide_env_values = true
+    )]
+    pub read_token: Option<String>,
     /// Serve the browser page from this directory (e.g. web/public), read again on every
     /// request, instead of the copy built into the binary: for working on the page.
     #[arg(long, value_name = "DIR", env = "BOUNCE_WEB_DIR")]
@@ -143,6 +153,7 @@ pub fn run(args: &ServeArgs) -> Result<()> {
     config.data_dir = data_dir.clone();
     config.session_ttl = args.session_ttl;
     config.token = args.token.clone();
+    config.read_token = args.read_token.clone();
     if let Some(dir) = &args.web_dir
         && !dir.join("index.html").is_file()
     {
@@ -226,6 +237,13 @@ pub fn run(args: &ServeArgs) -> Result<()> {
                 addresses = %exposed.join(", "),
                 "reachable beyond this machine with no write token: anyone who reaches it can \
                  create sessions and change lights (set --token)"
+            );
+        }
+        if !exposed.is_empty() && !hub.has_read_token() {
+            warn!(
+                addresses = %exposed.join(", "),
+                "reachable beyond this machine with no read token: anyone who reaches it can \
+                 list the sessions and watch their light (set --read-token)"
             );
         }
 

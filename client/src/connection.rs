@@ -33,7 +33,8 @@ pub const MAX_MESSAGE_BYTES: usize = 64 << 20;
 pub struct ClientConfig {
     /// `http://host:port` (gRPC) or `ws://host:port` (WebSocket).
     pub url: String,
-    /// The server's write token, when it has one: sent with every write.
+    /// The server's token, when it has one: sent with every call. A write token for a client
+    /// that writes; a read token is enough for one that only watches.
     pub token: Option<String>,
     /// How long opening a connection may take.
     pub connect_timeout: Duration,

@@ -45,6 +45,10 @@ pub enum ServerError {
     Invalid(String),
     #[error("this server needs a token for writes; none or a wrong one was given")]
     Unauthenticated,
+    #[error(
+        "this server needs a token for reads (its read token or its write token); none or a wrong one was given"
+    )]
+    ReadUnauthenticated,
     /// A limit of the server reached (sessions, queued requests); the message says which.
     #[error("{0}")]
     Exhausted(String),
@@ -79,7 +83,9 @@ impl From<ServerError> for tonic::Status {
             ServerError::Lights(_) | ServerError::Invalid(_) => {
                 Status::invalid_argument(e.to_string())
             }
-            ServerError::Unauthenticated => Status::unauthenticated(e.to_string()),
+            ServerError::Unauthenticated | ServerError::ReadUnauthenticated => {
+                Status::unauthenticated(e.to_string())
+            }
             ServerError::Exhausted(_) => Status::resource_exhausted(e.to_string()),
             ServerError::WorkerGone | ServerError::Store(_) => Status::unavailable(e.to_string()),
             _ => Status::internal(e.to_string()),

@@ -38,6 +38,14 @@ impl BounceService {
         status
     }
 
+    /// Checks a read's token (the read or the write token) where the server has a read token:
+    /// the request's `authorization: Bearer T` metadata.
+    fn authorize_read<T>(&self, request: &Request<T>) -> Result<(), Status> {
+        self.hub
+            .authorize_read(bearer(request.metadata()))
+            .map_err(|e| self.refuse(e.into()))
+    }
+
     /// Checks a write's token: the request's `authorization: Bearer T` metadata, or `field`
     /// where the message has one.
     fn authorize<T>(&self, request: &Request<T>, field: Option<&str>) -> Result<(), Status> {
@@ -77,8 +85,9 @@ fn to_proto(session_id: &str, frame: &Frame) -> proto::Frame {
 impl Bounce for BounceService {
     async fn list_scenes(
         &self,
-        _: Request<proto::ListScenesRequest>,
+        request: Request<proto::ListScenesRequest>,
     ) -> Result<Response<proto::ListScenesResponse>, Status> {
+        self.authorize_read(&request)?;
         let scenes = self
             .hub
             .scenes()
@@ -99,6 +108,7 @@ impl Bounce for BounceService {
         &self,
         request: Request<proto::GetLayoutRequest>,
     ) -> Result<Response<proto::Layout>, Status> {
+        self.authorize_read(&request)?;
         let name = request.into_inner().scene;
         let scene = self.hub.scene(&name).map_err(|e| self.refuse(e.into()))?;
         let l = &scene.layout;
@@ -135,6 +145,7 @@ impl Bounce for BounceService {
         &self,
         request: Request<proto::GetSessionRequest>,
     ) -> Result<Response<proto::Session>, Status> {
+        self.authorize_read(&request)?;
         let id = request.into_inner().session_id;
         let session = self.hub.session(&id).map_err(|e| self.refuse(e.into()))?;
         Ok(Response::new(proto::Session {
@@ -170,6 +181,7 @@ impl Bounce for BounceService {
         &self,
         request: Request<proto::SubscribeRequest>,
     ) -> Result<Response<FrameStream>, Status> {
+        self.authorize_read(&request)?;
         let id = request.into_inner().session_id;
         let viewer = self
             .hub
@@ -184,8 +196,11 @@ impl Bounce for BounceService {
         &self,
         request: Request<Streaming<proto::RelightRequest>>,
     ) -> Result<Response<FrameStream>, Status> {
-        // A stream that writes presents its token once, in the call's metadata.
-        let authorized = self.authorize(&request, None);
+        // A stream that writes presents its token once, in the call's metadata; it also reads
+        // frames, so a read token applies too.
+        let authorized = self
+            .authorize(&request, None)
+            .and_then(|()| self.authorize_read(&request));
         let mut inbound = request.into_inner();
         let first = inbound.message().await?.ok_or_else(|| {
             self.refuse(Status::invalid_argument(
@@ -279,6 +294,7 @@ impl Bounce for BounceService {
         request: Request<proto::RelightOnceRequest>,
     ) -> Result<Response<proto::Frame>, Status> {
         self.authorize(&request, None)?;
+        self.authorize_read(&request)?;
         let r = request.into_inner();
         let solved = async {
             self.hub.scene(&r.scene)?;

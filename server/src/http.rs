@@ -17,7 +17,8 @@
 //! | `GET /v1/sessions/{id}/ws` | the session's WebSocket |
 //! | `GET /`, `GET /PATH` | the browser page: `index.html`, and each file of `web/public/` ([`crate::web`]) |
 //!
-//! Writes present the hub's token, if it has one, as `Authorization: Bearer T` or `?token=T`.
+//! Writes present the hub's token, if it has one, as `Authorization: Bearer T` or `?token=T`;
+//! with a read token (`--read-token`), so do reads under `/v1/` (the read or the write token).
 //! Every refusal is `{"code", "message"}` with the status [`ErrorCode`] gives; a path that is
 //! neither a route nor a file of the page is a 404 `no such route`.
 //!
@@ -166,6 +167,10 @@ fn router(hub: Hub, sockets: TaskTracker) -> Router {
             state.clone(),
             check_origin,
         ))
+        .layer(axum::middleware::from_fn_with_state(
+            state.clone(),
+            check_read,
+        ))
         .layer(axum::middleware::map_response_with_state(
             hub,
             count_refusals,
@@ -206,7 +211,9 @@ impl ErrorCode {
         match e {
             ServerError::UnknownScene(_) | ServerError::UnknownSession(_) => ErrorCode::NotFound,
             ServerError::Lights(_) | ServerError::Invalid(_) => ErrorCode::InvalidArgument,
-            ServerError::Unauthenticated => ErrorCode::Unauthenticated,
+            ServerError::Unauthenticated | ServerError::ReadUnauthenticated => {
+                ErrorCode::Unauthenticated
+            }
             ServerError::Exhausted(_) => ErrorCode::Exhausted,
             ServerError::WorkerGone | ServerError::Store(_) => ErrorCode::Unavailable,
             _ => ErrorCode::Internal,
@@ -386,6 +393,34 @@ async fn check_origin(
     next.run(request).await
 }
 
+/// With a read token, every read under `/v1/` (scenes, layouts, models, sessions, the frame
+/// sockets) presents it, or the write token, as writes present theirs. The page's files,
+/// health, readiness and metrics stay open: the page asks for the token itself.
+async fn check_read(
+    State(state): State<AppState>,
+    request: axum::extract::Request,
+    next: axum::middleware::Next,
+) -> Response {
+    let reads = matches!(
+        *request.method(),
+        axum::http::Method::GET | axum::http::Method::HEAD
+    ) && request.uri().path().starts_with("/v1/");
+    if reads && state.hub.has_read_token() {
+        let (mut parts, body) = request.into_parts();
+        let presented = match Token::from_request_parts(&mut parts, &()).await {
+            Ok(Token(t)) => t,
+            Err(e) => return e.into_response(),
+        };
+        if let Err(e) = state.hub.authorize_read(presented.as_deref()) {
+            return ApiError::from(e).into_response();
+        }
+        return next
+            .run(axum::extract::Request::from_parts(parts, body))
+            .await;
+    }
+    next.run(request).await
+}
+
 /// Whether `origin` (`scheme://host[:port]`) names the host a request was sent to.
 fn same_origin(origin: &str, host: &str) -> bool {
     let Some((scheme, rest)) = origin.split_once("://") else {
@@ -458,6 +493,8 @@ struct SceneList {
     engine: String,
     /// Whether creating sessions and changing lights need the server's token.
     writes_need_token: bool,
+    /// Whether reads need a token (only a client that presented one sees this answer).
+    reads_need_token: bool,
     scenes: Vec<SceneEntry>,
 }
 
@@ -489,6 +526,7 @@ async fn list_scenes(State(state): State<AppState>) -> Json<SceneList> {
     Json(SceneList {
         engine: state.hub.engine(),
         writes_need_token: state.hub.has_token(),
+        reads_need_token: state.hub.has_read_token(),
         scenes,
     })
 }

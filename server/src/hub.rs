@@ -37,6 +37,9 @@ pub struct HubConfig {
     /// When set, every write (creating a session, changing lights, a one-shot relight) must
     /// present it.
     pub token: Option<String>,
+    /// When set, every read of scenes and sessions (listing, layouts, models, frame streams)
+    /// must present it or the write token. Health, readiness and metrics stay open.
+    pub read_token: Option<String>,
     /// Serve the browser page from this directory, read on every request, instead of the copy
     /// of `web/public/` built into the binary: for working on the page without rebuilding.
     pub web_dir: Option<PathBuf>,
@@ -63,6 +66,7 @@ impl HubConfig {
             data_dir: None,
             session_ttl: Duration::from_secs(24 * 3600),
             token: None,
+            read_token: None,
             web_dir: None,
             reload_interval: Some(Duration::from_secs(2)),
             max_connections: 4096,
@@ -92,6 +96,7 @@ struct Inner {
     store: Option<Store>,
     metrics: Arc<Metrics>,
     token: Option<String>,
+    read_token: Option<String>,
     web_dir: Option<PathBuf>,
     session_ttl: Duration,
     max_connections: usize,
@@ -161,6 +166,7 @@ impl Hub {
                 store,
                 metrics,
                 token: config.token.clone().filter(|t| !t.is_empty()),
+                read_token: config.read_token.clone().filter(|t| !t.is_empty()),
                 web_dir: config.web_dir.clone(),
                 session_ttl: config.session_ttl,
                 max_connections: config.max_connections.max(1),
@@ -360,6 +366,25 @@ impl Hub {
     /// How long a new connection may stay silent before it is closed.
     pub fn first_byte_timeout(&self) -> Duration {
         self.inner.first_byte_timeout
+    }
+
+    /// Checks a read's token: `Ok` when the hub has no read token, or `presented` is the read
+    /// token or the write token.
+    pub fn authorize_read(&self, presented: Option<&str>) -> Result<(), ServerError> {
+        let Some(read) = &self.inner.read_token else {
+            return Ok(());
+        };
+        let matches = |t: &String| presented.is_some_and(|p| constant_time_eq(p, t));
+        if matches(read) || self.inner.token.as_ref().is_some_and(matches) {
+            Ok(())
+        } else {
+            Err(ServerError::ReadUnauthenticated)
+        }
+    }
+
+    /// Whether reads need a token.
+    pub fn has_read_token(&self) -> bool {
+        self.inner.read_token.is_some()
     }
 
     /// Open connections each front end accepts.

@@ -51,6 +51,8 @@ pub struct Serve {
 #[derive(Default)]
 pub struct ServeOptions<'a> {
     pub token: Option<&'a str>,
+    /// `--read-token`.
+    pub read_token: Option<&'a str>,
     /// A fixed HTTP port (to restart on the same address); a free one when `None`.
     pub http_port: Option<u16>,
     /// Reuse a previous server's directory (scenes and stored sessions).
@@ -70,6 +72,9 @@ impl Serve {
         let mut cmd = serve_command(&dir.path().join("scenes"), &dir.path().join("data"), &http);
         if let Some(t) = options.token {
             cmd.args(["--token", t]);
+        }
+        if let Some(t) = options.read_token {
+            cmd.args(["--read-token", t]);
         }
         let child = ServeChild::spawn(cmd);
         Serve {

@@ -550,6 +550,33 @@ async fn the_pages_volume_samples_as_the_client_library_does() {
     }
 }
 
+/// A server with a read token: the page without one says which token to bring; with it (in the
+/// page's URL, as for writes) the page reads the scene, its model and its frames and draws.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_read_token_is_asked_for_and_used() {
+    let Some(browser) = crate::browser().await else {
+        return;
+    };
+    let serve = Serve::start(ServeOptions {
+        read_token: Some("peek"),
+        ..ServeOptions::default()
+    });
+    let session = serve.create_session(ceiling_light(), None).await;
+    let refused = open(&browser, &serve.page_url(&session, "")).await;
+    let text = refused
+        .wait_for("window.bounceError", WAIT)
+        .await
+        .expect("an error is shown");
+    assert!(
+        text.as_str()
+            .is_some_and(|t| t.contains("token for reads") && t.contains("?token=")),
+        "{text}"
+    );
+    let reader = open(&browser, &serve.page_url(&session, "&token=peek")).await;
+    wait_drawn(&reader).await;
+    assert_no_errors(&reader);
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn refusals_and_missing_sessions_are_explained() {
     let Some(browser) = crate::browser().await else {

@@ -18,7 +18,8 @@ use crate::lights;
 #[derive(Clone)]
 pub(super) struct Grpc {
     client: BounceClient<Channel>,
-    /// `Bearer <token>`, ready to attach to writes.
+    /// `Bearer <token>`, attached to every call: a write token to writes, and reads too, which
+    /// a server with a read token refuses without one.
     authorization: Option<MetadataValue<Ascii>>,
     request_timeout: Duration,
 }
@@ -80,7 +81,7 @@ impl Grpc {
         }
     }
 
-    fn write<T>(&self, message: T) -> Request<T> {
+    fn authorized<T>(&self, message: T) -> Request<T> {
         let mut request = Request::new(message);
         if let Some(a) = &self.authorization {
             request.metadata_mut().insert("authorization", a.clone());
@@ -90,9 +91,9 @@ impl Grpc {
 
     pub async fn get_layout(&self, scene: &str) -> Result<Layout, ClientError> {
         let mut c = self.client.clone();
-        let request = proto::GetLayoutRequest {
+        let request = self.authorized(proto::GetLayoutRequest {
             scene: scene.to_string(),
-        };
+        });
         let layout = self.call("GetLayout", c.get_layout(request)).await?;
         Ok(Layout::from_proto(&layout)?)
     }
@@ -103,7 +104,7 @@ impl Grpc {
         lights: &LightSet,
     ) -> Result<SessionInfo, ClientError> {
         let mut c = self.client.clone();
-        let request = self.write(proto::CreateSessionRequest {
+        let request = self.authorized(proto::CreateSessionRequest {
             scene: scene.to_string(),
             lights: lights::to_proto(lights),
         });
@@ -118,9 +119,9 @@ impl Grpc {
 
     pub async fn get_session(&self, session: &str) -> Result<SessionState, ClientError> {
         let mut c = self.client.clone();
-        let request = proto::GetSessionRequest {
+        let request = self.authorized(proto::GetSessionRequest {
             session_id: session.to_string(),
-        };
+        });
         let r = self.call("GetSession", c.get_session(request)).await?;
         let lights = bounce_server::lights::light_set(&r.lights).map_err(|e| {
             ClientError::Protocol(format!(
@@ -141,7 +142,7 @@ impl Grpc {
         lights: &LightSet,
     ) -> Result<LightsChange, ClientError> {
         let mut c = self.client.clone();
-        let request = self.write(proto::SetLightsRequest {
+        let request = self.authorized(proto::SetLightsRequest {
             session_id: session.to_string(),
             lights: lights::to_proto(lights),
             // The metadata carries it.
@@ -156,9 +157,9 @@ impl Grpc {
 
     pub async fn subscribe(&self, session: &str) -> Result<Frames, ClientError> {
         let mut c = self.client.clone();
-        let request = proto::SubscribeRequest {
+        let request = self.authorized(proto::SubscribeRequest {
             session_id: session.to_string(),
-        };
+        });
         let stream = self.call("Subscribe", c.subscribe(request)).await?;
         Ok(Frames { stream })
     }

@@ -621,3 +621,104 @@ async fn writes_from_foreign_web_origins_are_refused() {
     assert_eq!(client.hello["type"], "hello");
     server.stop().await;
 }
+
+/// With a read token, reads of scenes and sessions need it (or the write token) on every front
+/// end; health, readiness, metrics and the page stay open; the read token does not write.
+/// Before, anyone could list every session and watch its frames.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn reads_need_the_read_token_when_one_is_set() {
+    let mut config = HubConfig::new(scenes_dir(), EngineChoice::Cpu);
+    config.token = Some("w-token".into());
+    config.read_token = Some("r-token".into());
+    let server = TestServer::start_with(config).await;
+    let http = reqwest::Client::new();
+    let get = |path: &str, token: Option<&str>| {
+        let mut r = http.get(server.url(path));
+        if let Some(t) = token {
+            r = r.bearer_auth(t);
+        }
+        r.send()
+    };
+    let r = get("/v1/scenes", None).await.expect("GET");
+    assert_eq!(r.status(), StatusCode::UNAUTHORIZED);
+    let v: Value = r.json().await.expect("json");
+    assert_eq!(v["code"], "unauthenticated");
+    assert!(v["message"].as_str().unwrap().contains("reads"), "{v}");
+    assert_eq!(
+        get("/v1/scenes", Some("nope")).await.expect("GET").status(),
+        401
+    );
+    for token in ["r-token", "w-token"] {
+        let r = get("/v1/scenes", Some(token)).await.expect("GET");
+        assert_eq!(r.status(), StatusCode::OK, "{token}");
+        let v: Value = r.json().await.expect("json");
+        assert_eq!(v["reads_need_token"], true);
+    }
+    let r = get(&format!("/v1/scenes/{SCENE}/layout?token=r-token"), None)
+        .await
+        .expect("GET");
+    assert_eq!(
+        r.status(),
+        StatusCode::OK,
+        "the token in the query, as the page sends it"
+    );
+    for open in ["/healthz", "/readyz", "/metrics", "/"] {
+        assert_eq!(get(open, None).await.expect("GET").status(), 200, "{open}");
+    }
+    // The read token does not write; the write token does, and reads.
+    let body = json!({"scene": SCENE, "lights": [json_point(5.0)]});
+    let post = |t: &str| {
+        http.post(server.url("/v1/sessions"))
+            .bearer_auth(t)
+            .json(&body)
+            .send()
+    };
+    assert_eq!(post("r-token").await.expect("POST").status(), 401);
+    let r = post("w-token").await.expect("POST");
+    assert_eq!(r.status(), StatusCode::CREATED);
+    let id = r.json::<Value>().await.expect("json")["session_id"]
+        .as_str()
+        .unwrap()
+        .to_string();
+    assert_eq!(get("/v1/sessions", None).await.expect("GET").status(), 401);
+    assert_eq!(
+        get("/v1/sessions", Some("r-token"))
+            .await
+            .expect("GET")
+            .status(),
+        200
+    );
+
+    // Frame sockets.
+    let ws = |q: &str| format!("ws://{}/v1/sessions/{id}/ws{q}", server.http_addr);
+    match tokio_tungstenite::connect_async(ws("")).await {
+        Err(tokio_tungstenite::tungstenite::Error::Http(r)) => assert_eq!(r.status(), 401),
+        other => panic!(
+            "a socket without the read token opened: {:?}",
+            other.map(|_| ())
+        ),
+    }
+    let client = WsClient::connect(&ws("?token=r-token")).await;
+    assert_eq!(client.hello["type"], "hello");
+
+    // gRPC reads: metadata.
+    let mut c = server.client().await;
+    let refused = c
+        .list_scenes(proto::ListScenesRequest {})
+        .await
+        .expect_err("no token");
+    assert_eq!(refused.code(), Code::Unauthenticated);
+    let mut request = tonic::Request::new(proto::ListScenesRequest {});
+    request
+        .metadata_mut()
+        .insert("authorization", "Bearer r-token".parse().expect("metadata"));
+    c.list_scenes(request).await.expect("with the read token");
+    let refused = c
+        .subscribe(proto::SubscribeRequest {
+            session_id: id.clone(),
+        })
+        .await
+        .expect_err("no token");
+    assert_eq!(refused.code(), Code::Unauthenticated);
+    server.stop().await;
+}

@@ -9,10 +9,18 @@ export class ApiError extends Error {
   }
 }
 
+// The page's token (from its URL, see main.js): sent with every request, as a server with a
+// read token (`serve --read-token`) wants it on reads too, and the write token also reads.
+let pageToken = '';
+export function useToken(t) {
+  pageToken = t || '';
+}
+
 async function request(method, path, { body, token } = {}) {
   const headers = {};
   if (body !== undefined) headers['Content-Type'] = 'application/json';
-  if (token) headers.Authorization = `Bearer ${token}`;
+  const presented = token || pageToken;
+  if (presented) headers.Authorization = `Bearer ${presented}`;
   let response;
   try {
     response = await fetch(path, { method, headers, body: body === undefined ? undefined : JSON.stringify(body) });
@@ -39,7 +47,9 @@ const seg = encodeURIComponent;
 
 export const listScenes = () => json('GET', '/v1/scenes');
 export const layoutOf = (scene) => json('GET', `/v1/scenes/${seg(scene)}/layout`);
-export const modelUrl = (scene) => `/v1/scenes/${seg(scene)}/model`;
+// The model goes to three.js's loader as a URL, so its token rides in the query.
+export const modelUrl = (scene) =>
+  `/v1/scenes/${seg(scene)}/model${pageToken ? `?token=${seg(pageToken)}` : ''}`;
 // Newest first; `limit` (1 to 1000) keeps the first few.
 export const listSessions = (scene, limit) =>
   json('GET', `/v1/sessions?scene=${seg(scene)}${limit ? `&limit=${limit}` : ''}`);
@@ -51,6 +61,7 @@ export const putLights = (id, lights, token) =>
 
 export function socketUrl(id, token) {
   const scheme = location.protocol === 'https:' ? 'wss:' : 'ws:';
-  const query = token ? `?token=${seg(token)}` : '';
+  const presented = token || pageToken;
+  const query = presented ? `?token=${seg(presented)}` : '';
   return `${scheme}//${location.host}/v1/sessions/${seg(id)}/ws${query}`;
 }

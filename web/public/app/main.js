@@ -2,7 +2,7 @@
 // (`/?scene=cornell-box`), the viewer on that scene's newest session, or on a new one when it has
 // none; with neither, the list of scenes and their sessions (open one, or start a new one).
 //
-// URL parameters: scene, session, token (a write token; kept for this tab only), camera
+// URL parameters: scene, session, token (a write or read token; kept for this tab only), camera
 // (eye_x,eye_y,eye_z,target_x,target_y,target_z[,fov_deg], as `bounce render --camera`),
 // exposure, terms (both|direct|indirect), xr_scale (the scene's units in a metre, for a headset:
 // glTF says metres, but a game level may not be), overlay (on|off), aa (on|off), markers (on|off),
@@ -11,7 +11,7 @@
 
 import { Box3, Vector3 } from 'three';
 
-import { ApiError, createSession, layoutOf, listScenes, listSessions } from './api.js';
+import { ApiError, createSession, layoutOf, listScenes, listSessions, useToken } from './api.js';
 import { Bounds, defaultLights } from './lights.js';
 import { Viewer } from './viewer.js';
 
@@ -33,8 +33,8 @@ function camera() {
   return { eye: v.slice(0, 3), target: v.slice(3, 6), fov: v[6] ?? 45 };
 }
 
-// The write token: from the URL once, then this tab's storage, so a reload keeps it but the
-// address bar (and anything copied from it) need not.
+// The token: from the URL once, then this tab's storage, so a reload keeps it but the address
+// bar (and anything copied from it) need not. Every request sends it (see api.js).
 function token() {
   const t = params.get('token');
   if (t) {
@@ -43,6 +43,7 @@ function token() {
   }
   return sessionStorage.getItem('bounce-token') ?? '';
 }
+useToken(token());
 
 function show(id) {
   for (const el of document.querySelectorAll('main > section')) el.hidden = el.id !== id;
@@ -194,7 +195,8 @@ async function main() {
       await landing();
     }
   } catch (e) {
-    const what = e instanceof ApiError && e.status === 404 ? `not found: ${e.message}` : e.message ?? String(e);
+    let what = e instanceof ApiError && e.status === 404 ? `not found: ${e.message}` : e.message ?? String(e);
+    if (e instanceof ApiError && e.status === 401) what += '. Open the page with ?token=… (the read or the write token).';
     fail(what);
     console.warn('bounce:', what);
   }

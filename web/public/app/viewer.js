@@ -117,8 +117,10 @@ export class Viewer {
     const p = this.params;
     this.message(`loading ${p.scene}…`);
     const loader = new GLTFLoader();
-    const [scenes, layout, gltf, session] = await Promise.all([
-      listScenes(),
+    // The scene list first: on a server that wants a token for reads, its refusal (with the
+    // server's words) is what the page shows, not the model loader's bare 401.
+    const scenes = await listScenes();
+    const [layout, gltf, session] = await Promise.all([
       layoutOf(p.scene),
       loader.loadAsync(modelUrl(p.scene)).catch((e) => {
         throw new Error(`the scene's model could not be loaded: ${e.message ?? e}`);
