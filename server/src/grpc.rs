@@ -342,7 +342,20 @@ fn frame_stream(viewer: Viewer, errors: Option<mpsc::Receiver<Status>>) -> Frame
                     None => st.errors = None,
                 },
                 frame = st.viewer.next() => {
-                    let frame = frame?;
+                    let Some(frame) = frame else {
+                        // A stream that ends with OK looks like a normal end; one the server
+                        // ends says why, so a client knows to reconnect elsewhere or later.
+                        st.done = true;
+                        let status = if st.viewer.shutting_down() {
+                            Status::unavailable("the server is shutting down")
+                        } else {
+                            Status::not_found(format!(
+                                "session {:?} is gone (expired)",
+                                st.viewer.session().id
+                            ))
+                        };
+                        return Some((Err(status), st));
+                    };
                     let msg = to_proto(&st.viewer.session().id, &frame);
                     return Some((Ok(msg), st));
                 }

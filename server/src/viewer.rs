@@ -81,6 +81,12 @@ impl Viewer {
     pub fn session(&self) -> &Arc<Session> {
         &self.session
     }
+
+    /// Whether the stream ended because the server is shutting down (rather than the session
+    /// being removed).
+    pub fn shutting_down(&self) -> bool {
+        *self.shutdown.borrow()
+    }
 }
 
 impl Drop for Viewer {

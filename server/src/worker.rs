@@ -277,10 +277,11 @@ fn supervise(
                 }
             }
         }
+        // Serving before the first start is reported: the hub is ready as soon as it returns.
+        queue.serving.store(true, Ordering::Release);
         if let Some(tx) = ready.take() {
             let _ = tx.send(Ok(engine.describe().to_string()));
         }
-        queue.serving.store(true, Ordering::Release);
         let outcome = std::panic::catch_unwind(AssertUnwindSafe(|| {
             run(queue, &engine, &mut loaded, &mut scenes, metrics)
         }));

@@ -469,17 +469,21 @@ async fn shutdown_ends_open_streams() {
     let mut s = subscribe(&mut c, &id).await;
     read_until(&mut s, v).await;
     let reader = tokio::spawn(async move {
-        // After the newest frame, the stream's end (or the connection's).
+        // After the newest frame, the stream's end: UNAVAILABLE, so a client can tell a
+        // shutdown from a normal end (which would be OK).
         loop {
             match s.message().await {
                 Ok(Some(_)) => continue,
-                Ok(None) | Err(_) => return,
+                Ok(None) => return None,
+                Err(status) => return Some(status),
             }
         }
     });
     server.stop().await;
-    tokio::time::timeout(PATIENCE, reader)
+    let end = tokio::time::timeout(PATIENCE, reader)
         .await
         .expect("the stream outlived the server")
         .expect("join");
+    let status = end.expect("the stream ended with OK, as a normal end would");
+    assert_eq!(status.code(), Code::Unavailable, "{status:?}");
 }
