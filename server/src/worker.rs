@@ -9,9 +9,9 @@
 //! The thread supervises itself. A panic in a batch (a driver's, or wgpu's on an error nothing
 //! caught) or a fault the GPU reports ends that engine: the thread opens a new one on the same
 //! baked files and goes on, the sessions of the lost batch queued again, one-shot callers told;
-//! a GPU engine that faults, or panics twice in a row, is replaced by the CPU engine. While no
-//! engine serves, [`Worker::serving`] is false and the hub is not ready. A relight that fails
-//! without a panic is tried again for its sessions after [`RETRY_AFTER`].
+//! a GPU engine that faults, or panics a second time since the start, is replaced by the CPU
+//! engine. While no engine serves, [`Worker::serving`] is false and the hub is not ready. A
+//! relight that fails without a panic is tried again for its sessions after [`RETRY_AFTER`].
 
 use std::collections::BTreeMap;
 use std::panic::AssertUnwindSafe;
@@ -43,7 +43,7 @@ pub const MAX_ONCE_QUEUED: usize = 4 * MAX_BATCH;
 /// A session whose relight failed is solved again after this long.
 pub const RETRY_AFTER: Duration = Duration::from_millis(250);
 
-/// Panics in a row after which a GPU worker gives way to the CPU engine.
+/// Panics (since the start) after which a GPU worker gives way to the CPU engine.
 const GPU_PANICS: u32 = 2;
 
 /// A one-shot relight: a scene and lights, the frame back through `reply`.

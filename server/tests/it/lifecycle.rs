@@ -385,7 +385,7 @@ async fn a_failed_relight_is_retried() {
     server.stop().await;
 }
 
-/// A GPU engine that panics twice in a row gives way to the CPU engine: the server says so in
+/// A GPU engine that panics a second time gives way to the CPU engine: the server says so in
 /// `/v1/scenes` and goes on solving. (On lavapipe in CI; a real GPU behaves the same.)
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_gpu_worker_that_keeps_panicking_falls_back_to_the_cpu() {
