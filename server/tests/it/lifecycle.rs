@@ -386,7 +386,7 @@ async fn a_failed_relight_is_retried() {
 }
 
 /// A GPU engine that panics a second time gives way to the CPU engine: the server says so in
-/// `/v1/scenes` and goes on solving. (On lavapipe in CI; a real GPU behaves the same.)
+/// `/v1/scenes` and goes on solving (on lavapipe in CI).
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_gpu_worker_that_keeps_panicking_falls_back_to_the_cpu() {
     let config = HubConfig::new(scenes_dir(), EngineChoice::Gpu);
