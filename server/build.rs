@@ -14,6 +14,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let out = PathBuf::from(std::env::var("OUT_DIR")?);
     std::fs::write(out.join("bounce_v1_descriptor.bin"), fds.encode_to_vec())?;
     tonic_prost_build::configure()
+        // A message that does not decode is the client's error (see src/codec.rs).
+        .codec_path("crate::codec::StrictCodec")
         // Frames are encoded once and shared by every viewer: `Bytes` clones are reference counts.
         .bytes(".bounce.v1.Frame.data")
         .compile_fds(fds)?;

@@ -14,6 +14,7 @@
 //! line and its runtime, logging setup and signals (`bounce serve` in `bounce-cli`).
 
 pub mod cache;
+pub mod codec;
 pub mod error;
 pub mod frame;
 pub mod grpc;

@@ -487,3 +487,75 @@ async fn shutdown_ends_open_streams() {
     let status = end.expect("the stream ended with OK, as a normal end would");
     assert_eq!(status.code(), Code::Unavailable, "{status:?}");
 }
+
+/// Bytes sent as they are: a client that writes a broken message.
+#[derive(Default, Clone)]
+struct Raw;
+
+struct RawEncoder;
+struct RawDecoder;
+
+impl tonic::codec::Codec for Raw {
+    type Encode = Vec<u8>;
+    type Decode = Vec<u8>;
+    type Encoder = RawEncoder;
+    type Decoder = RawDecoder;
+    fn encoder(&mut self) -> RawEncoder {
+        RawEncoder
+    }
+    fn decoder(&mut self) -> RawDecoder {
+        RawDecoder
+    }
+}
+
+impl tonic::codec::Encoder for RawEncoder {
+    type Item = Vec<u8>;
+    type Error = Status;
+    fn encode(
+        &mut self,
+        item: Vec<u8>,
+        buf: &mut tonic::codec::EncodeBuf<'_>,
+    ) -> Result<(), Status> {
+        bytes::BufMut::put_slice(buf, &item);
+        Ok(())
+    }
+}
+
+impl tonic::codec::Decoder for RawDecoder {
+    type Item = Vec<u8>;
+    type Error = Status;
+    fn decode(&mut self, buf: &mut tonic::codec::DecodeBuf<'_>) -> Result<Option<Vec<u8>>, Status> {
+        let n = bytes::Buf::remaining(buf);
+        Ok(Some(bytes::Buf::copy_to_bytes(buf, n).to_vec()))
+    }
+}
+
+/// A request body that does not decode is the client's error: INVALID_ARGUMENT, not INTERNAL
+/// (prost's code, which would page an operator for a client's bug). One over the size limit is
+/// OUT_OF_RANGE, tonic's check before decoding, as the README says.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn broken_and_oversized_messages_are_the_clients_errors() {
+    let server = TestServer::start().await;
+    let mut grpc = tonic::client::Grpc::new(server.channel().await);
+    let call = |body: Vec<u8>| {
+        let mut grpc = grpc.clone();
+        async move {
+            grpc.ready().await.expect("ready");
+            grpc.unary::<Vec<u8>, Vec<u8>, Raw>(
+                tonic::Request::new(body),
+                "/bounce.v1.Bounce/GetLayout".parse().expect("path"),
+                Raw,
+            )
+            .await
+        }
+    };
+    // Field 1 (scene, a string) claims 100 bytes and has 2.
+    let refused = call(vec![0x0a, 100, b'a', b'b']).await.expect_err("broken");
+    assert_eq!(refused.code(), Code::InvalidArgument, "{refused:?}");
+    assert!(refused.message().contains("does not decode"), "{refused:?}");
+    let refused = call(vec![0x0a; 2 << 20]).await.expect_err("oversized");
+    assert_eq!(refused.code(), Code::OutOfRange, "{refused:?}");
+    // A well-formed call still works on the same channel.
+    grpc.ready().await.expect("ready");
+    server.stop().await;
+}
