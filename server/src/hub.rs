@@ -220,6 +220,14 @@ impl Hub {
                 continue;
             }
             let session = Arc::new(Session::new(id.clone(), scene, s.lights, s.version));
+            // Idle since its last write, as before the restart, but never so long that it
+            // expires before its viewers (whose watching was not stored) can reconnect.
+            if let Some(written) = s.written_unix_ms {
+                let ttl = self.inner.session_ttl;
+                let grace = (ttl / 10).min(Duration::from_secs(300));
+                let idle = Duration::from_millis(crate::store::unix_ms().saturating_sub(written));
+                session.backdate(idle.min(ttl.saturating_sub(grace)));
+            }
             self.write_sessions().insert(id, Arc::clone(&session));
             self.inner.worker.enqueue(session);
             restored += 1;
@@ -432,6 +440,7 @@ impl Hub {
                 scene: scene.to_string(),
                 lights: lights.clone(),
                 version: 1,
+                written_unix_ms: Some(crate::store::unix_ms()),
             };
             store.put(&id, &record).await?;
         }
@@ -470,6 +479,7 @@ impl Hub {
                 scene: self.scene_of(&session),
                 lights: lights.clone(),
                 version,
+                written_unix_ms: Some(crate::store::unix_ms()),
             };
             store.put(id, &record).await?;
         }

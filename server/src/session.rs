@@ -107,6 +107,13 @@ impl Session {
         !std::mem::replace(&mut s.queued, true)
     }
 
+    /// Makes the session idle for `idle` already (a restored session's time since its last
+    /// write); a clock that cannot go back that far leaves it idle from now.
+    pub(crate) fn backdate(&self, idle: Duration) {
+        let now = Instant::now();
+        self.state().touched = now.checked_sub(idle).unwrap_or(now);
+    }
+
     /// Marks the session as in use now (for expiry).
     pub fn touch(&self) {
         self.state().touched = Instant::now();

@@ -48,6 +48,17 @@ pub struct StoredSession {
     pub scene: String,
     pub lights: LightSet,
     pub version: u64,
+    /// When the session was last written (milliseconds since the Unix epoch), so that its idle
+    /// time, and so its expiry, survive a restart. Absent in records of older servers.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub written_unix_ms: Option<u64>,
+}
+
+/// Now, in milliseconds since the Unix epoch (0 on a clock set before it).
+pub fn unix_ms() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_millis() as u64)
 }
 
 enum Op {

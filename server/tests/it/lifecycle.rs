@@ -552,3 +552,46 @@ async fn stored_sessions_of_absent_scenes_expire_and_unreadable_ones_are_set_asi
             .is_some()
     );
 }
+
+/// A session's idle time survives a restart: the store keeps when it was last written, and the
+/// restored session counts from there, so expiry is not reset by every restart. A record from
+/// an older server (without that time) still restores, idle from the restart.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn idle_time_survives_a_restart() {
+    let data = tempfile::tempdir().expect("tempdir");
+    let config = || {
+        let mut c = HubConfig::new(scenes_dir(), EngineChoice::Cpu);
+        c.data_dir = Some(data.path().to_path_buf());
+        c
+    };
+    let first = TestServer::start_with(config()).await;
+    let mut c = first.client().await;
+    let (id, _) = create_session(&mut c, vec![point(5.0)]).await;
+    first.stop().await;
+    // An older server's record: no write time.
+    {
+        let db = redb::Database::create(data.path().join("sessions.redb")).expect("open store");
+        let txn = db.begin_write().expect("txn");
+        {
+            let table: redb::TableDefinition<&str, &[u8]> = redb::TableDefinition::new("sessions");
+            let mut t = txn.open_table(table).expect("table");
+            let old = json!({"scene": SCENE, "lights": {"lights": []}, "version": 3}).to_string();
+            t.insert("old-record", old.as_bytes()).expect("insert");
+        }
+        txn.commit().expect("commit");
+    }
+    tokio::time::sleep(Duration::from_millis(1500)).await;
+    let second = TestServer::start_with(config()).await;
+    let idle = second.hub.session(&id).expect("restored").idle_for();
+    assert!(
+        idle >= Duration::from_millis(1500),
+        "idle {idle:?} after the restart"
+    );
+    let old = second
+        .hub
+        .session("old-record")
+        .expect("an old record restores");
+    assert!(old.idle_for() < Duration::from_millis(1500));
+    assert_eq!(old.lights_version(), 3);
+    second.stop().await;
+}
