@@ -244,25 +244,15 @@ pub fn read_rgb(
     readback: &wgpu::Buffer,
     count: usize,
 ) -> Result<Vec<[f32; 3]>, GpuError> {
-    let slice = readback.slice(..);
-    let (tx, rx) = std::sync::mpsc::channel();
-    slice.map_async(wgpu::MapMode::Read, move |r| {
-        // The receiver outlives the poll below; a send can only fail after it gave up.
-        let _ = tx.send(r);
-    });
-    device
-        .poll(wgpu::PollType::wait_indefinitely())
-        .map_err(|e| GpuError::Readback(e.to_string()))?;
-    rx.recv()
-        .map_err(|e| GpuError::Readback(e.to_string()))?
-        .map_err(|e| GpuError::Readback(e.to_string()))?;
-    let mut result = vec![[0.0f32; 3]; count];
-    {
-        let view = slice
-            .get_mapped_range()
-            .map_err(|e| GpuError::Readback(e.to_string()))?;
-        bytemuck::cast_slice_mut::<[f32; 3], u8>(&mut result).copy_from_slice(&view);
-    }
-    readback.unmap();
-    Ok(result)
+    let words = read_words(device, readback, count * 3)?;
+    Ok(words
+        .chunks_exact(3)
+        .map(|w| {
+            [
+                f32::from_bits(w[0]),
+                f32::from_bits(w[1]),
+                f32::from_bits(w[2]),
+            ]
+        })
+        .collect())
 }
