@@ -260,13 +260,7 @@ fn simplify_with(
     let drop_isolated = |mut v: voxel::Voxelization| {
         let isolated = match (&v.pieces, mesh) {
             (Some(pieces), Some(mesh)) => {
-                let probe = SurfaceScene::new(
-                    scene,
-                    mesh.clone(),
-                    v.transport_layout(),
-                    pieces,
-                    &v.refinement,
-                );
+                let probe = SurfaceScene::new(scene, mesh.clone(), v.transport_layout(), pieces);
                 formfactor::isolated_patches(&probe, PROBE_RAYS, options.seed)
             }
             _ => {
@@ -377,8 +371,7 @@ pub(crate) fn prepare(
                 per_patch: options.direct_samples,
                 points: surface::sample_points(pieces, options.direct_samples, options.seed),
             };
-            let rays =
-                SurfaceScene::new(scene, mesh, vox.transport_layout(), pieces, &vox.refinement);
+            let rays = SurfaceScene::new(scene, mesh, vox.transport_layout(), pieces);
             Ok(Prepared {
                 vox,
                 rays: Box::new(rays),

@@ -14,6 +14,13 @@
 //!
 //! Surfaces are connected when their triangles share a vertex position: the same point, bit for
 //! bit, which is how exporters write shared vertices.
+//!
+//! Connection is not enough in a level whose walls, floors and ceilings are one welded mesh: a
+//! wall running up past a ceiling, or the floor either side of a thin wall, is one connected
+//! surface in one voxel but faces two rooms, and one element for it carries the lit room's light
+//! into the dark one. So a patch's pieces are also told apart by the open space each part faces
+//! nearby ([`crate::space`]); parts too small to matter join their surface's largest part
+//! ([`crate::voxel::MIN_SPACE_SHARE`]).
 
 use std::collections::HashMap;
 

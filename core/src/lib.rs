@@ -24,6 +24,7 @@ pub mod patch;
 pub mod rays;
 pub mod scene;
 pub mod shard;
+pub mod space;
 pub mod surface;
 pub mod transport;
 pub mod trimesh;

@@ -5,24 +5,23 @@
 //! Its form-factor row is estimated from rays whose origins are stratified over those pieces by
 //! area and whose directions are cosine-weighted about each origin's own normal, traced against
 //! the **original triangles** ([`TriMesh`]). A ray that meets a surface side is credited to the
-//! patch owning the piece it met: the patch of the voxel the hit point lies in and the direction
-//! the side's normal faces most. A ray that escapes, meets the back of a single-sided triangle, or
-//! meets surface that belongs to no patch (a dropped patch's) carries nothing. So a row sums to
+//! row owning the piece it met: the piece of that side of that triangle which contains the hit
+//! point, found exactly rather than from the voxel, so the rows may cut a voxel's surface however
+//! they like. A ray that escapes, meets the back of a single-sided triangle, or meets surface that
+//! belongs to no row (a dropped patch's) carries nothing. So a row sums to
 //! at most 1, and its samples depend on its index and the seed alone.
 
-use std::collections::HashMap;
 use std::sync::Arc;
 
 use glam::Vec3;
 use serde::{Deserialize, Serialize};
 
-use crate::element::{Refinement, sub_cell};
 use crate::formfactor::{RowTracer, row_seed};
-use crate::patch::{Face, PatchLayout};
+use crate::patch::PatchLayout;
 use crate::rays::{RayFate, RayTally};
 use crate::scene::Scene;
 use crate::trimesh::{TriMesh, extent_of, offset_origin};
-use crate::voxel::{PieceTri, Pieces, dominant_face};
+use crate::voxel::{PieceTri, Pieces};
 
 /// Direct-light sample points per patch a bake stores unless asked otherwise.
 pub const DEFAULT_SURFACE_SAMPLES: u32 = 16;
@@ -167,158 +166,39 @@ pub fn sample_points(pieces: &Pieces, per_patch: u32, seed: u64) -> Vec<SamplePo
 /// The surface patches of a layout, ready for form-factor rays.
 pub struct SurfaceScene {
     mesh: Arc<TriMesh>,
-    /// Per original triangle: the face its front side joins, and its back's for a double-sided
-    /// triangle (`None` for a single-sided one: its back is no surface).
-    sides: Vec<[Option<Face>; 2]>,
-    /// Per original triangle, its connected surface ([`crate::element::components`]).
-    component: Vec<u32>,
+    /// Per original triangle, whether its front and its back are surfaces (the back only of a
+    /// double-sided triangle).
+    sides: Vec<[bool; 2]>,
     pieces: Pieces,
     cdf: Vec<f64>,
-    origin: Vec3,
-    size: f32,
-    dims: [u32; 3],
+    /// Which row owns the surface a ray meets.
+    owners: Owners,
     /// The scene's size, for [`offset_origin`].
     extent: f32,
-    /// (`linear voxel index · 6 + face code`, component, sub-cell) → transport row.
-    rows: HashMap<(u64, u32, u32), u32>,
-    /// (`linear voxel index · 6 + face code`, component) → the first of its sub-cells' rows: for
-    /// a point that rounds into a sub-cell its surface has no piece in (a surface lying on a
-    /// sub-cell plane), so that no light meeting real surface is lost.
-    any_sub: HashMap<(u64, u32), u32>,
-    /// Where elements are cut finer than their voxel.
-    refinement: Refinement,
 }
 
 impl SurfaceScene {
     /// `mesh` must be [`scene_mesh`] of `scene`; `rows` are the transport's rows (the elements,
-    /// [`crate::voxel::Voxelization::transport_layout`]), `pieces` theirs, and `refinement` says
-    /// where they are cut finer than their voxel.
+    /// [`crate::voxel::Voxelization::transport_layout`]) and `pieces` theirs.
     pub fn new(
         scene: &Scene,
         mesh: Arc<TriMesh>,
         rows: &PatchLayout,
         pieces: &Pieces,
-        refinement: &Refinement,
     ) -> SurfaceScene {
-        let component = crate::element::components(scene);
         let sides = scene
             .triangles
             .iter()
-            .map(|t| {
-                let n = t.cross().normalize_or_zero();
-                [
-                    Some(dominant_face(n)),
-                    t.double_sided.then(|| dominant_face(-n)),
-                ]
-            })
+            .map(|t| [true, t.double_sided])
             .collect();
-        let dims = rows.dims;
-        let origin = Vec3::from(rows.origin);
-        let rows_at = rows
-            .patches
-            .iter()
-            .enumerate()
-            .filter_map(|(i, p)| {
-                let first = pieces.of(i).first()?;
-                let voxel = key(dims, p.voxel);
-                let sub = if refinement.cuts(voxel) {
-                    let c = first.corners;
-                    let at = ((c[0] + c[1] + c[2]) / 3.0 - origin) / rows.voxel_size;
-                    fine_sub(at, p.voxel, refinement.factor)
-                } else {
-                    0
-                };
-                let cell = voxel * 6 + u64::from(p.face.code());
-                Some(((cell, component[first.triangle as usize], sub), i as u32))
-            })
-            .collect::<HashMap<(u64, u32, u32), u32>>();
-        let mut any_sub = HashMap::new();
-        for (&(cell, comp, _), &row) in &rows_at {
-            let first = any_sub.entry((cell, comp)).or_insert(row);
-            *first = (*first).min(row);
-        }
         SurfaceScene {
-            any_sub,
             mesh,
             sides,
             cdf: piece_cdf(pieces),
+            owners: Owners::new(scene, rows, pieces),
             pieces: pieces.clone(),
-            origin: Vec3::from(rows.origin),
-            size: rows.voxel_size,
-            dims,
             extent: extent_of(scene.triangles.iter().flat_map(|t| &t.positions)),
-            rows: rows_at,
-            component,
-            refinement: refinement.clone(),
         }
-    }
-
-    /// The transport row whose piece of connected surface `component` holds `p` on a side
-    /// facing `face`. A point on a voxel boundary may round into the neighbour; the neighbours
-    /// across boundaries within a thousandth of a voxel are tried too.
-    fn row_at(&self, p: Vec3, face: Face, component: u32) -> Option<u32> {
-        let f = (p - self.origin) / self.size;
-        let mut cell = [0u32; 3];
-        for a in 0..3 {
-            cell[a] = (f[a].floor().max(0.0) as u32).min(self.dims[a].saturating_sub(1));
-        }
-        if let Some(j) = self.row_in(f, cell, face, component) {
-            return Some(j);
-        }
-        for a in 0..3 {
-            let frac = f[a] - cell[a] as f32;
-            let mut c = cell;
-            if frac < 1e-3 && cell[a] > 0 {
-                c[a] -= 1;
-            } else if frac > 1.0 - 1e-3 && cell[a] + 1 < self.dims[a] {
-                c[a] += 1;
-            } else {
-                continue;
-            }
-            if let Some(j) = self.row_in(f, c, face, component) {
-                return Some(j);
-            }
-        }
-        None
-    }
-
-    /// The row of voxel `cell` for a point at `f` (in voxel units from the grid's origin): its
-    /// sub-cell's where the voxel is cut, trying the sub-cells across boundaries within a
-    /// thousandth of a sub-cell too.
-    fn row_in(&self, f: Vec3, cell: [u32; 3], face: Face, component: u32) -> Option<u32> {
-        let voxel = key(self.dims, cell);
-        let look = |sub: u32| {
-            self.rows
-                .get(&(voxel * 6 + u64::from(face.code()), component, sub))
-                .copied()
-        };
-        if !self.refinement.cuts(voxel) {
-            return look(0);
-        }
-        let k = self.refinement.factor;
-        let sub = fine_sub(f, cell, k);
-        if let Some(j) = look(sub) {
-            return Some(j);
-        }
-        let local = |a: usize| (f[a] - cell[a] as f32) * k as f32;
-        for (a, stride) in [1, k, k * k].into_iter().enumerate() {
-            let l = local(a);
-            let i = (l.floor().max(0.0) as u32).min(k - 1);
-            let frac = l - i as f32;
-            let other = if frac < 1e-3 && i > 0 {
-                sub - stride
-            } else if frac > 1.0 - 1e-3 && i + 1 < k {
-                sub + stride
-            } else {
-                continue;
-            };
-            if let Some(j) = look(other) {
-                return Some(j);
-            }
-        }
-        self.any_sub
-            .get(&(voxel * 6 + u64::from(face.code()), component))
-            .copied()
     }
 
     /// Where a ray from a surface point ends.
@@ -327,12 +207,13 @@ impl SurfaceScene {
         let Some(hit) = self.mesh.closest(origin, dir, f32::INFINITY) else {
             return RayFate::Escaped;
         };
-        let side = self.sides[hit.triangle as usize][usize::from(!hit.front)];
-        let Some(face) = side else {
+        if !self.sides[hit.triangle as usize][usize::from(!hit.front)] {
             return RayFate::BackFace;
-        };
-        let component = self.component[hit.triangle as usize];
-        match self.row_at(origin + dir * hit.t, face, component) {
+        }
+        match self
+            .owners
+            .row_at(origin + dir * hit.t, hit.triangle, !hit.front)
+        {
             Some(j) => RayFate::Patch(j as usize),
             None => RayFate::Occluder,
         }
@@ -384,11 +265,127 @@ impl RowTracer for SurfaceScene {
     }
 }
 
-/// The sub-cell of voxel `cell` a point at `f` (voxel units from the grid's origin) lies in.
-fn fine_sub(f: Vec3, cell: [u32; 3], factor: u32) -> u32 {
-    let k = factor as f32;
-    let fine = [0, 1, 2].map(|a| (f[a] * k).floor().max(0.0) as u32);
-    sub_cell(fine, cell, factor)
+/// Which transport row owns each point of surface: per side of each original triangle, the piece
+/// triangles of that side with their rows, grouped by the voxel they lie in. A hit is credited to
+/// the piece that contains it, so elements may cut a voxel's surface any way (by connected
+/// surface, by sub-cell, by the space each part faces) and the lookup needs to know none of it.
+struct Owners {
+    /// Per `2 · triangle + side` (side 1: the back), the range of `entries` on that side, sorted
+    /// by voxel.
+    start: Vec<u32>,
+    entries: Vec<Owned>,
+    origin: Vec3,
+    size: f32,
+    dims: [u32; 3],
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Owned {
+    voxel: u64,
+    row: u32,
+    corners: [Vec3; 3],
+}
+
+/// A hit this far outside every piece of its triangle's side (in barycentric units of the
+/// nearest piece) meets surface that belongs to no row; closer, it is rounding on a shared edge.
+const OUTSIDE: f32 = 1e-3;
+/// Sides with more pieces than this are searched in the hit's voxel first.
+const SCAN_ALL: usize = 16;
+
+impl Owners {
+    fn new(scene: &Scene, rows: &PatchLayout, pieces: &Pieces) -> Owners {
+        let origin = Vec3::from(rows.origin);
+        let (size, dims) = (rows.voxel_size, rows.dims);
+        let slots = scene.triangles.len() * 2;
+        let mut tagged: Vec<(usize, Owned)> = Vec::with_capacity(pieces.tris.len());
+        for row in 0..pieces.patch_count() {
+            for t in pieces.of(row) {
+                let Some(tri) = scene.triangles.get(t.triangle as usize) else {
+                    continue;
+                };
+                let back = t.normal.dot(tri.cross()) < 0.0;
+                let centroid = (t.corners[0] + t.corners[1] + t.corners[2]) / 3.0;
+                let voxel = key(dims, cell(centroid, origin, size, dims));
+                tagged.push((
+                    2 * t.triangle as usize + usize::from(back),
+                    Owned {
+                        voxel,
+                        row: row as u32,
+                        corners: t.corners,
+                    },
+                ));
+            }
+        }
+        tagged.sort_by_key(|(slot, o)| (*slot, o.voxel));
+        let mut start = vec![0u32; slots + 1];
+        for (slot, _) in &tagged {
+            start[slot + 1] += 1;
+        }
+        for i in 0..slots {
+            start[i + 1] += start[i];
+        }
+        Owners {
+            start,
+            entries: tagged.into_iter().map(|(_, o)| o).collect(),
+            origin,
+            size,
+            dims,
+        }
+    }
+
+    /// The row owning point `p` on `triangle`'s back (`back`) or front side, if any row does.
+    fn row_at(&self, p: Vec3, triangle: u32, back: bool) -> Option<u32> {
+        let slot = 2 * triangle as usize + usize::from(back);
+        let (lo, hi) = (*self.start.get(slot)?, *self.start.get(slot + 1)?);
+        let all = &self.entries[lo as usize..hi as usize];
+        if all.len() > SCAN_ALL {
+            let voxel = key(self.dims, cell(p, self.origin, self.size, self.dims));
+            let from = all.partition_point(|o| o.voxel < voxel);
+            let to = from + all[from..].partition_point(|o| o.voxel == voxel);
+            if let Some((row, d)) = nearest(&all[from..to], p)
+                && d >= 0.0
+            {
+                return Some(row);
+            }
+        }
+        // The hit's voxel held no piece containing it (a point on a voxel boundary, or surface
+        // of no row): every piece of the side decides.
+        nearest(all, p).and_then(|(row, d)| (d >= -OUTSIDE).then_some(row))
+    }
+}
+
+/// The row of the piece in `owned` that contains `p` most deeply, with that depth: the smallest
+/// barycentric coordinate of `p` in it (negative outside).
+fn nearest(owned: &[Owned], p: Vec3) -> Option<(u32, f32)> {
+    let mut best: Option<(u32, f32)> = None;
+    for o in owned {
+        let d = depth(p, o.corners);
+        if best.is_none_or(|(_, b)| d > b) {
+            best = Some((o.row, d));
+        }
+    }
+    best
+}
+
+/// The smallest barycentric coordinate of `p` (projected onto the triangle's plane) in triangle
+/// `[a, b, c]`; `-inf` for a triangle with no area.
+fn depth(p: Vec3, [a, b, c]: [Vec3; 3]) -> f32 {
+    let (v0, v1, v2) = (b - a, c - a, p - a);
+    let (d00, d01, d11) = (v0.dot(v0), v0.dot(v1), v1.dot(v1));
+    let (d20, d21) = (v2.dot(v0), v2.dot(v1));
+    let den = d00 * d11 - d01 * d01;
+    if !(den > 0.0 && den.is_finite()) {
+        return f32::NEG_INFINITY;
+    }
+    let v = (d11 * d20 - d01 * d21) / den;
+    let w = (d00 * d21 - d01 * d20) / den;
+    (1.0 - v - w).min(v).min(w)
+}
+
+/// The voxel of a grid that `p` lies in, clamped into the grid.
+fn cell(p: Vec3, origin: Vec3, size: f32, dims: [u32; 3]) -> [u32; 3] {
+    let f = (p - origin) / size;
+    [0, 1, 2].map(|a| (f[a].floor().max(0.0) as u32).min(dims[a].saturating_sub(1)))
 }
 
 #[inline]

@@ -17,7 +17,7 @@ fn cornell() -> PathBuf {
 
 fn options() -> BakeOptions {
     BakeOptions {
-        resolution: Resolution::TargetPatches(280),
+        resolution: Resolution::TargetPatches(290),
         rays: 128,
         ..BakeOptions::default()
     }

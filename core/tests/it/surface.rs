@@ -42,7 +42,6 @@ fn surface_scene(scene: &Scene, vox: &Voxelization) -> SurfaceScene {
         Arc::new(scene_mesh(scene)),
         vox.transport_layout(),
         pieces,
-        &vox.refinement,
     )
 }
 
@@ -157,9 +156,8 @@ fn a_wall_thinner_than_a_voxel_keeps_both_sides_and_lets_nothing_through() {
     // strips of floor and ceiling inside the wall (between its two faces).
     assert_eq!(tally.escaped + tally.occluder, 0, "{tally:?}");
     assert!(tally.back_face * 100 < tally.total(), "{tally:?}");
-    // Which room each patch's pieces lie in: the floor and ceiling patches of the voxels the
-    // wall runs through hold pieces of both rooms (a patch is a voxel's worth of surface facing
-    // one way), and are left out of the checks.
+    // Which room each element's pieces lie in; the strips of floor and ceiling inside the wall
+    // lie in neither and are left out of the checks.
     let pieces = vox.pieces.as_ref().unwrap();
     let room = |i: usize| {
         let xs = pieces.of(i).iter().flat_map(|t| t.corners.map(|c| c.x));
@@ -173,10 +171,20 @@ fn a_wall_thinner_than_a_voxel_keeps_both_sides_and_lets_nothing_through() {
         }
     };
     let n = vox.transport_layout().len();
+    // No element holds surface of both rooms: the two sides of the floor in a voxel the wall
+    // runs through face two spaces, so they are two elements (the strips inside the wall, which
+    // face neither room, may be a third).
+    let both = |i: usize| {
+        let xs = pieces.of(i).iter().flat_map(|t| t.corners.map(|c| c.x));
+        let (lo, hi) = xs.fold((f32::MAX, f32::MIN), |(l, h), x| (l.min(x), h.max(x)));
+        lo < 1.49 - 1e-4 && hi > 1.51 + 1e-4
+    };
+    let mixed = (0..n).filter(|&i| both(i)).count();
+    assert_eq!(
+        mixed, 0,
+        "{mixed} of {n} elements hold surface of both rooms"
+    );
     let straddling = (0..n).filter(|&i| room(i).is_none()).count();
-    // One column of voxels across floor, ceiling, front and back: a tenth of the patches, but
-    // those voxels hold two surfaces (the box and the wall), so their elements are cut into
-    // sub-cells and the column holds more rows than its share.
     assert!(
         straddling <= n / 8,
         "{straddling} of {n} patches straddle the wall"
