@@ -1150,7 +1150,7 @@ fn cluster_with(
 pub const SPACE_FACTOR: u32 = 4;
 /// Lattice points beyond a voxel on each side that count as its neighbourhood: surfaces of a
 /// voxel face one space when their fronts connect within it.
-pub const SPACE_MARGIN: u32 = 2;
+pub const SPACE_MARGIN: u32 = 1;
 /// Parts of a patch facing a space of their own smaller than this share of it join its largest.
 pub const MIN_SPACE_SHARE: f64 = 0.03;
 
