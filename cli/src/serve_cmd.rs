@@ -104,6 +104,11 @@ pub struct ServeArgs {
         env = "BOUNCE_MAX_SESSIONS"
     )]
     pub max_sessions: usize,
+    /// A WebSocket client silent this long is pinged, and closed (1008) when nothing comes back
+    /// within as long again, or when a frame cannot be handed to it within it: a dead or stalled
+    /// peer. Browsers and WebSocket libraries answer pings by themselves.
+    #[arg(long, value_name = "DURATION", default_value = "30s", value_parser = parse_duration, env = "BOUNCE_WS_KEEPALIVE")]
+    pub ws_keepalive: Duration,
     /// A web origin besides the server's own (`https://app.example.com`) whose pages may create
     /// sessions and change lights; repeat for more. Requests without an Origin (gRPC, scripts)
     /// are not affected.
@@ -165,6 +170,11 @@ pub fn run(args: &ServeArgs) -> Result<()> {
     config.web_dir = args.web_dir.clone();
     config.max_connections = args.max_connections;
     config.max_sessions = args.max_sessions;
+    anyhow::ensure!(
+        !args.ws_keepalive.is_zero(),
+        "--ws-keepalive must be longer than 0: it is how long a silent client has to answer a ping"
+    );
+    config.ws_keepalive = args.ws_keepalive;
     config.allowed_origins = args.allow_origins.clone();
     config.reload_interval = (!args.reload_every.is_zero()).then_some(args.reload_every);
     // Blocking (reads files, may upload to a GPU): before the runtime serves.

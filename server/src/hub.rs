@@ -51,6 +51,10 @@ pub struct HubConfig {
     pub max_sessions: usize,
     /// A connection that sends nothing this long after it opens is closed.
     pub first_byte_timeout: Duration,
+    /// A WebSocket is pinged after this long without a message from its client, and closed
+    /// when nothing at all (a pong included) comes back within this long again, or when a
+    /// message to it cannot be sent within this long: a dead or stalled peer.
+    pub ws_keepalive: Duration,
     /// Web origins (`https://app.example.com`) besides the server's own whose pages may write
     /// over HTTP and WebSocket (see [`crate::http`]'s origin check).
     pub allowed_origins: Vec<String>,
@@ -73,6 +77,7 @@ impl HubConfig {
             max_sessions: 10_000,
             allowed_origins: Vec::new(),
             first_byte_timeout: Duration::from_secs(10),
+            ws_keepalive: Duration::from_secs(30),
         }
     }
 }
@@ -106,6 +111,7 @@ struct Inner {
     orphans: Mutex<Vec<(String, StoredSession, Instant)>>,
     allowed_origins: Vec<String>,
     first_byte_timeout: Duration,
+    ws_keepalive: Duration,
     ready: AtomicBool,
     /// `true` once shutting down: every frame stream ends.
     shutdown: watch::Sender<bool>,
@@ -178,6 +184,7 @@ impl Hub {
                     .map(|o| o.trim_end_matches('/').to_ascii_lowercase())
                     .collect(),
                 first_byte_timeout: config.first_byte_timeout,
+                ws_keepalive: config.ws_keepalive.max(Duration::from_millis(1)),
                 ready: AtomicBool::new(false),
                 shutdown: watch::Sender::new(false),
                 janitor: Mutex::new(None),
@@ -374,6 +381,11 @@ impl Hub {
     /// How long a new connection may stay silent before it is closed.
     pub fn first_byte_timeout(&self) -> Duration {
         self.inner.first_byte_timeout
+    }
+
+    /// A WebSocket's keep-alive period ([`HubConfig::ws_keepalive`]).
+    pub fn ws_keepalive(&self) -> Duration {
+        self.inner.ws_keepalive
     }
 
     /// Checks a read's token: `Ok` when the hub has no read token, or `presented` is the read

@@ -90,6 +90,8 @@ pub struct Metrics {
     pub worker_restarts: Counter,
     /// Session relights that failed and were queued again.
     pub relight_retries: Counter,
+    /// WebSockets closed because their client answered no ping or took no message in time.
+    pub websocket_unresponsive: Counter,
     /// Light changes accepted (a repeat of the current lights does not count).
     pub light_updates: Counter,
     /// Requests refused: bad input, unknown names, missing token, limits.
@@ -174,6 +176,12 @@ impl Metrics {
             "Engine worker restarts after a panic or a GPU fault",
             worker_restarts.clone(),
         );
+        let websocket_unresponsive = Counter::default();
+        registry.register(
+            "websocket_unresponsive",
+            "WebSockets closed because their client answered no ping or took no frame within the keep-alive period",
+            websocket_unresponsive.clone(),
+        );
         let relight_retries = Counter::default();
         registry.register(
             "relight_retries",
@@ -234,6 +242,7 @@ impl Metrics {
             sessions_expired,
             worker_restarts,
             relight_retries,
+            websocket_unresponsive,
             light_updates,
             requests_refused,
             scene_reloads,

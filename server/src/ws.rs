@@ -14,6 +14,8 @@
 
 use std::time::Duration;
 
+use tokio::time::Instant;
+
 use axum::extract::ws::rejection::WebSocketUpgradeRejection;
 use axum::extract::ws::{CloseFrame, Message, WebSocket, WebSocketUpgrade};
 use axum::extract::{Path, State};
@@ -32,6 +34,8 @@ use crate::viewer::Viewer;
 
 /// Close code for a server going away (RFC 6455).
 const GOING_AWAY: u16 = 1001;
+/// RFC 6455's "policy violation": the client broke the keep-alive rule.
+const POLICY_VIOLATION: u16 = 1008;
 /// RFC 6455 caps a close frame's payload at 125 bytes, two of them the code.
 const MAX_CLOSE_REASON: usize = 123;
 /// How long a closing socket waits for the client's close frame before dropping the connection.
@@ -110,6 +114,8 @@ enum End {
     /// A refused message: answered, then closed with its code.
     Refused(ErrorCode, String),
     ShuttingDown,
+    /// The client answered no ping, or did not take a message, within the keep-alive period.
+    Unresponsive,
 }
 
 struct Connection {
@@ -140,8 +146,18 @@ impl Connection {
                 Err(end) => end,
             };
         }
-        if let End::ShuttingDown = end {
-            close(&mut socket, GOING_AWAY, "server shutting down").await;
+        match end {
+            End::ShuttingDown => close(&mut socket, GOING_AWAY, "server shutting down").await,
+            End::Unresponsive => {
+                self.hub.metrics().websocket_unresponsive.inc();
+                close(
+                    &mut socket,
+                    POLICY_VIOLATION,
+                    "no reply within the keep-alive period",
+                )
+                .await
+            }
+            _ => {}
         }
     }
 
@@ -158,14 +174,35 @@ impl Connection {
         if let Err(end) = self.send(socket, hello.to_message()).await {
             return end;
         }
+        // A viewer may watch for hours without a word, so silence alone ends nothing: after a
+        // keep-alive period without a message the client is pinged, and a client that answers
+        // nothing (not even the pong its WebSocket library sends by itself) within another is
+        // gone, however its TCP connection looks.
+        let keepalive = self.hub.ws_keepalive();
+        let mut heard = Instant::now();
+        let mut pinged = false;
         loop {
+            let quiet = heard + if pinged { keepalive * 2 } else { keepalive };
             let event = tokio::select! {
                 biased;
                 _ = self.shutdown.wait_for(|&s| s) => return End::ShuttingDown,
                 message = socket.recv() => Event::Message(message),
                 frame = self.viewer.next() => Event::Frame(frame),
+                _ = tokio::time::sleep_until(quiet) => Event::Quiet,
             };
+            if let Event::Message(Some(Ok(_))) = &event {
+                heard = Instant::now();
+                pinged = false;
+            }
             let reply = match event {
+                Event::Quiet if pinged => {
+                    debug!(session = %session.id, "WebSocket client answered no ping: closing");
+                    return End::Unresponsive;
+                }
+                Event::Quiet => {
+                    pinged = true;
+                    Message::Ping(Default::default())
+                }
                 Event::Frame(None) => return End::ShuttingDown,
                 Event::Frame(Some(frame)) => frame_message(&frame),
                 Event::Message(None) => return End::ClientGone,
@@ -211,13 +248,16 @@ impl Connection {
         }
     }
 
-    /// Sends unless the server shuts down first: a client that stopped reading blocks only its
-    /// own connection, and not past shutdown.
+    /// Sends unless the server shuts down first or the client takes more than a keep-alive
+    /// period to take it: a client that stopped reading blocks only its own connection, and not
+    /// for long.
     async fn send(&mut self, socket: &mut WebSocket, message: Message) -> Result<(), End> {
+        let deadline = tokio::time::sleep(self.hub.ws_keepalive());
         tokio::select! {
             biased;
             _ = self.shutdown.wait_for(|&s| s) => Err(End::ShuttingDown),
             sent = socket.send(message) => sent.map_err(|_| End::ClientGone),
+            _ = deadline => Err(End::Unresponsive),
         }
     }
 }
@@ -225,6 +265,8 @@ impl Connection {
 enum Event {
     Message(Option<Result<Message, axum::Error>>),
     Frame(Option<Frame>),
+    /// A keep-alive period passed without a word from the client.
+    Quiet,
 }
 
 fn frame_message(frame: &Frame) -> Message {

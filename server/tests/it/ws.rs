@@ -313,3 +313,54 @@ async fn shutdown_closes_sockets_with_going_away() {
         .expect("stopped in time")
         .expect("join");
 }
+
+/// A WebSocket whose client answers nothing, not even a ping, is closed with 1008 after two
+/// keep-alive periods; a client that reads (its library answers pings) is served on through any
+/// silence, and a viewer that only watches is never closed for not writing.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_client_that_answers_no_ping_is_closed_and_one_that_does_stays() {
+    let mut config = HubConfig::new(scenes_dir(), EngineChoice::Cpu);
+    config.ws_keepalive = Duration::from_millis(300);
+    let server = TestServer::start_with(config).await;
+    let http = client();
+    let id = server.http_session(&http, 1.0).await;
+    let url = server.ws_url(&id, None);
+    // Never polled until the end: its library never sees the ping, so never answers it.
+    let (deaf, _) = tokio_tungstenite::connect_async(&url)
+        .await
+        .expect("upgrade");
+    let mut live = WsClient::connect(&url).await;
+    live.frames_until(1).await;
+    // Five keep-alive periods in which the live viewer only reads.
+    let quiet = tokio::time::sleep(Duration::from_millis(1500));
+    tokio::pin!(quiet);
+    loop {
+        tokio::select! {
+            _ = &mut quiet => break,
+            event = live.next() => assert!(matches!(event, WsEvent::Frame(_)), "{event:?}"),
+        }
+    }
+    let version = set_lights_http(&server, &http, &id, 3.0).await;
+    live.frames_until(version).await;
+    // The deaf client finds its hello, its first frame, a ping, and the close.
+    let mut deaf = WsClient::over(deaf).await;
+    let end = loop {
+        match deaf.next().await {
+            WsEvent::Frame(_) => {}
+            other => break other,
+        }
+    };
+    match end {
+        WsEvent::Closed(Some((code, reason))) => {
+            assert_eq!(code, 1008, "{reason}");
+            assert!(reason.contains("keep-alive"), "{reason}");
+        }
+        other => panic!("expected a close, got {other:?}"),
+    }
+    let metrics = server.hub.metrics().encode();
+    assert!(
+        metrics.contains("bounce_websocket_unresponsive_total 1"),
+        "{metrics}"
+    );
+    server.stop().await;
+}
