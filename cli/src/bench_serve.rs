@@ -89,6 +89,8 @@ pub fn run(args: &BenchServeArgs) -> Result<()> {
     config.data_dir = (!args.memory).then(|| data.path().to_path_buf());
     config.reload_interval = None;
     config.max_connections = 100_000;
+    // Every simulated viewer connects from loopback.
+    config.max_connections_per_ip = 100_000;
     let hub = Hub::start(&config).context("starting the service")?;
     eprintln!(
         "bench serve: {name} ({} patches) on {}, {} light changes/s per session, {} s a row, {:.0}% WebSocket viewers, sessions {}",

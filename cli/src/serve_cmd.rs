@@ -95,6 +95,15 @@ pub struct ServeArgs {
         env = "BOUNCE_MAX_CONNECTIONS"
     )]
     pub max_connections: usize,
+    /// Open connections each front end accepts from one IP address (so that one client cannot
+    /// take every place; raise it for many clients behind one NAT or proxy).
+    #[arg(
+        long,
+        value_name = "N",
+        default_value_t = 256,
+        env = "BOUNCE_MAX_CONNECTIONS_PER_IP"
+    )]
+    pub max_connections_per_ip: usize,
     /// Sessions held at most; creating one more is refused (429 / RESOURCE_EXHAUSTED) until
     /// idle ones expire.
     #[arg(
@@ -169,6 +178,7 @@ pub fn run(args: &ServeArgs) -> Result<()> {
     }
     config.web_dir = args.web_dir.clone();
     config.max_connections = args.max_connections;
+    config.max_connections_per_ip = args.max_connections_per_ip;
     config.max_sessions = args.max_sessions;
     anyhow::ensure!(
         !args.ws_keepalive.is_zero(),

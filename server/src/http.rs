@@ -76,7 +76,8 @@ pub async fn serve_http(
             Transport::Http,
             Arc::clone(hub.metrics()),
         )
-        .with_first_byte_timeout(hub.first_byte_timeout()),
+        .with_first_byte_timeout(hub.first_byte_timeout())
+        .with_per_ip(hub.max_connections_per_ip()),
     };
     let stopping = async move {
         shutdown.await;
@@ -119,7 +120,7 @@ impl Listener for LimitedListener {
             // axum's own accept, which retries (and backs off on) accept errors.
             let (stream, addr) = Listener::accept(&mut self.listener).await;
             let _ = stream.set_nodelay(true);
-            if let Some(admitted) = self.limit.admit(stream) {
+            if let Some(admitted) = self.limit.admit_from(stream, addr.ip()) {
                 return (admitted, addr);
             }
         }

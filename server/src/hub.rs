@@ -47,6 +47,9 @@ pub struct HubConfig {
     pub reload_interval: Option<Duration>,
     /// Open connections each front end accepts; past it a new connection is closed at once.
     pub max_connections: usize,
+    /// Open connections each front end accepts from one IP address, so that one client cannot
+    /// take every place.
+    pub max_connections_per_ip: usize,
     /// Sessions the hub holds at most; creating one more is refused (`resource_exhausted`).
     pub max_sessions: usize,
     /// A connection that sends nothing this long after it opens is closed.
@@ -74,6 +77,7 @@ impl HubConfig {
             web_dir: None,
             reload_interval: Some(Duration::from_secs(2)),
             max_connections: 4096,
+            max_connections_per_ip: 256,
             max_sessions: 10_000,
             allowed_origins: Vec::new(),
             first_byte_timeout: Duration::from_secs(10),
@@ -105,6 +109,7 @@ struct Inner {
     web_dir: Option<PathBuf>,
     session_ttl: Duration,
     max_connections: usize,
+    max_connections_per_ip: usize,
     max_sessions: usize,
     /// Stored sessions whose scene is not served, and since when: restored if it comes back,
     /// removed from the store after the session TTL.
@@ -176,6 +181,7 @@ impl Hub {
                 web_dir: config.web_dir.clone(),
                 session_ttl: config.session_ttl,
                 max_connections: config.max_connections.max(1),
+                max_connections_per_ip: config.max_connections_per_ip.max(1),
                 max_sessions: config.max_sessions,
                 orphans: Mutex::new(Vec::new()),
                 allowed_origins: config
@@ -410,6 +416,11 @@ impl Hub {
     /// Open connections each front end accepts.
     pub fn max_connections(&self) -> usize {
         self.inner.max_connections
+    }
+
+    /// Open connections each front end accepts from one IP address.
+    pub fn max_connections_per_ip(&self) -> usize {
+        self.inner.max_connections_per_ip
     }
 
     /// Whether a page from `origin` (an `Origin` header's value) other than the server's own

@@ -4,14 +4,19 @@
 //!
 //! Front ends take the limit from [`crate::Hub::max_connections`].
 //!
+//! One IP address holds at most [`crate::Hub::max_connections_per_ip`] of the permits, so that a
+//! single client cannot take them all.
+//!
 //! A connection must also send its first byte within [`crate::Hub::first_byte_timeout`], or it
 //! is closed: without that, as many connections as the limit that never send anything lock
 //! every client out for good.
 
+use std::collections::HashMap;
 use std::future::Future;
 use std::io;
+use std::net::IpAddr;
 use std::pin::Pin;
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 use std::task::{Context, Poll};
 use std::time::Duration;
 
@@ -30,6 +35,33 @@ pub struct ConnectionLimit {
     transport: Transport,
     metrics: Arc<Metrics>,
     first_byte: Option<Duration>,
+    per_ip: Option<PerIp>,
+}
+
+/// Connections open per IP address, against a cap.
+#[derive(Clone)]
+struct PerIp {
+    max: usize,
+    open: Arc<Mutex<HashMap<IpAddr, usize>>>,
+}
+
+/// One connection's place in its address's count, given back when the connection closes.
+struct IpPlace {
+    ip: IpAddr,
+    open: Arc<Mutex<HashMap<IpAddr, usize>>>,
+}
+
+impl Drop for IpPlace {
+    fn drop(&mut self) {
+        // A poisoned map still counts: the counts are plain integers, never left half-written.
+        let mut open = self.open.lock().unwrap_or_else(|p| p.into_inner());
+        if let Some(n) = open.get_mut(&self.ip) {
+            *n -= 1;
+            if *n == 0 {
+                open.remove(&self.ip);
+            }
+        }
+    }
 }
 
 impl ConnectionLimit {
@@ -40,7 +72,53 @@ impl ConnectionLimit {
             transport,
             metrics,
             first_byte: None,
+            per_ip: None,
         }
+    }
+
+    /// At most `max` connections from one IP address ([`ConnectionLimit::admit_from`]).
+    pub fn with_per_ip(mut self, max: usize) -> ConnectionLimit {
+        self.per_ip = Some(PerIp {
+            max: max.max(1),
+            open: Arc::default(),
+        });
+        self
+    }
+
+    /// [`ConnectionLimit::admit`] for a connection from `ip`, which must also be under its
+    /// address's cap.
+    pub fn admit_from<S>(&self, stream: S, ip: IpAddr) -> Option<Limited<S>> {
+        let place = match &self.per_ip {
+            None => None,
+            Some(per_ip) => {
+                let mut open = per_ip.open.lock().unwrap_or_else(|p| p.into_inner());
+                let n = open.entry(ip).or_insert(0);
+                if *n >= per_ip.max {
+                    drop(open);
+                    self.refused("at the per-address connection limit", per_ip.max);
+                    return None;
+                }
+                *n += 1;
+                Some(IpPlace {
+                    ip,
+                    open: Arc::clone(&per_ip.open),
+                })
+            }
+        };
+        let mut admitted = self.admit(stream)?;
+        admitted._place = place;
+        Some(admitted)
+    }
+
+    fn refused(&self, why: &str, max: usize) {
+        self.metrics
+            .connections_refused
+            .get_or_create(&Metrics::transport(self.transport))
+            .inc();
+        warn!(
+            transport = self.transport.as_str(),
+            max, "connection refused: {why}"
+        );
     }
 
     /// Connections that send nothing for `timeout` after they are accepted are closed.
@@ -56,20 +134,13 @@ impl ConnectionLimit {
             Ok(permit) => Some(Limited {
                 inner: stream,
                 _permit: permit,
+                _place: None,
                 silent: self
                     .first_byte
                     .map(|t| (Box::pin(tokio::time::sleep(t)), t)),
             }),
             Err(_) => {
-                self.metrics
-                    .connections_refused
-                    .get_or_create(&Metrics::transport(self.transport))
-                    .inc();
-                warn!(
-                    transport = self.transport.as_str(),
-                    max = self.max,
-                    "connection refused: at the connection limit"
-                );
+                self.refused("at the connection limit", self.max);
                 None
             }
         }
@@ -86,6 +157,7 @@ impl ConnectionLimit {
 pub struct Limited<S> {
     inner: S,
     _permit: OwnedSemaphorePermit,
+    _place: Option<IpPlace>,
     silent: Option<(Pin<Box<tokio::time::Sleep>>, Duration)>,
 }
 
@@ -180,5 +252,19 @@ mod tests {
                 .encode()
                 .contains(r#"bounce_connections_refused_total{transport="grpc"} 1"#)
         );
+    }
+
+    #[tokio::test]
+    async fn one_address_holds_at_most_its_share_and_a_closed_one_frees_it() {
+        let metrics = Arc::new(Metrics::new());
+        let limit = ConnectionLimit::new(10, Transport::Http, metrics).with_per_ip(2);
+        let (a, b): (IpAddr, IpAddr) = ("10.0.0.1".parse().unwrap(), "10.0.0.2".parse().unwrap());
+        let first = limit.admit_from((), a).expect("first from a");
+        let _second = limit.admit_from((), a).expect("second from a");
+        assert!(limit.admit_from((), a).is_none(), "a third from a");
+        let _other = limit.admit_from((), b).expect("another address");
+        assert_eq!(limit.in_use(), 3, "a refused connection holds no permit");
+        drop(first);
+        assert!(limit.admit_from((), a).is_some());
     }
 }

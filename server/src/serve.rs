@@ -56,11 +56,16 @@ pub async fn serve_grpc(
         Transport::Grpc,
         Arc::clone(hub.metrics()),
     )
-    .with_first_byte_timeout(hub.first_byte_timeout());
+    .with_first_byte_timeout(hub.first_byte_timeout())
+    .with_per_ip(hub.max_connections_per_ip());
     let incoming = TcpListenerStream::new(listener).filter_map(move |s| match s {
         Ok(s) => {
             let _ = s.set_nodelay(true);
-            limit.admit(s).map(Ok)
+            match s.peer_addr() {
+                Ok(peer) => limit.admit_from(s, peer.ip()).map(Ok),
+                // Already gone: dropping it is all there is to do.
+                Err(_) => None,
+            }
         }
         Err(e) => Some(Err(e)),
     });

@@ -466,6 +466,54 @@ async fn silent_connections_are_closed_and_free_their_places() {
     server.stop().await;
 }
 
+/// One address holds at most `max_connections_per_ip` connections: past it the next is closed at
+/// once, and counted; a closed one frees its place. (Every client here is on loopback, one
+/// address.)
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn one_address_cannot_take_every_connection() {
+    let mut config = HubConfig::new(scenes_dir(), EngineChoice::Cpu);
+    config.max_connections_per_ip = 2;
+    let server = TestServer::start_with(config).await;
+    let mut held = Vec::new();
+    for _ in 0..2 {
+        held.push(
+            tokio::net::TcpStream::connect(server.http_addr)
+                .await
+                .expect("connect"),
+        );
+    }
+    // Both places of loopback are held (the server accepts in order, so the two are in).
+    let http = reqwest::Client::builder()
+        .pool_max_idle_per_host(0)
+        .build()
+        .expect("client");
+    let refused = tokio::time::timeout(PATIENCE, http.get(server.url("/healthz")).send())
+        .await
+        .expect("answered in time");
+    assert!(
+        refused.is_err(),
+        "a third connection was served: {refused:?}"
+    );
+    let metrics = server.hub.metrics().encode();
+    assert!(
+        metrics.contains(r#"bounce_connections_refused_total{transport="http"}"#),
+        "{metrics}"
+    );
+    drop(held.pop());
+    let deadline = Instant::now() + PATIENCE;
+    loop {
+        match http.get(server.url("/healthz")).send().await {
+            Ok(r) if r.status() == 200 => break,
+            other => {
+                assert!(Instant::now() < deadline, "never served again: {other:?}");
+                tokio::time::sleep(Duration::from_millis(50)).await;
+            }
+        }
+    }
+    drop(held);
+    server.stop().await;
+}
+
 /// Stored sessions do not outlive their use: one whose scene is not served waits one session TTL
 /// for it (a hot reload that adds the scene brings it back), then is removed from the store; a
 /// record that no longer parses is moved out of the sessions table (kept, not read again).
