@@ -455,9 +455,23 @@ pub fn simplify_refined(
         Geometry::VoxelFaces => voxelize_at,
     };
     // The search counts patches, which the spaces surfaces face do not change; only the chosen
-    // size is clustered again with them.
+    // size is clustered again with them. Should their elements pass the most rows a bake
+    // accepts, the elements without them (which the search kept within it) stand.
     let finish = |v: Voxelization| match geometry {
-        Geometry::Surface => cluster_at(scene, v.layout.voxel_size).map(refine),
+        Geometry::Surface => {
+            let spaced = refine(cluster_at(scene, v.layout.voxel_size)?);
+            Ok(if spaced.transport_layout().len() > MAX_PATCHES as usize {
+                tracing::warn!(
+                    rows = spaced.transport_layout().len(),
+                    max = MAX_PATCHES,
+                    "elements by the space they face would pass the most rows a bake accepts: \
+                     elements by surface alone"
+                );
+                v
+            } else {
+                spaced
+            })
+        }
         Geometry::VoxelFaces => Ok(v),
     };
     match resolution {
