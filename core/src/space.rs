@@ -10,20 +10,23 @@
 //! path at its root.
 //!
 //! The spaces are found on a lattice of points finer than the voxels: two neighbouring lattice
-//! points are in the same space when the segment between them crosses no triangle (traced against
-//! the original triangles, the same [`TriMesh`] the form-factor rays use), and the spaces are the
-//! connected parts. A piece of surface faces the space of the nearest lattice point it can see
-//! from just in front of itself. The lattice only ever separates what a surface separates: a
-//! doorway narrower than its spacing closes, and then two pieces that face one room get two
-//! elements, which costs a row but never an error.
+//! points see each other when the segment between them crosses no triangle (traced against the
+//! original triangles, the same [`TriMesh`] the form-factor rays use). A piece of surface faces
+//! the nearest lattice point it can see from just in front of itself ([`Spaces::facing`]). The
+//! spaces are taken locally ([`Spaces::local`]): two pieces of a voxel face one space when their
+//! points connect within a box around the voxel. Taken over the whole scene, a level is usually
+//! one space (open to the sky, its storeys joined by stairs), yet within a voxel the ceiling still
+//! parts the wall below it from the wall above. The lattice only ever separates what a surface
+//! separates: a doorway narrower than its spacing closes, and then two pieces that face one room
+//! get two elements, which costs a row but never an error.
 
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 
 use crate::trimesh::{TriMesh, offset_origin};
 
-/// The most lattice points a scene gets (12 bytes of work each); a finer lattice would be chosen
-/// only for a grid that is mostly empty, whose spaces a coarser one finds as well.
+/// The most lattice points a scene gets (a byte each, and three segments traced); a finer lattice
+/// would only be asked for by a grid that is mostly empty, whose spaces a coarser one finds too.
 pub const MAX_LATTICE_POINTS: u64 = 1 << 22;
 
 /// The open space of a scene on a lattice whose points are the centres of the cells of a grid
