@@ -26,6 +26,7 @@ use std::collections::HashMap;
 
 use crate::patch::PatchLayout;
 use crate::scene::Scene;
+use crate::space::{find, union};
 
 /// The elements of a layout's patches, in patch order: patch `p` owns the contiguous run of
 /// elements whose `patch` entry is `p` (every patch at least one).
@@ -201,26 +202,14 @@ pub fn sub_cell(fine: [u32; 3], cell: [u32; 3], factor: u32) -> u32 {
 pub fn components(scene: &Scene) -> Vec<u32> {
     let n = scene.triangles.len();
     let mut parent: Vec<u32> = (0..n as u32).collect();
-    fn find(parent: &mut [u32], mut i: u32) -> u32 {
-        while parent[i as usize] != i {
-            let up = parent[parent[i as usize] as usize];
-            parent[i as usize] = up;
-            i = up;
-        }
-        i
-    }
     // -0.0 and 0.0 are the same point.
     let bits = |v: glam::Vec3| v.to_array().map(|c| (c + 0.0).to_bits());
     let mut first: HashMap<[u32; 3], u32> = HashMap::with_capacity(n * 3 / 2);
     for (t, tri) in scene.triangles.iter().enumerate() {
         for p in tri.positions {
             let owner = *first.entry(bits(p)).or_insert(t as u32);
-            let (a, b) = (find(&mut parent, owner), find(&mut parent, t as u32));
-            if a != b {
-                // The smaller root wins, so roots are each component's first triangle.
-                let (lo, hi) = (a.min(b), a.max(b));
-                parent[hi as usize] = lo;
-            }
+            // The smaller root wins, so roots are each component's first triangle.
+            union(&mut parent, owner, t as u32);
         }
     }
     let mut number: HashMap<u32, u32> = HashMap::new();

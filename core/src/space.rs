@@ -212,7 +212,8 @@ impl Spaces {
     }
 }
 
-fn find(parent: &mut [u32], mut i: u32) -> u32 {
+/// The root of `i`'s set, halving the path on the way.
+pub(crate) fn find(parent: &mut [u32], mut i: u32) -> u32 {
     while parent[i as usize] != i {
         let up = parent[parent[i as usize] as usize];
         parent[i as usize] = up;
@@ -222,7 +223,7 @@ fn find(parent: &mut [u32], mut i: u32) -> u32 {
 }
 
 /// Join the sets of `a` and `b`; the smaller root wins, so every root is its set's first point.
-fn union(parent: &mut [u32], a: u32, b: u32) {
+pub(crate) fn union(parent: &mut [u32], a: u32, b: u32) {
     let (a, b) = (find(parent, a), find(parent, b));
     if a != b {
         let (lo, hi) = (a.min(b), a.max(b));
@@ -234,19 +235,20 @@ fn union(parent: &mut [u32], a: u32, b: u32) {
 mod tests {
     use super::*;
 
-    /// A closed box of two rooms split by a wall at x = 1 (the box spans 0..2 × 0..1 × 0..1).
-    fn two_rooms() -> TriMesh {
+    /// A closed box of two rooms (the box spans 0..2 × 0..1 × 0..1) with a wall at x = 1 from
+    /// the floor up to `wall_top`: 1 parts the rooms, less leaves an opening above the wall.
+    fn rooms(wall_top: f32) -> TriMesh {
         let mut tris = Vec::new();
         let mut quad = |a: Vec3, b: Vec3, c: Vec3, d: Vec3| {
             tris.push(([a, b, c], true));
             tris.push(([a, c, d], true));
         };
         let v = Vec3::new;
-        for x in [0.0, 1.0, 2.0] {
+        for (x, top) in [(0.0, 1.0), (1.0, wall_top), (2.0, 1.0)] {
             quad(
                 v(x, 0.0, 0.0),
-                v(x, 1.0, 0.0),
-                v(x, 1.0, 1.0),
+                v(x, top, 0.0),
+                v(x, top, 1.0),
                 v(x, 0.0, 1.0),
             );
         }
@@ -267,6 +269,10 @@ mod tests {
             );
         }
         TriMesh::new(tris)
+    }
+
+    fn two_rooms() -> TriMesh {
+        rooms(1.0)
     }
 
     fn lattice(mesh: &TriMesh) -> Spaces {
@@ -303,44 +309,8 @@ mod tests {
 
     #[test]
     fn an_opening_joins_the_rooms_but_not_within_a_box_that_leaves_it_out() {
-        let v = Vec3::new;
         // The same rooms, but the wall at x = 1 only reaches y = 0.5.
-        let mut tris = Vec::new();
-        let mut quad = |a: Vec3, b: Vec3, c: Vec3, d: Vec3| {
-            tris.push(([a, b, c], true));
-            tris.push(([a, c, d], true));
-        };
-        for x in [0.0, 2.0] {
-            quad(
-                v(x, 0.0, 0.0),
-                v(x, 1.0, 0.0),
-                v(x, 1.0, 1.0),
-                v(x, 0.0, 1.0),
-            );
-        }
-        quad(
-            v(1.0, 0.0, 0.0),
-            v(1.0, 0.5, 0.0),
-            v(1.0, 0.5, 1.0),
-            v(1.0, 0.0, 1.0),
-        );
-        for y in [0.0, 1.0] {
-            quad(
-                v(0.0, y, 0.0),
-                v(2.0, y, 0.0),
-                v(2.0, y, 1.0),
-                v(0.0, y, 1.0),
-            );
-        }
-        for z in [0.0, 1.0] {
-            quad(
-                v(0.0, 0.0, z),
-                v(2.0, 0.0, z),
-                v(2.0, 1.0, z),
-                v(0.0, 1.0, z),
-            );
-        }
-        let mesh = TriMesh::new(tris);
+        let mesh = rooms(0.5);
         let s = lattice(&mesh);
         let all = s.local([0; 3], [u32::MAX; 3]);
         assert_eq!(all.count(), 2, "outside and one room");

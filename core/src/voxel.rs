@@ -450,74 +450,61 @@ pub fn simplify_refined(
     geometry: Geometry,
     refine: Refine<'_>,
 ) -> Result<Voxelization, VoxelError> {
-    let at: At = match geometry {
-        Geometry::Surface => cluster_patches_at,
-        Geometry::VoxelFaces => voxelize_at,
-    };
-    // The search counts patches, which the spaces surfaces face do not change; only the chosen
-    // size is clustered again with them. Should their elements pass the most rows a bake
-    // accepts, the elements without them (which the search kept within it) stand.
-    let finish = |v: Voxelization| match geometry {
-        Geometry::Surface => {
-            let spaced = refine(cluster_at(scene, v.layout.voxel_size)?);
-            Ok(if spaced.transport_layout().len() > MAX_PATCHES as usize {
-                tracing::warn!(
-                    rows = spaced.transport_layout().len(),
-                    max = MAX_PATCHES,
-                    "elements by the space they face would pass the most rows a bake accepts: \
-                     elements by surface alone"
-                );
-                v
-            } else {
-                spaced
-            })
-        }
-        Geometry::VoxelFaces => Ok(v),
+    // The search counts patches, which the spaces surfaces face do not change: it clusters
+    // without them, and only the chosen size is clustered again with them.
+    let (count_at, final_at): (At, At) = match geometry {
+        Geometry::Surface => (cluster_patches_at, cluster_at),
+        Geometry::VoxelFaces => (voxelize_at, voxelize_at),
     };
     match resolution {
         Resolution::VoxelSize(size) => {
             if !(size.is_finite() && size > 0.0) {
                 return Err(VoxelError::VoxelSize(size));
             }
-            let v = match geometry {
-                Geometry::Surface => refine(cluster_at(scene, size)?),
-                Geometry::VoxelFaces => refine(at(scene, size)?),
-            };
-            if v.layout.is_empty() {
-                return Err(VoxelError::AllDropped {
-                    candidates: v.dropped_patches,
-                    size,
-                });
-            }
-            // The transport's rows are the elements: they are what must fit.
-            if v.transport_layout().len() > MAX_PATCHES as usize {
-                return Err(VoxelError::TooManyPatches {
-                    size,
-                    patches: v.transport_layout().len(),
-                });
-            }
-            Ok(v)
+            accepted(refine(final_at(scene, size)?))
         }
         Resolution::TargetPatches(n) => {
             if n == 0 || n > MAX_PATCHES {
                 return Err(VoxelError::PatchCount(n));
             }
-            let v = finish(search_voxel_size(scene, n, at, refine)?)?;
-            if v.layout.is_empty() {
-                return Err(VoxelError::AllDropped {
-                    candidates: v.dropped_patches,
-                    size: v.layout.voxel_size,
-                });
+            let found = search_voxel_size(scene, n, count_at, refine)?;
+            if geometry == Geometry::VoxelFaces {
+                return accepted(found);
             }
-            if v.transport_layout().len() > MAX_PATCHES as usize {
-                return Err(VoxelError::TooManyPatches {
-                    size: v.layout.voxel_size,
-                    patches: v.transport_layout().len(),
-                });
+            // Should the elements by space pass the most rows a bake accepts, the elements
+            // without them (which the search kept within it) stand.
+            let spaced = refine(final_at(scene, found.layout.voxel_size)?);
+            if spaced.transport_layout().len() > MAX_PATCHES as usize {
+                tracing::warn!(
+                    rows = spaced.transport_layout().len(),
+                    max = MAX_PATCHES,
+                    "elements by the space they face would pass the most rows a bake accepts: \
+                     elements by surface alone"
+                );
+                return accepted(found);
             }
-            Ok(v)
+            accepted(spaced)
         }
     }
+}
+
+/// `v` if a bake can use it: some patch is left, and the transport's rows (the elements: they
+/// are what must fit) are within [`MAX_PATCHES`].
+fn accepted(v: Voxelization) -> Result<Voxelization, VoxelError> {
+    let size = v.layout.voxel_size;
+    if v.layout.is_empty() {
+        return Err(VoxelError::AllDropped {
+            candidates: v.dropped_patches,
+            size,
+        });
+    }
+    if v.transport_layout().len() > MAX_PATCHES as usize {
+        return Err(VoxelError::TooManyPatches {
+            size,
+            patches: v.transport_layout().len(),
+        });
+    }
+    Ok(v)
 }
 
 /// Simplification at one voxel size.

@@ -15,14 +15,17 @@ fn light_set(intensity: f32) -> LightSet {
     }
 }
 
+/// A CPU hub serving `scenes` that stores its sessions under `data`.
+fn stored(scenes: PathBuf, data: &std::path::Path) -> HubConfig {
+    let mut c = HubConfig::new(scenes, EngineChoice::Cpu);
+    c.data_dir = Some(data.to_path_buf());
+    c
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn sessions_survive_a_restart_with_their_lights_and_version() {
     let data = tempfile::tempdir().expect("tempdir");
-    let config = || {
-        let mut c = HubConfig::new(scenes_dir(), EngineChoice::Cpu);
-        c.data_dir = Some(data.path().to_path_buf());
-        c
-    };
+    let config = || stored(scenes_dir(), data.path());
     let first = TestServer::start_with(config()).await;
     let mut c = first.client().await;
     let (id, v1) = create_session(&mut c, vec![point(5.0)]).await;
@@ -522,8 +525,7 @@ async fn one_address_cannot_take_every_connection() {
 async fn stored_sessions_of_absent_scenes_expire_and_unreadable_ones_are_set_aside() {
     let data = tempfile::tempdir().expect("tempdir");
     let config = |dir: PathBuf, ttl: Duration| {
-        let mut c = HubConfig::new(dir, EngineChoice::Cpu);
-        c.data_dir = Some(data.path().to_path_buf());
+        let mut c = stored(dir, data.path());
         c.session_ttl = ttl;
         c.reload_interval = Some(Duration::from_millis(50));
         c
@@ -607,11 +609,7 @@ async fn stored_sessions_of_absent_scenes_expire_and_unreadable_ones_are_set_asi
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn idle_time_survives_a_restart() {
     let data = tempfile::tempdir().expect("tempdir");
-    let config = || {
-        let mut c = HubConfig::new(scenes_dir(), EngineChoice::Cpu);
-        c.data_dir = Some(data.path().to_path_buf());
-        c
-    };
+    let config = || stored(scenes_dir(), data.path());
     let first = TestServer::start_with(config()).await;
     let mut c = first.client().await;
     let (id, _) = create_session(&mut c, vec![point(5.0)]).await;
