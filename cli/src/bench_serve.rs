@@ -91,6 +91,7 @@ pub fn run(args: &BenchServeArgs) -> Result<()> {
     config.max_connections = 100_000;
     // Every simulated viewer connects from loopback.
     config.max_connections_per_ip = 100_000;
+    config.max_sessions_per_client = config.max_sessions;
     let hub = Hub::start(&config).context("starting the service")?;
     eprintln!(
         "bench serve: {name} ({} patches) on {}, {} light changes/s per session, {} s a row, {:.0}% WebSocket viewers, sessions {}",

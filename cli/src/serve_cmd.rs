@@ -113,6 +113,16 @@ pub struct ServeArgs {
         env = "BOUNCE_MAX_SESSIONS"
     )]
     pub max_sessions: usize,
+    /// Sessions one client address may hold at most (so that one client cannot take every
+    /// place of --max-sessions; raise it for many clients behind one NAT or proxy); creating
+    /// one more is refused (429 / RESOURCE_EXHAUSTED) until its idle ones expire.
+    #[arg(
+        long,
+        value_name = "N",
+        default_value_t = 64,
+        env = "BOUNCE_MAX_SESSIONS_PER_CLIENT"
+    )]
+    pub max_sessions_per_client: usize,
     /// A WebSocket client silent this long is pinged, and closed (1008) when nothing comes back
     /// within as long again, or when a frame cannot be handed to it within it: a dead or stalled
     /// peer. Browsers and WebSocket libraries answer pings by themselves.
@@ -180,6 +190,7 @@ pub fn run(args: &ServeArgs) -> Result<()> {
     config.max_connections = args.max_connections;
     config.max_connections_per_ip = args.max_connections_per_ip;
     config.max_sessions = args.max_sessions;
+    config.max_sessions_per_client = args.max_sessions_per_client;
     anyhow::ensure!(
         !args.ws_keepalive.is_zero(),
         "--ws-keepalive must be longer than 0: it is how long a silent client has to answer a ping"

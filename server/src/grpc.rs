@@ -129,10 +129,11 @@ impl Bounce for BounceService {
         request: Request<proto::CreateSessionRequest>,
     ) -> Result<Response<proto::CreateSessionResponse>, Status> {
         self.authorize(&request, None)?;
+        let client = request.remote_addr().map(|a| a.ip());
         let r = request.into_inner();
         let created = async {
             let set = lights(&r.lights)?;
-            self.hub.create_session(&r.scene, set).await
+            self.hub.create_session(&r.scene, set, client).await
         };
         let session = created.await.map_err(|e| self.refuse(e.into()))?;
         Ok(Response::new(proto::CreateSessionResponse {
@@ -201,6 +202,7 @@ impl Bounce for BounceService {
         let authorized = self
             .authorize(&request, None)
             .and_then(|()| self.authorize_read(&request));
+        let client = request.remote_addr().map(|a| a.ip());
         let mut inbound = request.into_inner();
         let first = inbound.message().await?.ok_or_else(|| {
             self.refuse(Status::invalid_argument(
@@ -228,7 +230,7 @@ impl Bounce for BounceService {
                     } else {
                         Default::default()
                     };
-                    self.hub.create_session(&first.scene, set).await
+                    self.hub.create_session(&first.scene, set, client).await
                 }
                 _ => Err(ServerError::Invalid(
                     "session_id, scene: the first message names exactly one of them".into(),

@@ -32,13 +32,13 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use axum::extract::rejection::BytesRejection;
-use axum::extract::{FromRequestParts, Path, Query, State};
+use axum::extract::{ConnectInfo, FromRequestParts, Path, Query, State};
 use axum::http::request::Parts;
 use axum::http::{HeaderMap, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use axum::routing::{MethodRouter, get, put};
 use axum::serve::Listener;
-use axum::{Json, Router};
+use axum::{Extension, Json, Router};
 use bounce_core::light::LightSet;
 use bytes::Bytes;
 use serde::{Deserialize, Serialize};
@@ -85,7 +85,8 @@ pub async fn serve_http(
         // The worker may be mid-batch: wait for it off the runtime's threads.
         let _ = tokio::task::spawn_blocking(move || hub.shutdown()).await;
     };
-    axum::serve(listener, app)
+    // With the peer's address, for the per-client session cap.
+    axum::serve(listener, app.into_make_service_with_connect_info::<Peer>())
         .with_graceful_shutdown(stopping)
         .await
         .map_err(ServerError::Http)?;
@@ -128,6 +129,18 @@ impl Listener for LimitedListener {
 
     fn local_addr(&self) -> std::io::Result<SocketAddr> {
         self.listener.local_addr()
+    }
+}
+
+/// The address a request came from, as the connection limit admitted it.
+#[derive(Clone, Copy, Debug)]
+struct Peer(SocketAddr);
+
+impl axum::extract::connect_info::Connected<axum::serve::IncomingStream<'_, LimitedListener>>
+    for Peer
+{
+    fn connect_info(stream: axum::serve::IncomingStream<'_, LimitedListener>) -> Peer {
+        Peer(*stream.remote_addr())
     }
 }
 
@@ -675,6 +688,7 @@ struct Created {
 
 async fn create_session(
     State(state): State<AppState>,
+    connected: Option<Extension<ConnectInfo<Peer>>>,
     Token(token): Token,
     body: Result<Bytes, BytesRejection>,
 ) -> Result<Response, ApiError> {
@@ -686,7 +700,11 @@ async fn create_session(
         Some(l) => light_set(l)?,
         None => LightSet::default(),
     };
-    let session = state.hub.create_session(&request.scene, lights).await?;
+    let client = connected.map(|Extension(ConnectInfo(Peer(addr)))| addr.ip());
+    let session = state
+        .hub
+        .create_session(&request.scene, lights, client)
+        .await?;
     let location = format!("/v1/sessions/{}", session.id);
     let created = Created {
         session_id: session.id.clone(),

@@ -3,6 +3,7 @@
 //! here; nothing here knows about a wire format.
 
 use std::collections::HashMap;
+use std::net::IpAddr;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, RwLock, Weak};
@@ -17,7 +18,7 @@ use tracing::{info, warn};
 
 use crate::error::ServerError;
 use crate::frame::Frame;
-use crate::metrics::{Metrics, Outcome, ReloadLabel, Transport};
+use crate::metrics::{Metrics, Outcome, ReloadLabel, SessionLimit, SessionLimitLabel, Transport};
 use crate::scenes::{self, SceneInfo};
 use crate::session::Session;
 use crate::store::{Store, StoredSession};
@@ -52,6 +53,9 @@ pub struct HubConfig {
     pub max_connections_per_ip: usize,
     /// Sessions the hub holds at most; creating one more is refused (`resource_exhausted`).
     pub max_sessions: usize,
+    /// Sessions one client address may have created and still hold; one more is refused
+    /// (`resource_exhausted`), so that one client cannot take every place of `max_sessions`.
+    pub max_sessions_per_client: usize,
     /// A connection that sends nothing this long after it opens is closed.
     pub first_byte_timeout: Duration,
     /// A WebSocket is pinged after this long without a message from its client, and closed
@@ -65,7 +69,8 @@ pub struct HubConfig {
 
 impl HubConfig {
     /// Defaults: sessions in memory only, expiring after a day idle; no token; the scene
-    /// directory checked every two seconds; 4,096 connections per front end; 10,000 sessions.
+    /// directory checked every two seconds; 4,096 connections per front end; 10,000 sessions,
+    /// 64 per client address.
     pub fn new(scenes_dir: impl Into<PathBuf>, engine: EngineChoice) -> HubConfig {
         HubConfig {
             scenes_dir: scenes_dir.into(),
@@ -79,6 +84,7 @@ impl HubConfig {
             max_connections: 4096,
             max_connections_per_ip: 256,
             max_sessions: 10_000,
+            max_sessions_per_client: 64,
             allowed_origins: Vec::new(),
             first_byte_timeout: Duration::from_secs(10),
             ws_keepalive: Duration::from_secs(30),
@@ -111,6 +117,10 @@ struct Inner {
     max_connections: usize,
     max_connections_per_ip: usize,
     max_sessions: usize,
+    max_sessions_per_client: usize,
+    /// Sessions held per client address that created them (restored ones count for none: the
+    /// store does not keep addresses).
+    per_client: Mutex<HashMap<IpAddr, usize>>,
     /// Stored sessions whose scene is not served, and since when: restored if it comes back,
     /// removed from the store after the session TTL.
     orphans: Mutex<Vec<(String, StoredSession, Instant)>>,
@@ -183,6 +193,8 @@ impl Hub {
                 max_connections: config.max_connections.max(1),
                 max_connections_per_ip: config.max_connections_per_ip.max(1),
                 max_sessions: config.max_sessions,
+                max_sessions_per_client: config.max_sessions_per_client.max(1),
+                per_client: Mutex::new(HashMap::new()),
                 orphans: Mutex::new(Vec::new()),
                 allowed_origins: config
                     .allowed_origins
@@ -232,7 +244,7 @@ impl Hub {
                 }
                 continue;
             }
-            let session = Arc::new(Session::new(id.clone(), scene, s.lights, s.version));
+            let session = Arc::new(Session::new(id.clone(), scene, s.lights, s.version, None));
             // Idle since its last write, as before the restart, but never so long that it
             // expires before its viewers (whose watching was not stored) can reconnect.
             if let Some(written) = s.written_unix_ms {
@@ -440,23 +452,32 @@ impl Hub {
         self.inner.web_dir.as_deref()
     }
 
-    /// A new session on `scene` with validated `lights` at version 1, stored before this
-    /// returns; its first frame is queued at once.
+    /// A new session on `scene` with validated `lights` at version 1, created by a client at
+    /// `client` (when the front end knows it), stored before this returns; its first frame is
+    /// queued at once.
     pub async fn create_session(
         &self,
         scene: &str,
         lights: LightSet,
+        client: Option<IpAddr>,
     ) -> Result<Arc<Session>, ServerError> {
         let index = self.scene_index(scene)?;
         // A soft cap (two creations racing may both pass it): what it bounds is memory and the
         // worker's batches, not an exact count.
         let held = self.session_count();
         if held >= self.inner.max_sessions {
+            self.count_refused(SessionLimit::Total);
             return Err(ServerError::Exhausted(format!(
                 "the server holds {held} sessions, its limit (--max-sessions); reuse one or wait \
                  for idle ones to expire"
             )));
         }
+        // Taken before the session is stored, so that one client's creations racing each other
+        // cannot all pass the check; given back if the creation fails.
+        let place = match client {
+            Some(ip) => Some(self.take_client_place(ip)?),
+            None => None,
+        };
         let id = uuid::Uuid::new_v4().simple().to_string();
         if let Some(store) = &self.inner.store {
             let record = StoredSession {
@@ -467,12 +488,60 @@ impl Hub {
             };
             store.put(&id, &record).await?;
         }
-        let session = Arc::new(Session::new(id.clone(), index, lights, 1));
+        let session = Arc::new(Session::new(id.clone(), index, lights, 1, client));
+        // The session holds the place from now on; expiry gives it back.
+        if let Some(place) = place {
+            place.keep();
+        }
         self.write_sessions().insert(id, Arc::clone(&session));
         self.inner.metrics.sessions.set(self.session_count() as i64);
         self.inner.worker.enqueue(Arc::clone(&session));
         info!(session = %session.id, scene, "session created");
         Ok(session)
+    }
+
+    fn count_refused(&self, limit: SessionLimit) {
+        self.inner
+            .metrics
+            .sessions_refused
+            .get_or_create(&SessionLimitLabel { limit })
+            .inc();
+    }
+
+    /// One more session for `ip`, or `resource_exhausted` when it holds its limit already.
+    fn take_client_place(&self, ip: IpAddr) -> Result<ClientPlace<'_>, ServerError> {
+        let mut held = self
+            .inner
+            .per_client
+            .lock()
+            .unwrap_or_else(|e| e.into_inner());
+        let n = held.entry(ip).or_insert(0);
+        if *n >= self.inner.max_sessions_per_client {
+            let n = *n;
+            drop(held);
+            self.count_refused(SessionLimit::PerClient);
+            return Err(ServerError::Exhausted(format!(
+                "this client address holds {n} sessions, the limit for one client \
+                 (--max-sessions-per-client); reuse one or wait for idle ones to expire"
+            )));
+        }
+        *n += 1;
+        Ok(ClientPlace { hub: self, ip })
+    }
+
+    /// Gives back a removed session's place in its client's count.
+    fn release_client_place(&self, ip: IpAddr) {
+        let mut held = self
+            .inner
+            .per_client
+            .lock()
+            .unwrap_or_else(|e| e.into_inner());
+        if let Some(n) = held.get_mut(&ip) {
+            *n = n.saturating_sub(1);
+            if *n == 0 {
+                held.remove(&ip);
+            }
+        }
     }
 
     /// Replaces a session's validated lights, stores them, marks the session dirty and returns;
@@ -608,6 +677,9 @@ impl Hub {
             s.mark_expired();
             map.remove(&s.id);
             drop(map);
+            if let Some(ip) = s.client {
+                self.release_client_place(ip);
+            }
             if let Some(store) = &self.inner.store
                 && let Err(e) = store.delete_blocking(&s.id)
             {
@@ -781,6 +853,26 @@ impl Hub {
                 warn!(error = %e, "no janitor thread: sessions will not expire, scenes not reload")
             }
         }
+    }
+}
+
+/// A place taken in a client's count of sessions while its session is being created: given
+/// back when dropped, which is what a failed creation does; a created session keeps it.
+struct ClientPlace<'a> {
+    hub: &'a Hub,
+    ip: IpAddr,
+}
+
+impl ClientPlace<'_> {
+    /// The created session holds the place now: expiry gives it back.
+    fn keep(self) {
+        std::mem::forget(self);
+    }
+}
+
+impl Drop for ClientPlace<'_> {
+    fn drop(&mut self) {
+        self.hub.release_client_place(self.ip);
     }
 }
 

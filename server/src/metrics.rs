@@ -65,6 +65,30 @@ impl EncodeLabelValue for Outcome {
     }
 }
 
+/// Which cap refused a new session.
+#[derive(Debug, Clone, Copy, Hash, PartialEq, Eq)]
+pub enum SessionLimit {
+    /// `--max-sessions`.
+    Total,
+    /// `--max-sessions-per-client`.
+    PerClient,
+}
+
+impl EncodeLabelValue for SessionLimit {
+    fn encode(&self, encoder: &mut LabelValueEncoder) -> Result<(), std::fmt::Error> {
+        let s = match self {
+            SessionLimit::Total => "total",
+            SessionLimit::PerClient => "per_client",
+        };
+        EncodeLabelValue::encode(&s, encoder)
+    }
+}
+
+#[derive(Debug, Clone, Hash, PartialEq, Eq, EncodeLabelSet)]
+pub struct SessionLimitLabel {
+    pub limit: SessionLimit,
+}
+
 #[derive(Debug, Clone, Hash, PartialEq, Eq, EncodeLabelSet)]
 pub struct ReloadLabel {
     pub scene: String,
@@ -86,6 +110,8 @@ pub struct Metrics {
     pub viewers: Family<TransportLabel, Gauge>,
     pub sessions: Gauge,
     pub sessions_expired: Counter,
+    /// New sessions refused, by the cap that refused them.
+    pub sessions_refused: Family<SessionLimitLabel, Counter>,
     /// Times the engine worker was restarted after a panic or a device fault.
     pub worker_restarts: Counter,
     /// Session relights that failed and were queued again.
@@ -170,6 +196,12 @@ impl Metrics {
             "Sessions removed after nobody watched or wrote for the expiry time",
             sessions_expired.clone(),
         );
+        let sessions_refused = Family::<SessionLimitLabel, Counter>::default();
+        registry.register(
+            "sessions_refused",
+            "New sessions refused at a session cap (total, or per client address)",
+            sessions_refused.clone(),
+        );
         let worker_restarts = Counter::default();
         registry.register(
             "worker_restarts",
@@ -240,6 +272,7 @@ impl Metrics {
             viewers,
             sessions,
             sessions_expired,
+            sessions_refused,
             worker_restarts,
             relight_retries,
             websocket_unresponsive,

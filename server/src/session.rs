@@ -18,6 +18,9 @@ pub struct Session {
     pub id: String,
     /// Index of the scene in the hub.
     pub scene: usize,
+    /// The address of the client that created it, when known (not for restored sessions):
+    /// whose per-client count of sessions it is in.
+    pub client: Option<std::net::IpAddr>,
     /// When this process created or restored it: what lists sessions newest first. Not stored,
     /// so sessions restored after a restart all date from the restart.
     created: Instant,
@@ -43,11 +46,18 @@ struct State {
 
 impl Session {
     /// A session at `version`, waiting for its first frame (the caller queues it).
-    pub(crate) fn new(id: String, scene: usize, lights: LightSet, version: u64) -> Session {
+    pub(crate) fn new(
+        id: String,
+        scene: usize,
+        lights: LightSet,
+        version: u64,
+        client: Option<std::net::IpAddr>,
+    ) -> Session {
         let now = Instant::now();
         Session {
             id,
             scene,
+            client,
             created: now,
             state: Mutex::new(State {
                 lights,

@@ -459,7 +459,7 @@ async fn connections_past_the_limit_are_closed_and_counted() {
     // Made on the hub, so no HTTP connection of ours is still closing when the count starts.
     let id = server
         .hub
-        .create_session(SCENE, LightSet::default())
+        .create_session(SCENE, LightSet::default(), None)
         .await
         .expect("session")
         .id
@@ -527,6 +527,90 @@ async fn sessions_past_the_limit_are_refused() {
     assert_eq!(body["code"], "resource_exhausted");
     assert!(server.hub.session(&first).is_ok());
     assert_eq!(server.hub.session_count(), 2);
+    server.stop().await;
+}
+
+/// One client address creates at most `max_sessions_per_client` sessions, whatever the total
+/// cap: one more is refused on every way to create one (gRPC `CreateSession` and a `Relight`
+/// stream naming a scene, HTTP `POST`) as `resource_exhausted` (429 over HTTP) and counted, and
+/// a session that expires gives its place back. Before the cap, one client could take all of
+/// `--max-sessions`.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn one_client_holds_at_most_its_share_of_sessions() {
+    let mut config = HubConfig::new(scenes_dir(), EngineChoice::Cpu);
+    config.max_sessions_per_client = 2;
+    // Long enough to start watching a new session on a loaded machine before it could expire
+    // (watched sessions never do), short enough to wait for one to expire.
+    config.session_ttl = Duration::from_secs(3);
+    config.reload_interval = None;
+    let server = TestServer::start_with(config).await;
+    let mut c = server.client().await;
+    let (first, _) = create_session(&mut c, vec![point(5.0)]).await;
+    let first_frames = subscribe(&mut c, &first).await;
+    let (second, _) = create_session(&mut c, vec![point(6.0)]).await;
+    let _second_frames = subscribe(&mut c, &second).await;
+
+    let refused = c
+        .create_session(proto::CreateSessionRequest {
+            scene: SCENE.into(),
+            lights: vec![point(7.0)],
+        })
+        .await
+        .expect_err("a third session from the same address");
+    assert_eq!(refused.code(), Code::ResourceExhausted, "{refused:?}");
+    assert!(
+        refused.message().contains("--max-sessions-per-client"),
+        "{refused:?}"
+    );
+    let opening = proto::RelightRequest {
+        scene: SCENE.into(),
+        set_lights: true,
+        lights: vec![point(7.0)],
+        ..Default::default()
+    };
+    assert_status(
+        c.relight(tokio_stream::iter(vec![opening]))
+            .await
+            .map(|_| ()),
+        Code::ResourceExhausted,
+        "--max-sessions-per-client",
+    );
+    let http = reqwest::Client::new();
+    let post = || {
+        http.post(server.url("/v1/sessions"))
+            .json(&json!({"scene": SCENE, "lights": [json_point(7.0)]}))
+            .send()
+    };
+    let r = post().await.expect("POST");
+    assert_eq!(r.status(), 429);
+    let body: Value = r.json().await.expect("json");
+    assert_eq!(body["code"], "resource_exhausted", "{body}");
+    assert!(
+        body["message"]
+            .as_str()
+            .is_some_and(|m| m.contains("--max-sessions-per-client")),
+        "{body}"
+    );
+    assert_eq!(server.hub.session_count(), 2);
+    let metrics = server.hub.metrics().encode();
+    assert!(
+        metrics.contains(r#"bounce_sessions_refused_total{limit="per_client"} 3"#),
+        "{metrics}"
+    );
+
+    // Nobody watches the first any more: once it expires, its place is free again.
+    drop(first_frames);
+    let deadline = Instant::now() + PATIENCE;
+    while server.hub.session(&first).is_ok() {
+        assert!(
+            Instant::now() < deadline,
+            "the unwatched session never expired"
+        );
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    let r = post().await.expect("POST");
+    assert_eq!(r.status(), reqwest::StatusCode::CREATED);
+    assert!(server.hub.session(&second).is_ok());
     server.stop().await;
 }
 

@@ -405,7 +405,7 @@ async fn a_gpu_worker_that_keeps_panicking_falls_back_to_the_cpu() {
     };
     assert!(hub.engine().starts_with("gpu"), "{}", hub.engine());
     let session = hub
-        .create_session(SCENE, light_set(5.0))
+        .create_session(SCENE, light_set(5.0), None)
         .await
         .expect("session");
     published(&hub, &session.id, 1).await;
