@@ -20,8 +20,8 @@ use crate::error::ServerError;
 use crate::frame::Frame;
 use crate::metrics::{Metrics, Outcome, ReloadLabel, SessionLimit, SessionLimitLabel, Transport};
 use crate::scenes::{self, SceneInfo};
-use crate::session::Session;
-use crate::store::{Store, StoredSession};
+use crate::session::{Offered, Session, WriteReply};
+use crate::store::{Store, StoreError, StoredSession};
 use crate::viewer::Viewer;
 use crate::worker::{OnceJob, ReloadJob, Worker};
 
@@ -545,14 +545,67 @@ impl Hub {
     }
 
     /// Replaces a session's validated lights, stores them, marks the session dirty and returns;
-    /// the frame follows on the session's channel. Writes to one session are serialised, so the
-    /// store always holds the newest version.
+    /// the frame follows on the session's channel. Writes to one session are stored one at a
+    /// time, so the store always holds the newest version, and those that arrive while one is
+    /// stored are merged: only the newest is stored next (last write wins), and every caller
+    /// whose lights it replaced is answered with its version.
     pub async fn set_lights(
         &self,
         id: &str,
         lights: LightSet,
     ) -> Result<LightsVersion, ServerError> {
         let session = self.session(id)?;
+        let (reply, answer) = oneshot::channel();
+        match session.offer_write(lights, reply) {
+            Offered::Store(lights, replies) => {
+                // On a task of its own: the writes merged meanwhile wait on it, and are answered
+                // even if this caller goes away.
+                let hub = self.clone();
+                tokio::spawn(async move { hub.store_writes(session, lights, replies).await });
+            }
+            Offered::Waiting { merged } => {
+                if merged {
+                    self.inner.metrics.light_writes_merged.inc();
+                }
+            }
+        }
+        // The storing task answers every reply it takes; none comes only if it panicked.
+        answer
+            .await
+            .map_err(|_| ServerError::Store(StoreError::Gone))?
+    }
+
+    /// Stores `lights` and answers `replies`, then each write that waited meanwhile, until none
+    /// does.
+    async fn store_writes(
+        &self,
+        session: Arc<Session>,
+        mut lights: LightSet,
+        mut replies: Vec<WriteReply>,
+    ) {
+        let _unwinding = AbandonOnPanic(&session);
+        loop {
+            let answer = self.store_lights(&session, lights).await;
+            for reply in replies {
+                let _ = reply.send(match &answer {
+                    Ok(v) => Ok(*v),
+                    Err(e) => Err(shared_error(e)),
+                });
+            }
+            match session.next_write() {
+                Some((next, waiting)) => (lights, replies) = (next, waiting),
+                None => return,
+            }
+        }
+    }
+
+    /// One write, under the session's write lock.
+    async fn store_lights(
+        &self,
+        session: &Arc<Session>,
+        lights: LightSet,
+    ) -> Result<LightsVersion, ServerError> {
+        let id = session.id.as_str();
         let _writing = session.write_lock().await;
         // Expiry may have removed it while this write waited: storing it now would bring a
         // deleted session back on the next start.
@@ -568,7 +621,7 @@ impl Hub {
         };
         if let Some(store) = &self.inner.store {
             let record = StoredSession {
-                scene: self.scene_of(&session),
+                scene: self.scene_of(session),
                 lights: lights.clone(),
                 version,
                 written_unix_ms: Some(crate::store::unix_ms()),
@@ -576,7 +629,7 @@ impl Hub {
             store.put(id, &record).await?;
         }
         if session.apply(lights, version) {
-            self.inner.worker.enqueue(Arc::clone(&session));
+            self.inner.worker.enqueue(Arc::clone(session));
         }
         self.inner.metrics.light_updates.inc();
         Ok(LightsVersion {
@@ -873,6 +926,30 @@ impl ClientPlace<'_> {
 impl Drop for ClientPlace<'_> {
     fn drop(&mut self) {
         self.hub.release_client_place(self.ip);
+    }
+}
+
+/// Leaves a session writable again should storing its writes panic.
+struct AbandonOnPanic<'a>(&'a Session);
+
+impl Drop for AbandonOnPanic<'_> {
+    fn drop(&mut self) {
+        if std::thread::panicking() {
+            self.0.abandon_writes();
+        }
+    }
+}
+
+/// One write's error again, for each caller merged into that write.
+fn shared_error(e: &ServerError) -> ServerError {
+    match e {
+        ServerError::UnknownSession(id) => ServerError::UnknownSession(id.clone()),
+        ServerError::Store(StoreError::Gone) => ServerError::Store(StoreError::Gone),
+        ServerError::Store(StoreError::Commit(m)) => {
+            ServerError::Store(StoreError::Commit(m.clone()))
+        }
+        // Storing fails only as above; anything else is still the store's.
+        other => ServerError::Store(StoreError::Commit(other.to_string())),
     }
 }
 

@@ -120,6 +120,9 @@ pub struct Metrics {
     pub websocket_unresponsive: Counter,
     /// Light changes accepted (a repeat of the current lights does not count).
     pub light_updates: Counter,
+    /// Light writes replaced by a newer write to the same session before they were stored:
+    /// dropped, never stored or solved (their callers are answered with the newer version).
+    pub light_writes_merged: Counter,
     /// Requests refused: bad input, unknown names, missing token, limits.
     pub requests_refused: Family<TransportLabel, Counter>,
     pub scene_reloads: Family<ReloadLabel, Counter>,
@@ -226,6 +229,12 @@ impl Metrics {
             "Light changes accepted",
             light_updates.clone(),
         );
+        let light_writes_merged = Counter::default();
+        registry.register(
+            "light_writes_merged",
+            "Light writes replaced by a newer write to the same session before they were stored",
+            light_writes_merged.clone(),
+        );
         let requests_refused = Family::<TransportLabel, Counter>::default();
         registry.register(
             "requests_refused",
@@ -277,6 +286,7 @@ impl Metrics {
             relight_retries,
             websocket_unresponsive,
             light_updates,
+            light_writes_merged,
             requests_refused,
             scene_reloads,
             connections_refused,

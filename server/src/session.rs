@@ -10,9 +10,11 @@ use std::sync::{Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
 use bounce_core::light::LightSet;
-use tokio::sync::watch;
+use tokio::sync::{oneshot, watch};
 
+use crate::error::ServerError;
 use crate::frame::Frame;
+use crate::hub::LightsVersion;
 
 pub struct Session {
     pub id: String,
@@ -28,8 +30,33 @@ pub struct Session {
     frames: watch::Sender<Option<Frame>>,
     /// Held across a write's store commit, so writes to one session are stored in order.
     writing: tokio::sync::Mutex<()>,
+    /// Writes waiting while one is stored (see [`Session::offer_write`]).
+    writes: Mutex<Writes>,
     /// Removed by expiry: a write that waited on `writing` meanwhile must not store it again.
     expired: std::sync::atomic::AtomicBool,
+}
+
+/// A write's answer, for its caller (see [`crate::Hub::set_lights`]).
+pub(crate) type WriteReply = oneshot::Sender<Result<LightsVersion, ServerError>>;
+
+/// The writes of a session that are not stored yet.
+#[derive(Default)]
+struct Writes {
+    /// A task stores this session's writes now: a new one waits in `next`.
+    storing: bool,
+    /// The newest write waiting, and every caller to answer when it is stored: those whose
+    /// own lights it replaced too.
+    next: Option<(LightSet, Vec<WriteReply>)>,
+}
+
+/// What [`Session::offer_write`] tells its caller.
+pub(crate) enum Offered {
+    /// No write was being stored: the caller stores these lights and answers these callers,
+    /// then each next write ([`Session::next_write`]) until none waits.
+    Store(LightSet, Vec<WriteReply>),
+    /// It waits as the newest write; `merged` when it replaced lights waiting before it, which
+    /// are dropped, never stored.
+    Waiting { merged: bool },
 }
 
 struct State {
@@ -68,6 +95,7 @@ impl Session {
             }),
             frames: watch::Sender::new(None),
             writing: tokio::sync::Mutex::new(()),
+            writes: Mutex::new(Writes::default()),
             expired: std::sync::atomic::AtomicBool::new(false),
         }
     }
@@ -75,6 +103,45 @@ impl Session {
     fn state(&self) -> MutexGuard<'_, State> {
         // A panic while holding this lock leaves plain data behind; keep serving it.
         self.state.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// A write of `lights`, answered through `reply`. Writes are stored one at a time; while one
+    /// is, only the newest of those arriving waits (last write wins): a client that writes faster
+    /// than the store commits costs one light set and one reply each, never a queue of them.
+    pub(crate) fn offer_write(&self, lights: LightSet, reply: WriteReply) -> Offered {
+        let mut w = self.writes.lock().unwrap_or_else(|e| e.into_inner());
+        if !w.storing {
+            w.storing = true;
+            return Offered::Store(lights, vec![reply]);
+        }
+        match &mut w.next {
+            Some((waiting, replies)) => {
+                *waiting = lights;
+                replies.push(reply);
+                Offered::Waiting { merged: true }
+            }
+            None => {
+                w.next = Some((lights, vec![reply]));
+                Offered::Waiting { merged: false }
+            }
+        }
+    }
+
+    /// The write to store next, or `None` (and nothing is being stored any more) when none
+    /// waits.
+    pub(crate) fn next_write(&self) -> Option<(LightSet, Vec<WriteReply>)> {
+        let mut w = self.writes.lock().unwrap_or_else(|e| e.into_inner());
+        let next = w.next.take();
+        w.storing = next.is_some();
+        next
+    }
+
+    /// After a panic while storing: nothing is being stored, and the callers waiting are told
+    /// (their replies dropped), so the next write stores again rather than waiting forever.
+    pub(crate) fn abandon_writes(&self) {
+        let mut w = self.writes.lock().unwrap_or_else(|e| e.into_inner());
+        w.storing = false;
+        w.next = None;
     }
 
     /// Held by a writer from [`Session::next_version`] to [`Session::apply`].

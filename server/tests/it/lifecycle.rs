@@ -641,3 +641,107 @@ async fn idle_time_survives_a_restart() {
     assert_eq!(old.lights_version(), 3);
     second.stop().await;
 }
+
+/// The value of sample `name` (its labels included, as exposed) in a metrics text; 0 when absent.
+fn sample(metrics: &str, name: &str) -> f64 {
+    metrics
+        .lines()
+        .find_map(|l| {
+            l.strip_prefix(name)?
+                .strip_prefix(' ')?
+                .split(' ')
+                .next()?
+                .parse()
+                .ok()
+        })
+        .unwrap_or(0.0)
+}
+
+/// Writes to one session never queue up: 200 at once, while each store commit waits on its
+/// fsync, are merged into the newest (the light sets in between are dropped, never stored or
+/// solved), every caller is answered with success and the version that took its write's place,
+/// and the last frame answers the lights that won. Before merging, each write waited its turn on
+/// the session's write lock holding its light set, and each got a commit and a version of its own.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn concurrent_writes_to_one_session_are_merged_into_the_newest() {
+    const WRITES: usize = 200;
+    let data = tempfile::tempdir().expect("tempdir");
+    let server = TestServer::start_with(stored(scenes_dir(), data.path())).await;
+    let mut c = server.client().await;
+    let (id, _) = create_session(&mut c, vec![point(1.0)]).await;
+    published(&server.hub, &id, 1).await;
+    let solved = |hub: &Hub| {
+        sample(
+            &hub.metrics().encode(),
+            r#"bounce_relight_batch_size_sum{scene="cornell-box"}"#,
+        )
+    };
+    let solved_before = solved(&server.hub);
+
+    let intensity = |i: usize| 2.0 + i as f32;
+    let writes: Vec<_> = (0..WRITES)
+        .map(|i| {
+            let mut c = c.clone();
+            let id = id.clone();
+            tokio::spawn(async move {
+                c.set_lights(proto::SetLightsRequest {
+                    session_id: id,
+                    lights: vec![point(intensity(i))],
+                    token: String::new(),
+                })
+                .await
+            })
+        })
+        .collect();
+    let mut versions = Vec::with_capacity(WRITES);
+    for w in writes {
+        let answer = tokio::time::timeout(PATIENCE, w)
+            .await
+            .expect("a write answered in time")
+            .expect("join")
+            .expect("every write succeeds")
+            .into_inner();
+        assert!(answer.changed);
+        versions.push(answer.lights_version);
+    }
+
+    let session = server.hub.session(&id).expect("session");
+    let last = session.lights_version();
+    assert_eq!(versions.iter().max(), Some(&last));
+    assert!(versions.iter().all(|&v| v >= 2), "{versions:?}");
+    // Each version after the first is one write stored; the others were merged into them.
+    let stored = (last - 1) as usize;
+    assert!(
+        stored <= WRITES / 4,
+        "{stored} of {WRITES} concurrent writes were stored one by one"
+    );
+    let metrics = server.hub.metrics().encode();
+    assert_eq!(
+        sample(&metrics, "bounce_light_writes_merged_total") as usize,
+        WRITES - stored,
+        "{metrics}"
+    );
+
+    // The lights that won are one of the writes, answered with the last version, and the last
+    // frame is theirs.
+    let lights = session.lights();
+    let won = (0..WRITES)
+        .find(|&i| lights == light_set(intensity(i)))
+        .expect("the session's lights are one of the writes");
+    assert_eq!(versions[won], last);
+    published(&server.hub, &id, last).await;
+    let relit = solved(&server.hub) - solved_before;
+    assert!(
+        relit as usize <= stored,
+        "{relit} relights for {stored} stored versions"
+    );
+    let frame = session.subscribe().borrow().clone().expect("a frame");
+    assert_eq!(frame.header.lights_version, last);
+    let want = server
+        .hub
+        .relight_once(SCENE, lights)
+        .await
+        .expect("relight once");
+    assert_eq!(frame.irradiance(), want.irradiance());
+    server.stop().await;
+}
