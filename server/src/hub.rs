@@ -308,6 +308,25 @@ impl Hub {
         self.inner.worker.inject_panic();
     }
 
+    /// Test hook: the engine worker takes no new work until [`Hub::release_worker`], as if a
+    /// batch took that long.
+    #[cfg(feature = "fault-injection")]
+    pub fn hold_worker(&self) {
+        self.inner.worker.hold();
+    }
+
+    /// Test hook: ends [`Hub::hold_worker`].
+    #[cfg(feature = "fault-injection")]
+    pub fn release_worker(&self) {
+        self.inner.worker.release();
+    }
+
+    /// Test hook: one-shot relights waiting for the engine worker now.
+    #[cfg(feature = "fault-injection")]
+    pub fn once_waiting(&self) -> usize {
+        self.inner.worker.once_waiting()
+    }
+
     fn scene_index(&self, name: &str) -> Result<usize, ServerError> {
         self.inner
             .scenes

@@ -95,6 +95,9 @@ struct Queue {
     panic_next: AtomicBool,
     /// Test hook (`fault-injection`): the next relight fails with an engine error.
     fail_next: AtomicBool,
+    /// Test hook (`fault-injection`): the worker takes no work while set, as if a batch took
+    /// that long.
+    held: AtomicBool,
 }
 
 impl Queue {
@@ -178,6 +181,29 @@ impl Worker {
     #[cfg_attr(not(feature = "fault-injection"), allow(dead_code))]
     pub fn inject_failure(&self) {
         self.queue.fail_next.store(true, Ordering::Release);
+    }
+
+    /// Test hook: the worker takes no new work until [`Worker::release`].
+    #[cfg_attr(not(feature = "fault-injection"), allow(dead_code))]
+    pub fn hold(&self) {
+        self.queue.held.store(true, Ordering::Release);
+    }
+
+    /// Test hook: ends [`Worker::hold`].
+    #[cfg_attr(not(feature = "fault-injection"), allow(dead_code))]
+    pub fn release(&self) {
+        // Under the queue's lock, so the worker cannot miss the wake between its check of
+        // `held` and its wait.
+        let w = self.queue.lock();
+        self.queue.held.store(false, Ordering::Release);
+        drop(w);
+        self.queue.wake.notify_one();
+    }
+
+    /// One-shot relights waiting for the engine now.
+    #[cfg_attr(not(feature = "fault-injection"), allow(dead_code))]
+    pub fn once_waiting(&self) -> usize {
+        self.queue.lock().once.len()
     }
 
     /// Queues a session whose lights changed (the caller checked it was not queued already).
@@ -404,7 +430,7 @@ fn run(
                     .partition(|(at, _)| *at <= now);
                 w.retry = later;
                 w.sessions.extend(due.into_iter().map(|(_, s)| s));
-                if !w.idle() {
+                if !w.idle() && !queue.held.load(Ordering::Acquire) {
                     break;
                 }
                 w = match w.retry.iter().map(|(at, _)| *at).min() {

@@ -745,3 +745,116 @@ async fn concurrent_writes_to_one_session_are_merged_into_the_newest() {
     assert_eq!(frame.irradiance(), want.irradiance());
     server.stop().await;
 }
+
+/// A write racing with expiry never stores a deleted session again. With no TTL, an unwatched
+/// session expires as soon as the janitor (every 10 ms) finds its write lock free, between two
+/// stored writes, while writers keep changing its lights back to back; once all are gone, the
+/// store holds none of them. With the expiry check under the write lock taken out, a write that
+/// fetched the session before expiry removed it stored it back (one to four of the 20 sessions
+/// here, every run).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn writes_racing_with_expiry_never_store_a_deleted_session_again() {
+    const SESSIONS: usize = 20;
+    const WRITERS: usize = 4;
+    let data = tempfile::tempdir().expect("tempdir");
+    let mut config = stored(scenes_dir(), data.path());
+    config.session_ttl = Duration::ZERO;
+    config.reload_interval = None;
+    let server = TestServer::start_with(config).await;
+    let c = server.client().await;
+    let mut writers = Vec::new();
+    for s in 0..SESSIONS {
+        let (id, _) = create_session(&mut c.clone(), vec![point(1.0)]).await;
+        for w in 0..WRITERS {
+            let mut c = c.clone();
+            let id = id.clone();
+            writers.push(tokio::spawn(async move {
+                let deadline = Instant::now() + PATIENCE;
+                for n in 0.. {
+                    assert!(Instant::now() < deadline, "session {s} never expired");
+                    let write = c
+                        .set_lights(proto::SetLightsRequest {
+                            session_id: id.clone(),
+                            lights: vec![point(2.0 + (n * WRITERS + w) as f32)],
+                            token: String::new(),
+                        })
+                        .await;
+                    match write {
+                        Ok(_) => {}
+                        Err(status) if status.code() == Code::NotFound => return,
+                        Err(status) => panic!("write: {status:?}"),
+                    }
+                }
+            }));
+        }
+    }
+    for w in writers {
+        w.await.expect("writer");
+    }
+    assert_eq!(server.hub.session_count(), 0);
+    server.stop().await;
+
+    // The hub is gone once its front ends stop; its store closes with it.
+    let deadline = Instant::now() + PATIENCE;
+    let left = loop {
+        match bounce_server::store::Store::open(data.path(), Default::default()) {
+            Ok((_store, left)) => break left,
+            Err(e) => {
+                assert!(Instant::now() < deadline, "the store never closed: {e}");
+                tokio::time::sleep(Duration::from_millis(50)).await;
+            }
+        }
+    };
+    let ids: Vec<&str> = left.iter().map(|(id, _)| id.as_str()).collect();
+    assert!(ids.is_empty(), "expired sessions stored again: {ids:?}");
+}
+
+/// One-shot relights waiting for the engine are bounded: with the worker held and
+/// `MAX_ONCE_QUEUED` of them waiting, one more is refused at once as `RESOURCE_EXHAUSTED`
+/// rather than queued (queued, it would have waited out the one-shot deadline and answered
+/// `UNAVAILABLE`); once the worker goes on, every waiting one is answered and there is room again.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn one_shot_relights_past_the_queue_bound_are_refused_not_queued() {
+    use bounce_server::MAX_ONCE_QUEUED;
+    let server = TestServer::start().await;
+    server.hub.hold_worker();
+    let waiting: Vec<_> = (0..MAX_ONCE_QUEUED)
+        .map(|i| {
+            let hub = server.hub.clone();
+            tokio::spawn(async move { hub.relight_once(SCENE, light_set(1.0 + i as f32)).await })
+        })
+        .collect();
+    let deadline = Instant::now() + PATIENCE;
+    while server.hub.once_waiting() < MAX_ONCE_QUEUED {
+        assert!(
+            Instant::now() < deadline,
+            "only {} one-shot relights queued",
+            server.hub.once_waiting()
+        );
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+    let mut c = server.client().await;
+    let once = || proto::RelightOnceRequest {
+        scene: SCENE.into(),
+        lights: vec![point(2.0)],
+    };
+    assert_status(
+        c.relight_once(once()).await,
+        Code::ResourceExhausted,
+        "already waiting for the engine",
+    );
+    assert_eq!(server.hub.once_waiting(), MAX_ONCE_QUEUED);
+
+    server.hub.release_worker();
+    for w in waiting {
+        tokio::time::timeout(PATIENCE, w)
+            .await
+            .expect("answered in time")
+            .expect("join")
+            .expect("a waiting one-shot relight is solved");
+    }
+    c.relight_once(once())
+        .await
+        .expect("room again once the queue drained");
+    server.stop().await;
+}
