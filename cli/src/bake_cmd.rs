@@ -128,6 +128,13 @@ pub struct BakeArgs {
     /// the bake's probe light sets. The default, 1%, is well under the method's own error.
     #[arg(long, value_name = "E", default_value_t = DEFAULT_MAX_ERROR)]
     pub max_error: f64,
+    /// How much carrying the transport in one grey channel (each surface's mean albedo) may
+    /// change the indirect irradiance, relative L2 over the bake's probe light sets, before the
+    /// bake keeps one channel per colour. One channel takes a third of the transport's time and
+    /// size; colour only tints the light's second and later bounces. 0 keeps colour whenever
+    /// albedos differ.
+    #[arg(long, value_name = "E", default_value_t = bounce_core::transport::DEFAULT_MAX_GREY_ERROR)]
+    pub max_grey_error: f64,
     /// Share of entries bc1/bc4/log8/bc1-resid keep exactly [default: 0.04 for bc1, bc4, log8 as the
     /// thesis; 0.08 for bc1-resid].
     #[arg(long, value_name = "S")]
@@ -162,6 +169,12 @@ impl BakeArgs {
                 self.direct_samples
             );
         }
+        if !(0.0..=1.0).contains(&self.max_grey_error) {
+            bail!(
+                "--max-grey-error must be from 0 to 1, got {}",
+                self.max_grey_error
+            );
+        }
         Ok(BakeOptions {
             resolution: match self.voxel_size {
                 Some(s) => Resolution::VoxelSize(s),
@@ -177,6 +190,7 @@ impl BakeArgs {
             patch_order: self.patch_order,
             geometry: self.geometry,
             direct_samples: self.direct_samples,
+            max_grey_error: self.max_grey_error,
         })
     }
 }
@@ -321,9 +335,9 @@ pub fn print_summary(baked: &Baked, out: &Path, file_bytes: u64, total_s: f64) {
         share(s.rays.back_face)
     );
     println!(
-        "  transport     {} bounce(s), {} channel(s), codec {}, {}",
+        "  transport     {} bounce(s), {}, codec {}, {}",
         m.settings.bounces,
-        s.channels,
+        channels_line(s.channels, s.grey_rel_l2, m.settings.max_grey_error),
         baked.transport.codec,
         human_bytes(s.matrix_bytes)
     );
@@ -376,5 +390,22 @@ pub fn human_bytes(b: u64) -> String {
         format!("{b} B")
     } else {
         format!("{v:.1} {}", UNITS[u])
+    }
+}
+
+/// What the summary says of the transport's channels: why one, or why three.
+fn channels_line(channels: usize, grey_rel_l2: f64, max_grey_error: f64) -> String {
+    match (channels, grey_rel_l2 > 0.0) {
+        (1, false) => "1 channel (colour cannot change it)".to_string(),
+        (1, true) => format!(
+            "1 grey channel (colour would change E_ind by {:.2}%, within --max-grey-error {:.2}%)",
+            grey_rel_l2 * 100.0,
+            max_grey_error * 100.0
+        ),
+        (c, _) => format!(
+            "{c} channels (one grey channel would change E_ind by {:.2}%, over --max-grey-error {:.2}%)",
+            grey_rel_l2 * 100.0,
+            max_grey_error * 100.0
+        ),
     }
 }

@@ -124,6 +124,50 @@ fn all_bounces_and_single_bounce() {
     }
 }
 
+/// The transport carries one grey channel when colour changes the indirect light by at most
+/// `--max-grey-error`: the Cornell box's red and green walls change it by about 5%, so the
+/// default keeps three channels and a loose budget takes one. The choice and the measured change
+/// are recorded; a budget outside 0..1 is refused.
+#[test]
+fn one_grey_channel_only_where_colour_matters_little() {
+    let dir = tempfile::tempdir().unwrap();
+    for (max, channels) in [(None, 3), (Some("0.5"), 1)] {
+        let file = dir.path().join(format!("g{channels}.bounce"));
+        let mut cmd = bounce();
+        cmd.args(["bake", "--patches", "200", "--rays", "128", "-o"])
+            .arg(&file)
+            .arg(cornell());
+        if let Some(max) = max {
+            cmd.args(["--max-grey-error", max]);
+        }
+        let out = run(&mut cmd);
+        assert!(out.status.success(), "{}", stderr(&out));
+        let summary = String::from_utf8_lossy(&out.stdout);
+        let j = inspect_json(&file);
+        assert_eq!(j["channels"], channels, "{summary}");
+        let change = j["stats"]["grey_rel_l2"].as_f64().unwrap();
+        assert!((0.02..0.5).contains(&change), "{change}");
+        let budget = max.map_or(0.02, |m| m.parse().unwrap());
+        assert_eq!(j["settings"]["max_grey_error"].as_f64(), Some(budget));
+        let said = if channels == 1 {
+            "1 grey channel"
+        } else {
+            "3 channels"
+        };
+        assert!(summary.contains(said), "{summary}");
+    }
+    let out = run(bounce()
+        .args(["bake", "--max-grey-error", "2", "-o"])
+        .arg(dir.path().join("x.bounce"))
+        .arg(cornell()));
+    assert!(!out.status.success());
+    assert!(
+        stderr(&out).contains("--max-grey-error must be from 0 to 1"),
+        "{}",
+        stderr(&out)
+    );
+}
+
 /// `bake` and `demo` default to `--codec auto --max-error 0.01`: the smallest matrix within 1% of
 /// the indirect light, recorded with the choice and its measured error. (The first-run `serve`
 /// bakes the demo with `demo`'s defaults: `cli/src/demo.rs`.)

@@ -51,6 +51,9 @@ pub struct BakeOptions {
     pub geometry: voxel::Geometry,
     /// Direct-light sample points stored per patch (surface geometry).
     pub direct_samples: u32,
+    /// How much one grey transport channel may change `E_ind` before the bake keeps three
+    /// ([`transport::choose_channels`]).
+    pub max_grey_error: f64,
 }
 
 /// Which codec stores the transport.
@@ -79,6 +82,7 @@ impl Default for BakeOptions {
             patch_order: voxel::PatchOrder::Scan,
             geometry: voxel::Geometry::Surface,
             direct_samples: crate::surface::DEFAULT_SURFACE_SAMPLES,
+            max_grey_error: transport::DEFAULT_MAX_GREY_ERROR,
         }
     }
 }
@@ -411,6 +415,24 @@ pub(crate) fn check_form_factors(
     Ok(ff)
 }
 
+/// How many channels the transport of form factors `f` on `rows` carries
+/// ([`transport::choose_channels`], measured on the probe light sets the codec is measured on).
+pub(crate) fn choose_channels(
+    f: &DenseMatrix,
+    rows: &PatchLayout,
+    options: &BakeOptions,
+) -> Result<transport::ChannelChoice, BakeError> {
+    let albedo: Vec<[f32; 3]> = rows.patches.iter().map(|p| p.albedo).collect();
+    let probes = probe_light_sets(rows, PROBE_LIGHT_SETS);
+    Ok(transport::choose_channels(
+        f,
+        &albedo,
+        options.bounces,
+        &probes,
+        options.max_grey_error,
+    )?)
+}
+
 /// Store `t` with the requested codec, as the encode stage of `timer`; also its `E_ind` error.
 pub(crate) fn encode_timed(
     t: &DenseMatrix,
@@ -446,6 +468,7 @@ pub(crate) fn settings(options: &BakeOptions, tracer: Tracer) -> BakeSettings {
             Geometry::Surface => options.direct_samples,
             Geometry::VoxelFaces => 0,
         },
+        max_grey_error: options.max_grey_error,
         max_error: match options.codec {
             CodecRequest::Auto { max_error } => Some(max_error),
             CodecRequest::Named(_) => None,
@@ -475,6 +498,7 @@ pub fn options_of(settings: &BakeSettings, keep_form_factors: bool) -> BakeOptio
         patch_order: settings.patch_order,
         geometry: settings.geometry,
         direct_samples: settings.direct_samples,
+        max_grey_error: settings.max_grey_error,
     }
 }
 
@@ -490,6 +514,7 @@ pub(crate) struct MetaParts {
     pub rays: crate::rays::RayTally,
     pub form_factors: FormFactorStats,
     pub channels: usize,
+    pub grey_rel_l2: f64,
     pub matrix_bytes: u64,
     pub codec_eind_rel_l2: f64,
     pub timings: Vec<StageTiming>,
@@ -517,6 +542,7 @@ pub(crate) fn build_meta(p: MetaParts) -> BakeMeta {
             reciprocity_error: ff.reciprocity_error,
             isolated_patches: ff.isolated,
             channels: p.channels,
+            grey_rel_l2: p.grey_rel_l2,
             matrix_bytes: p.matrix_bytes,
             codec_eind_rel_l2: p.codec_eind_rel_l2,
             surface_area: p.surface_area,
@@ -553,9 +579,10 @@ fn bake_with(
     let ff = check_form_factors(&f, rows, options.geometry)?;
 
     let albedo: Vec<[f32; 3]> = rows.patches.iter().map(|p| p.albedo).collect();
-    let channels = transport::channels_needed(&albedo, options.bounces);
+    let colour = choose_channels(&f, rows, options)?;
+    let channels = colour.channels;
     let t = timer.run(Stage::Transport, (n * channels) as u64, || {
-        transport::transport(&f, &albedo, options.bounces, &advance)
+        transport::transport(&f, &albedo, options.bounces, channels, &advance)
     })?;
 
     let (transport, codec_err) = encode_timed(&t, rows, options, &mut timer)?;
@@ -575,6 +602,7 @@ fn bake_with(
         rays: tally,
         form_factors: ff,
         channels,
+        grey_rel_l2: colour.grey_rel_l2,
         matrix_bytes: transport.payload.len() as u64,
         codec_eind_rel_l2: codec_err,
         timings: timer.timings,

@@ -19,7 +19,8 @@
 //! wall running up past a ceiling, or the floor either side of a thin wall, is one connected
 //! surface in one voxel but faces two rooms, and one element for it carries the lit room's light
 //! into the dark one. So a patch's pieces are also told apart by the open space each part faces
-//! nearby ([`crate::space`]); parts too small to matter join their surface's largest part
+//! nearby ([`crate::space`]) and by how open the space in front of them is
+//! ([`crate::openness`]); parts too small to matter join their surface's largest part
 //! ([`crate::voxel::MIN_SPACE_SHARE`]).
 
 use std::collections::HashMap;

@@ -20,6 +20,7 @@ pub mod import;
 pub mod light;
 pub mod matrix;
 pub mod meta;
+pub mod openness;
 pub mod patch;
 pub mod rays;
 pub mod scene;

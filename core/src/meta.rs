@@ -95,6 +95,11 @@ pub struct BakeSettings {
     /// samples are drawn on the face at run time).
     #[serde(default)]
     pub direct_samples: u32,
+    /// The largest change of `E_ind` one grey transport channel may make before the bake keeps
+    /// three (`transport::choose_channels`). Files from before the choice kept three whenever
+    /// albedos differed, which is 0.
+    #[serde(default)]
+    pub max_grey_error: f64,
 }
 
 fn default_patch_order() -> crate::voxel::PatchOrder {
@@ -131,6 +136,11 @@ pub struct BakeStats {
     /// Patches whose rays hit no other patch.
     pub isolated_patches: usize,
     pub channels: usize,
+    /// How much carrying the transport in one grey channel changes `E_ind` against three
+    /// (relative L2 over the probe light sets): one channel is kept when this is at most
+    /// `transport::GREY_TOLERANCE`. 0 where colour cannot matter, and in older files.
+    #[serde(default)]
+    pub grey_rel_l2: f64,
     pub matrix_bytes: u64,
     /// `E_ind` relative L2 error of the stored matrix against the exact one, over the probe light
     /// sets of `codec::error::probe_light_sets` (0 for `dense-f32`).

@@ -90,6 +90,9 @@ pub struct ShardMeta {
     pub patches: usize,
     /// Channels of the rows: 1 for form factors; the transport's 1 or 3.
     pub channels: usize,
+    /// Phase 2: how much one grey channel changes `E_ind` (`BakeStats::grey_rel_l2`).
+    #[serde(default)]
+    pub grey_rel_l2: f64,
     /// The `bounce-core` version that wrote it: shards of one bake must come from one build.
     pub tool_version: String,
     pub settings: BakeSettings,
@@ -282,6 +285,7 @@ pub fn form_factor_shard(
         end_row: rows.end,
         patches: n,
         channels: 1,
+        grey_rel_l2: 0.0,
         tool_version: env!("CARGO_PKG_VERSION").to_string(),
         settings: bake::settings(options, tracer),
         keep_form_factors: options.keep_form_factors,
@@ -338,14 +342,15 @@ pub fn transport_shard(
         .iter()
         .map(|p| p.albedo)
         .collect();
-    let channels = transport::channels_needed(&albedo, options.bounces);
+    let colour = bake::choose_channels(&f, first.transport_layout(), &options)?;
+    let channels = colour.channels;
     let t_rows = timer.run(Stage::Transport, (rows.len() * channels) as u64, || {
         let mut out = Vec::with_capacity(rows.len() * n * channels);
         for c in 0..channels {
             out.extend(transport::transport_rows(
                 &f,
                 &albedo,
-                c,
+                (c, channels),
                 options.bounces,
                 rows.clone(),
                 &|k| progress.advance(k),
@@ -365,6 +370,7 @@ pub fn transport_shard(
         end_row: rows.end,
         patches: n,
         channels,
+        grey_rel_l2: colour.grey_rel_l2,
         form_factors: Some(summary),
         rays: members
             .iter()
@@ -398,7 +404,7 @@ pub fn merge(inputs: &[PathBuf], progress: &dyn Progress) -> Result<Baked, Shard
     let n = m0.patches;
     let options = bake::options_of(&m0.settings, m0.keep_form_factors);
     bake::check_codec_options(&options)?;
-    let (t, f, stats, rays, mut timings) = match m0.phase {
+    let (t, f, stats, rays, mut timings, grey_rel_l2) = match m0.phase {
         Phase::Transport => {
             let (t, f) = timer.run(Stage::ReadShards, n as u64, || {
                 assemble(&members, m0.channels, m0.keep_form_factors, progress)
@@ -410,7 +416,7 @@ pub fn merge(inputs: &[PathBuf], progress: &dyn Progress) -> Result<Baked, Shard
             })?;
             let mut timings = m0.inherited_timings.clone();
             timings.extend(sum_timings(members.iter().map(|m| &m.header.meta.timings)));
-            (t, f, stats, m0.rays, timings)
+            (t, f, stats, m0.rays, timings, m0.grey_rel_l2)
         }
         Phase::FormFactors => {
             let (f, _) = timer.run(Stage::ReadShards, n as u64, || {
@@ -419,16 +425,26 @@ pub fn merge(inputs: &[PathBuf], progress: &dyn Progress) -> Result<Baked, Shard
             let rows = first.transport_layout();
             let stats = bake::check_form_factors(&f, rows, first.meta.settings.geometry)?;
             let albedo: Vec<[f32; 3]> = rows.patches.iter().map(|p| p.albedo).collect();
-            let channels = transport::channels_needed(&albedo, options.bounces);
+            let colour = bake::choose_channels(&f, rows, &options)?;
+            let channels = colour.channels;
             let t = timer.run(Stage::Transport, (n * channels) as u64, || {
-                transport::transport(&f, &albedo, options.bounces, &|k| progress.advance(k))
+                transport::transport(&f, &albedo, options.bounces, channels, &|k| {
+                    progress.advance(k)
+                })
             });
             let t = t.map_err(BakeError::from)?;
             let rays = members
                 .iter()
                 .fold(RayTally::default(), |a, m| a + m.header.meta.rays);
             let timings = sum_timings(members.iter().map(|m| &m.header.meta.timings));
-            (t, m0.keep_form_factors.then_some(f), stats, rays, timings)
+            (
+                t,
+                m0.keep_form_factors.then_some(f),
+                stats,
+                rays,
+                timings,
+                colour.grey_rel_l2,
+            )
         }
     };
     let (transport, codec_err) =
@@ -450,6 +466,7 @@ pub fn merge(inputs: &[PathBuf], progress: &dyn Progress) -> Result<Baked, Shard
         rays,
         form_factors: stats,
         channels,
+        grey_rel_l2,
         matrix_bytes: transport.payload.len() as u64,
         codec_eind_rel_l2: codec_err,
         timings: sum_timings([&timings]),

@@ -45,53 +45,165 @@ pub enum TransportError {
     Singular,
 }
 
-/// How many colour channels the transport needs: one when it does not depend on colour
-/// (a single bounce, or every albedo grey), three otherwise.
-pub fn channels_needed(albedo: &[[f32; 3]], bounces: Bounces) -> usize {
-    let grey = albedo.iter().all(|a| a[0] == a[1] && a[1] == a[2]);
-    if bounces == Bounces::K(1) || grey {
-        1
-    } else {
-        3
-    }
+/// The largest change of `E_ind` (relative L2, over the bake's probe light sets) that carrying
+/// the transport in one grey channel may make, by default, before the bake keeps three: a tenth
+/// of the method's own error on the levels measured, and within the codec's default budget twice
+/// over.
+pub const DEFAULT_MAX_GREY_ERROR: f64 = 0.02;
+
+/// How many colour channels the transport carries, and what one would cost.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ChannelChoice {
+    /// 1: one channel on each patch's mean albedo; 3: one per colour.
+    pub channels: usize,
+    /// How much one grey channel changes `E_ind` against three (relative L2 over the probe
+    /// light sets): 0 where colour cannot matter (one bounce, or every albedo grey).
+    pub grey_rel_l2: f64,
 }
 
-/// The per-channel albedo the transport uses (clamped to `[0, MAX_ALBEDO]`).
-fn channel_albedo(albedo: &[[f32; 3]], c: usize) -> Vec<f32> {
-    albedo.iter().map(|a| a[c].clamp(0.0, MAX_ALBEDO)).collect()
-}
-
-/// The full transport for `bounces`, one or three channels (see [`channels_needed`]).
-pub fn transport(
+/// One channel when colour cannot change the transport (a single bounce, or every albedo
+/// grey) or changes it by at most `max_grey_error`; three otherwise.
+///
+/// Colour enters `T` only through the albedos of the patches light bounces off on its way
+/// (`F D_ρ F …`), so a scene of gently tinted surfaces loses little by bouncing on their mean
+/// albedo, and its transport costs a third: three products of `n³` become one. The change is
+/// measured, not guessed: `T · B0` in three channels against one, on `probes` (`count` light sets
+/// of one `B0` per row, row-major by set), by the same Horner steps as the transport but on
+/// vectors, so it costs a few passes over `F`. Deterministic for any thread count, so every
+/// shard of a sharded bake decides alike.
+pub fn choose_channels(
     f: &DenseMatrix,
     albedo: &[[f32; 3]],
     bounces: Bounces,
-    progress: &(dyn Fn(u64) + Sync),
-) -> Result<DenseMatrix, TransportError> {
+    probes: &[[f32; 3]],
+    max_grey_error: f64,
+) -> Result<ChannelChoice, TransportError> {
     let n = f.n;
-    let channels = channels_needed(albedo, bounces);
-    let mut out = DenseMatrix {
-        n,
-        channels,
-        data: Vec::with_capacity(n * n * channels),
-    };
-    for c in 0..channels {
-        out.data
-            .extend(transport_rows(f, albedo, c, bounces, 0..n, progress)?);
+    check_inputs(f, albedo)?;
+    let grey = albedo.iter().all(|a| a[0] == a[1] && a[1] == a[2]);
+    if bounces == Bounces::K(1) || grey || n == 0 {
+        return Ok(ChannelChoice {
+            channels: 1,
+            grey_rel_l2: 0.0,
+        });
     }
-    Ok(out)
+    let count = probes.len() / n;
+    // Columns: for each probe set, its three colours bounced on their own albedo, then the same
+    // three on the mean albedo.
+    let width = count * 6;
+    let rho: Vec<[f64; 4]> = albedo
+        .iter()
+        .map(|a| {
+            let c = |v: f32| f64::from(v.clamp(0.0, MAX_ALBEDO));
+            [c(a[0]), c(a[1]), c(a[2]), c(grey_albedo(*a))]
+        })
+        .collect();
+    let b0 = Mat::<f64>::from_fn(n, width, |i, col| {
+        let (set, k) = (col / 6, col % 6);
+        f64::from(probes[set * n + i][k % 3])
+    });
+    let albedo_of = |i: usize, col: usize| {
+        let k = col % 6;
+        if k < 3 { rho[i][k] } else { rho[i][3] }
+    };
+    // w_1 = F b; w_{m+1} = F (b + D w_m): w_k = T_k b.
+    let steps = match bounces {
+        Bounces::K(k) => k as usize,
+        // Enough bounces for the difference to settle: it is a sum of decaying terms.
+        Bounces::All => 256,
+    };
+    let fm = MatRef::from_row_major_slice(&f.data, n, n);
+    let mut w = Mat::<f64>::zeros(n, width);
+    let mut prev_norm = f64::INFINITY;
+    for step in 0..steps {
+        let x = Mat::<f64>::from_fn(n, width, |i, col| {
+            b0[(i, col)]
+                + if step == 0 {
+                    0.0
+                } else {
+                    albedo_of(i, col) * w[(i, col)]
+                }
+        });
+        w = mat_f64_product(fm, x.as_ref());
+        if bounces == Bounces::All {
+            let norm = w.norm_l2();
+            if (norm - prev_norm).abs() <= 1e-6 * norm {
+                break;
+            }
+            prev_norm = norm;
+        }
+    }
+    let (mut num, mut den) = (0.0f64, 0.0f64);
+    for set in 0..count {
+        for c in 0..3 {
+            let (rgb, one) = (set * 6 + c, set * 6 + 3 + c);
+            for i in 0..n {
+                let (a, b) = (w[(i, rgb)], w[(i, one)]);
+                num += (a - b) * (a - b);
+                den += a * a;
+            }
+        }
+    }
+    let grey_rel_l2 = if den > 0.0 { (num / den).sqrt() } else { 0.0 };
+    Ok(ChannelChoice {
+        channels: if grey_rel_l2 <= max_grey_error { 1 } else { 3 },
+        grey_rel_l2,
+    })
 }
 
-/// Rows `rows` of channel `channel` of the transport, row-major (`rows.len() × n`).
-/// `progress` receives the number of rows finished.
-pub fn transport_rows(
-    f: &DenseMatrix,
-    albedo: &[[f32; 3]],
-    channel: usize,
-    bounces: Bounces,
-    rows: Range<usize>,
-    progress: &(dyn Fn(u64) + Sync),
-) -> Result<Vec<f32>, TransportError> {
+/// `F X` for an f32 `F` and an f64 `X`, by row blocks of `F`, each sequential: the same bits on
+/// any thread count.
+fn mat_f64_product(f: MatRef<'_, f32>, x: MatRef<'_, f64>) -> Mat<f64> {
+    let (n, width) = (f.nrows(), x.ncols());
+    let blocks: Vec<Mat<f64>> = (0..n.div_ceil(ROW_BLOCK))
+        .into_par_iter()
+        .map(|b| {
+            let r = b * ROW_BLOCK..((b + 1) * ROW_BLOCK).min(n);
+            let fr = Mat::<f64>::from_fn(r.len(), n, |i, j| f64::from(f[(r.start + i, j)]));
+            let mut out = Mat::<f64>::zeros(r.len(), width);
+            faer::linalg::matmul::matmul(
+                out.as_mut(),
+                Accum::Replace,
+                fr.as_ref(),
+                x,
+                1.0,
+                Par::Seq,
+            );
+            out
+        })
+        .collect();
+    Mat::<f64>::from_fn(n, width, |i, col| {
+        blocks[i / ROW_BLOCK][(i % ROW_BLOCK, col)]
+    })
+}
+
+/// The albedo one grey channel bounces on: the mean of the three, and exactly the value itself
+/// when they are equal (so a grey scene's transport does not change by a rounding).
+fn grey_albedo(a: [f32; 3]) -> f32 {
+    if a[0] == a[1] && a[1] == a[2] {
+        a[0]
+    } else {
+        (a[0] + a[1] + a[2]) / 3.0
+    }
+}
+
+/// The albedo channel `channel` of a transport of `channels` channels bounces on, clamped to
+/// `[0, MAX_ALBEDO]`: its own colour, or the mean of the three when the transport is grey.
+pub fn channel_albedo(albedo: &[[f32; 3]], channel: usize, channels: usize) -> Vec<f32> {
+    albedo
+        .iter()
+        .map(|a| {
+            let v = if channels == 1 {
+                grey_albedo(*a)
+            } else {
+                a[channel.min(2)]
+            };
+            v.clamp(0.0, MAX_ALBEDO)
+        })
+        .collect()
+}
+
+fn check_inputs(f: &DenseMatrix, albedo: &[[f32; 3]]) -> Result<(), TransportError> {
     let n = f.n;
     if f.channels != 1 || f.data.len() != n * n {
         return Err(TransportError::FormFactorShape {
@@ -108,6 +220,48 @@ pub fn transport_rows(
     if let Some(patch) = albedo.iter().position(|a| !a.iter().all(|v| v.is_finite())) {
         return Err(TransportError::AlbedoNotFinite { patch });
     }
+    Ok(())
+}
+
+/// The full transport for `bounces` in `channels` channels (1 or 3, see [`choose_channels`]).
+pub fn transport(
+    f: &DenseMatrix,
+    albedo: &[[f32; 3]],
+    bounces: Bounces,
+    channels: usize,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<DenseMatrix, TransportError> {
+    let n = f.n;
+    let mut out = DenseMatrix {
+        n,
+        channels,
+        data: Vec::with_capacity(n * n * channels),
+    };
+    for c in 0..channels {
+        out.data.extend(transport_rows(
+            f,
+            albedo,
+            (c, channels),
+            bounces,
+            0..n,
+            progress,
+        )?);
+    }
+    Ok(out)
+}
+
+/// Rows `rows` of channel `channel.0` of a transport of `channel.1` channels, row-major
+/// (`rows.len() × n`). `progress` receives the number of rows finished.
+pub fn transport_rows(
+    f: &DenseMatrix,
+    albedo: &[[f32; 3]],
+    channel: (usize, usize),
+    bounces: Bounces,
+    rows: Range<usize>,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<Vec<f32>, TransportError> {
+    let n = f.n;
+    check_inputs(f, albedo)?;
     if rows.start > rows.end || rows.end > n {
         return Err(TransportError::RowRange {
             start: rows.start,
@@ -115,7 +269,7 @@ pub fn transport_rows(
             n,
         });
     }
-    let rho = channel_albedo(albedo, channel);
+    let rho = channel_albedo(albedo, channel.0, channel.1);
     match bounces {
         Bounces::K(1) => {
             progress(rows.len() as u64);
@@ -290,10 +444,10 @@ mod tests {
         for (n, k) in [(5, 2), (17, 3), (70, 5), (130, 4)] {
             let f = random_ff(n, n as u64);
             let albedo = random_albedo(n, 7);
-            let t = transport(&f, &albedo, Bounces::K(k), &no_progress).unwrap();
+            let t = transport(&f, &albedo, Bounces::K(k), 3, &no_progress).unwrap();
             assert_eq!(t.channels, 3);
             for c in 0..3 {
-                let rho = channel_albedo(&albedo, c);
+                let rho = channel_albedo(&albedo, c, 3);
                 let want = explicit_power_sum(&f, &rho, k);
                 for (idx, (&got, &want)) in t.channel(c).iter().zip(&want).enumerate() {
                     assert!(
@@ -310,9 +464,9 @@ mod tests {
         let n = 90;
         let f = random_ff(n, 3);
         let albedo = random_albedo(n, 11);
-        let t_inf = transport(&f, &albedo, Bounces::All, &no_progress).unwrap();
+        let t_inf = transport(&f, &albedo, Bounces::All, 3, &no_progress).unwrap();
         // ρ ≤ 0.9 and row sums ≤ 1: the tail after 200 bounces is below 0.9^200 ≈ 7e-10.
-        let t_many = transport(&f, &albedo, Bounces::K(200), &no_progress).unwrap();
+        let t_many = transport(&f, &albedo, Bounces::K(200), 3, &no_progress).unwrap();
         for (a, b) in t_inf.data.iter().zip(&t_many.data) {
             assert!((a - b).abs() <= 1e-5 * b.abs() + 1e-7, "{a} vs {b}");
         }
@@ -322,11 +476,110 @@ mod tests {
     fn one_bounce_is_the_form_factors_in_one_channel() {
         let f = random_ff(20, 5);
         let albedo = random_albedo(20, 1);
-        let t = transport(&f, &albedo, Bounces::K(1), &no_progress).unwrap();
+        let t = transport(&f, &albedo, Bounces::K(1), 1, &no_progress).unwrap();
         assert_eq!(t, f);
+        let probes = probe_vectors(20, 4);
+        let one = choose_channels(&f, &albedo, Bounces::K(1), &probes, 0.0).unwrap();
+        assert_eq!((one.channels, one.grey_rel_l2), (1, 0.0));
         let grey: Vec<[f32; 3]> = (0..20).map(|i| [0.1 * (i % 9) as f32; 3]).collect();
-        assert_eq!(channels_needed(&grey, Bounces::K(3)), 1);
-        assert_eq!(channels_needed(&albedo, Bounces::All), 3);
+        let g = choose_channels(&f, &grey, Bounces::K(3), &probes, 0.0).unwrap();
+        assert_eq!((g.channels, g.grey_rel_l2), (1, 0.0));
+        // A grey scene's one channel bounces on the albedo itself, not on a rounded mean.
+        let red = transport(&f, &grey, Bounces::K(3), 3, &no_progress).unwrap();
+        let mono = transport(&f, &grey, Bounces::K(3), 1, &no_progress).unwrap();
+        assert_eq!(mono.channel(0), red.channel(0));
+    }
+
+    /// `count` positive, varying `B0` vectors, one per row, row-major by set.
+    fn probe_vectors(n: usize, count: usize) -> Vec<[f32; 3]> {
+        let mut s = 17;
+        (0..n * count)
+            .map(|_| [lcg(&mut s), lcg(&mut s), lcg(&mut s)])
+            .collect()
+    }
+
+    /// `T · B0` of a 1- or 3-channel transport, in f64, every probe set and colour.
+    fn apply(t: &DenseMatrix, probes: &[[f32; 3]]) -> Vec<f64> {
+        let n = t.n;
+        let mut out = Vec::new();
+        for set in probes.chunks(n) {
+            for c in 0..3 {
+                let m = t.channel(c.min(t.channels - 1));
+                for i in 0..n {
+                    let row = &m[i * n..(i + 1) * n];
+                    out.push(
+                        row.iter()
+                            .zip(set)
+                            .map(|(&t, b)| t as f64 * b[c] as f64)
+                            .sum(),
+                    );
+                }
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn the_grey_channel_is_chosen_by_the_change_it_makes() {
+        let n = 150;
+        let f = random_ff(n, 4);
+        let probes = probe_vectors(n, 5);
+        let rel = |a: &[f64], b: &[f64]| {
+            let num: f64 = a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum();
+            (num / a.iter().map(|x| x * x).sum::<f64>()).sqrt()
+        };
+        for bounces in [Bounces::K(3), Bounces::All] {
+            // Gently and randomly tinted: a few per cent of colour; then a warm scene, every
+            // surface redder than it is blue.
+            for (tint, warm, want) in [(0.03f32, 0.0f32, 1), (0.1, 0.5, 3)] {
+                let mut s = 5;
+                let albedo: Vec<[f32; 3]> = (0..n)
+                    .map(|_| {
+                        let g = 0.3 + 0.5 * lcg(&mut s);
+                        [1.0 + warm, 1.0, 1.0 - warm]
+                            .map(|w| g * w * (1.0 + tint * (2.0 * lcg(&mut s) - 1.0)))
+                    })
+                    .collect();
+                let choice =
+                    choose_channels(&f, &albedo, bounces, &probes, DEFAULT_MAX_GREY_ERROR).unwrap();
+                assert_eq!(choice.channels, want, "{bounces} tint {tint}: {choice:?}");
+                // No tolerance keeps colour whenever albedos differ.
+                let strict = choose_channels(&f, &albedo, bounces, &probes, 0.0).unwrap();
+                assert_eq!(strict.channels, 3);
+                // The measured change is the one the two transports really make.
+                let rgb = apply(
+                    &transport(&f, &albedo, bounces, 3, &no_progress).unwrap(),
+                    &probes,
+                );
+                let one = apply(
+                    &transport(&f, &albedo, bounces, 1, &no_progress).unwrap(),
+                    &probes,
+                );
+                let real = rel(&rgb, &one);
+                assert!(real > 0.0);
+                assert!(
+                    (choice.grey_rel_l2 - real).abs() <= 0.02 * real + 1e-6,
+                    "{bounces} tint {tint}: measured {} against {real}",
+                    choice.grey_rel_l2
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn the_channel_choice_is_the_same_on_any_thread_count() {
+        let n = ROW_BLOCK + 40;
+        let f = random_ff(n, 6);
+        let albedo = random_albedo(n, 8);
+        let probes = probe_vectors(n, 3);
+        let choose = || choose_channels(&f, &albedo, Bounces::K(3), &probes, 0.02).unwrap();
+        let want = choose();
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .unwrap();
+        let one = pool.install(choose);
+        assert_eq!(want, one);
     }
 
     #[test]
@@ -336,10 +589,11 @@ mod tests {
         let f = random_ff(n, 9);
         let albedo = random_albedo(n, 2);
         for bounces in [Bounces::K(3), Bounces::All] {
-            let full = transport_rows(&f, &albedo, 1, bounces, 0..n, &no_progress).unwrap();
+            let full = transport_rows(&f, &albedo, (1, 3), bounces, 0..n, &no_progress).unwrap();
             for range in [0..n, 10..20, b - 5..2 * b + 7, n - 1..n, 0..0] {
                 let part =
-                    transport_rows(&f, &albedo, 1, bounces, range.clone(), &no_progress).unwrap();
+                    transport_rows(&f, &albedo, (1, 3), bounces, range.clone(), &no_progress)
+                        .unwrap();
                 assert_eq!(
                     part,
                     full[range.start * n..range.end * n],
@@ -352,7 +606,7 @@ mod tests {
                     .build()
                     .unwrap();
                 let t = pool.install(|| {
-                    transport_rows(&f, &albedo, 1, bounces, 0..n, &no_progress).unwrap()
+                    transport_rows(&f, &albedo, (1, 3), bounces, 0..n, &no_progress).unwrap()
                 });
                 assert_eq!(t, full, "{bounces} with {threads} threads");
             }
@@ -364,18 +618,18 @@ mod tests {
         let f = random_ff(4, 1);
         let albedo = random_albedo(3, 1);
         assert!(matches!(
-            transport(&f, &albedo, Bounces::K(2), &no_progress),
+            transport(&f, &albedo, Bounces::K(2), 3, &no_progress),
             Err(TransportError::AlbedoCount { .. })
         ));
         let mut albedo = random_albedo(4, 1);
         albedo[2][1] = f32::NAN;
         assert!(matches!(
-            transport(&f, &albedo, Bounces::All, &no_progress),
+            transport(&f, &albedo, Bounces::All, 3, &no_progress),
             Err(TransportError::AlbedoNotFinite { patch: 2 })
         ));
         let albedo = random_albedo(4, 1);
         assert!(matches!(
-            transport_rows(&f, &albedo, 0, Bounces::K(2), 2..9, &no_progress),
+            transport_rows(&f, &albedo, (0, 3), Bounces::K(2), 2..9, &no_progress),
             Err(TransportError::RowRange { .. })
         ));
     }

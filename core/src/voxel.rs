@@ -961,8 +961,12 @@ fn cluster_with(
     } else {
         None
     };
-    // Elements are told apart by (connected surface, space faced), numbered as first met.
-    let mut sides_of: HashMap<(u32, Option<u32>), u32> = HashMap::new();
+    let extent = scene
+        .bounds()
+        .map_or(0.0, |(lo, hi)| (hi - lo).max_element());
+    // Elements are told apart by (connected surface, space faced, openness), numbered as first
+    // met.
+    let mut sides_of: HashMap<(u32, Facing), u32> = HashMap::new();
     let mut id_of: Vec<u32> = Vec::new();
     let mut groups: HashMap<(u64, Face, u32, u32), Group> = HashMap::new();
     let mut unassigned = 0.0f64;
@@ -1030,16 +1034,19 @@ fn cluster_with(
                     for f in &fine_polys {
                         let (a, c) = f.area_centroid(n);
                         if a > 0.0 {
-                            let label = spaces
-                                .facing(mesh, c.as_vec3(), normal.as_vec3())
+                            let (p, nv) = (c.as_vec3(), normal.as_vec3());
+                            let space = spaces
+                                .facing(mesh, p, nv)
                                 .and_then(|point| local.label(spaces, point));
-                            facing.push((label, *f, a, c));
+                            let open = crate::openness::class(mesh, p, nv, extent, size);
+                            facing.push(((space, open), *f, a, c));
                         }
                     }
                 }
                 let whole = facing.windows(2).all(|w| w[0].0 == w[1].0);
-                let parts: Vec<(Option<u32>, Poly, f64, DVec3)> = if whole {
-                    vec![(facing.first().and_then(|f| f.0), *piece, area, centroid)]
+                let parts: Vec<(Facing, Poly, f64, DVec3)> = if whole {
+                    let label = facing.first().map_or((None, 0), |f| f.0);
+                    vec![(label, *piece, area, centroid)]
                 } else {
                     facing.clone()
                 };
@@ -1146,6 +1153,10 @@ fn cluster_with(
         total_area,
     })
 }
+
+/// What a part of a patch faces: its space ([`crate::space`], `None` where no lattice point is
+/// in view) and its openness class ([`crate::openness`]).
+type Facing = (Option<u32>, i8);
 
 /// Lattice points per voxel edge for finding the spaces surfaces face ([`crate::space`]).
 pub const SPACE_FACTOR: u32 = 4;

@@ -103,6 +103,7 @@ fn sample_meta() -> BakeMeta {
             patch_order: bounce_core::voxel::PatchOrder::Morton,
             geometry: bounce_core::voxel::Geometry::VoxelFaces,
             direct_samples: 0,
+            max_grey_error: 0.02,
         },
         stats: BakeStats {
             patches: 5,
@@ -123,6 +124,7 @@ fn sample_meta() -> BakeMeta {
             reciprocity_error: 0.012,
             isolated_patches: 0,
             channels: 3,
+            grey_rel_l2: 0.05,
             matrix_bytes: 300,
             codec_eind_rel_l2: 1.5e-3,
             surface_area: 12.5,

@@ -5,7 +5,7 @@
 use bounce_core::formfactor::{RayScene, form_factors, stats};
 use bounce_core::meta::Bounces;
 use bounce_core::scene::{Scene, Triangle};
-use bounce_core::transport::transport;
+use bounce_core::transport::{choose_channels, transport};
 use bounce_core::voxel::{Resolution, voxelize};
 use glam::Vec3;
 
@@ -77,7 +77,10 @@ fn white_furnace_k_bounces_and_all() {
             (Bounces::K(4), r * (1.0 - r.powi(4)) / (1.0 - r)),
             (Bounces::All, r / (1.0 - r)),
         ] {
-            let t = transport(&f, &albedo, bounces, &no_progress).unwrap();
+            let channels = choose_channels(&f, &albedo, bounces, &[], 0.0)
+                .unwrap()
+                .channels;
+            let t = transport(&f, &albedo, bounces, channels, &no_progress).unwrap();
             assert_eq!(t.channels, 1, "grey albedo needs one channel");
             for i in 0..n {
                 let e: f64 = (0..n).map(|j| t.get(0, i, j) as f64 * b0[j] as f64).sum();

@@ -13,7 +13,7 @@ use bounce_core::light::{Light, LightSet};
 use bounce_core::matrix::DenseMatrix;
 use bounce_core::meta::Bounces;
 use bounce_core::scene::{Scene, Triangle};
-use bounce_core::transport::{MAX_ALBEDO, transport};
+use bounce_core::transport::{MAX_ALBEDO, choose_channels, transport};
 use bounce_core::voxel::{Resolution, voxelize};
 use glam::Vec3;
 use serde_json::json;
@@ -77,7 +77,10 @@ fn furnace_at_albedo_0999_is_finite_and_matches_the_closed_forms() {
 
     for k in [Some(1), Some(3), Some(30), None] {
         let bounces = k.map_or(Bounces::All, Bounces::K);
-        let t = transport(&f, &albedo, bounces, &no_progress).unwrap();
+        let channels = choose_channels(&f, &albedo, bounces, &[], 0.0)
+            .unwrap()
+            .channels;
+        let t = transport(&f, &albedo, bounces, channels, &no_progress).unwrap();
         assert!(
             t.data.iter().all(|v| v.is_finite() && *v >= 0.0),
             "{bounces}: a negative or non-finite entry"

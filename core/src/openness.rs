@@ -1,0 +1,117 @@
+//! How open the space in front of a piece of surface is: how far it sees before meeting other
+//! surface (docs/design.md §2, step 2).
+//!
+//! Spaces ([`crate::space`]) part a patch's surface where a surface separates it at the lattice's
+//! scale. They cannot part what the lattice does not resolve, or what connects around an edge
+//! within a voxel: the inside of a cavity a little thinner than a lattice step above a lit
+//! ceiling, the floor under a low shelf, the underside of a ledge. Those parts see their own
+//! surroundings a few units away while the rest of the patch sees the room, and as one element
+//! of uniform radiosity they take the room's light into the cavity. So each part also gets an
+//! openness class: the mean distance of a few cosine-weighted rays, in powers of
+//! [`CLASS_RATIO`] of the voxel size. Parts of a patch in different classes are separate
+//! elements. A class boundary across a wall whose view changes gradually costs a row, never an
+//! error.
+
+use glam::Vec3;
+
+use crate::trimesh::{TriMesh, offset_origin};
+
+/// Rays per part: a 4 × 4 stratified cosine-weighted pattern, the same for every part so that
+/// neighbouring parts are measured alike.
+const RAYS: u32 = 16;
+/// Classes are this ratio of mean distance apart.
+pub const CLASS_RATIO: f32 = 8.0;
+/// Distances are counted up to this many voxel sizes (an escaping ray counts as this far): what
+/// lies beyond is the open room for every part of a patch alike.
+pub const REACH_VOXELS: f32 = 4.0;
+
+/// The mean distance rays from `p` (on a surface facing unit `n`) travel before meeting a
+/// triangle of `mesh`, each capped at `reach`.
+pub fn mean_distance(mesh: &TriMesh, p: Vec3, n: Vec3, extent: f32, reach: f32) -> f32 {
+    let origin = offset_origin(p, n, extent);
+    let (t, b) = n.any_orthonormal_pair();
+    let side = (RAYS as f32).sqrt() as u32;
+    let mut sum = 0.0f32;
+    for k in 0..RAYS {
+        let (row, col) = (k / side, k % side);
+        let u1 = (row as f32 + 0.5) / side as f32;
+        // Each ring turned by a fraction of a step, so no azimuth repeats.
+        let u2 = ((col as f32 + 0.5) / side as f32 + row as f32 / (side * side) as f32).fract();
+        let r = u1.sqrt();
+        let phi = std::f32::consts::TAU * u2;
+        let dir = (t * (r * phi.cos()) + b * (r * phi.sin()) + n * (1.0 - u1).max(0.0).sqrt())
+            .normalize();
+        sum += mesh.closest(origin, dir, reach).map_or(reach, |hit| hit.t);
+    }
+    sum / RAYS as f32
+}
+
+/// The openness class of a part at `p` facing `n`, in a grid of voxel size `voxel`: `⌊log_r(d /
+/// voxel)⌋` of its mean distance `d` (r = [`CLASS_RATIO`]), at most
+/// `⌊log_r REACH_VOXELS⌋`.
+pub fn class(mesh: &TriMesh, p: Vec3, n: Vec3, extent: f32, voxel: f32) -> i8 {
+    let reach = voxel * REACH_VOXELS;
+    let d = mean_distance(mesh, p, n, extent, reach);
+    let c = ((d / voxel).max(f32::MIN_POSITIVE).ln() / CLASS_RATIO.ln()).floor();
+    c.clamp(-64.0, 63.0) as i8
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Two parallel squares `gap` apart (the lower facing up, the upper facing down), `size` wide.
+    fn plates(gap: f32, size: f32) -> TriMesh {
+        let quad = |y: f32| {
+            let (a, b, c, d) = (
+                Vec3::new(0.0, y, 0.0),
+                Vec3::new(size, y, 0.0),
+                Vec3::new(size, y, size),
+                Vec3::new(0.0, y, size),
+            );
+            [[a, c, b], [a, d, c]]
+        };
+        TriMesh::new(quad(0.0).into_iter().chain(quad(gap)).map(|t| (t, true)))
+    }
+
+    #[test]
+    fn a_thin_gap_and_the_open_side_are_different_classes() {
+        let voxel = 10.0;
+        let mesh = plates(1.0, 100.0);
+        let centre = Vec3::new(50.0, 0.0, 50.0);
+        // Above the lower plate: the upper one is a unit away.
+        let inside = class(&mesh, centre, Vec3::Y, 100.0, voxel);
+        // Below it: nothing at all.
+        let outside = class(&mesh, centre, -Vec3::Y, 100.0, voxel);
+        assert!(inside < outside, "{inside} vs {outside}");
+        assert_eq!(
+            outside,
+            (REACH_VOXELS.ln() / CLASS_RATIO.ln()).floor() as i8
+        );
+        let d = mean_distance(&mesh, centre, Vec3::Y, 100.0, 40.0);
+        // A cosine-weighted mean of 1/cos θ over the hemisphere is 2; 16 rays come close.
+        assert!((1.5..2.5).contains(&d), "{d}");
+    }
+
+    #[test]
+    fn the_class_does_not_change_with_the_scene_scale() {
+        let unit = class(
+            &plates(3.0, 100.0),
+            Vec3::new(50.0, 0.0, 50.0),
+            Vec3::Y,
+            100.0,
+            10.0,
+        );
+        // Three units of gap under a ten-unit voxel: rays travel about six.
+        assert_eq!(unit, -1);
+        for scale in [1e-3f32, 1e3] {
+            let mesh = plates(3.0 * scale, 100.0 * scale);
+            let p = Vec3::new(50.0, 0.0, 50.0) * scale;
+            assert_eq!(
+                class(&mesh, p, Vec3::Y, 100.0 * scale, 10.0 * scale),
+                unit,
+                "scale {scale}"
+            );
+        }
+    }
+}
