@@ -70,7 +70,7 @@ pub struct ChannelChoice {
 /// measured, not guessed: `T · B0` in three channels against one, on `probes` (`count` light sets
 /// of one `B0` per row, row-major by set), by the same Horner steps as the transport but on
 /// vectors, so it costs a few passes over `F`. Deterministic for any thread count, so every
-/// shard of a sharded bake decides alike.
+/// shard of a sharded bake decides alike. Without probes a coloured scene keeps three channels.
 pub fn choose_channels(
     f: &DenseMatrix,
     albedo: &[[f32; 3]],
@@ -88,6 +88,13 @@ pub fn choose_channels(
         });
     }
     let count = probes.len() / n;
+    if count == 0 {
+        // Nothing to measure the change on: keep the colour.
+        return Ok(ChannelChoice {
+            channels: 3,
+            grey_rel_l2: 0.0,
+        });
+    }
     // Columns: for each probe set, its three colours bounced on their own albedo, then the same
     // three on the mean albedo.
     let width = count * 6;
@@ -546,6 +553,8 @@ mod tests {
                 // No tolerance keeps colour whenever albedos differ.
                 let strict = choose_channels(&f, &albedo, bounces, &probes, 0.0).unwrap();
                 assert_eq!(strict.channels, 3);
+                let unmeasured = choose_channels(&f, &albedo, bounces, &[], 1.0).unwrap();
+                assert_eq!(unmeasured.channels, 3);
                 // The measured change is the one the two transports really make.
                 let rgb = apply(
                     &transport(&f, &albedo, bounces, 3, &no_progress).unwrap(),
