@@ -34,9 +34,12 @@ pub struct ReferenceArgs {
         default_value = "footprints"
     )]
     pub points: String,
-    /// For --points footprints: points drawn on each patch's footprint (they share --spp).
-    #[arg(long, value_name = "M", default_value_t = 16)]
-    pub footprint_points: usize,
+    /// For --points footprints: points drawn on each patch's footprint (they share --spp)
+    /// [default: as many as --spp, one path each]. The standard error is taken across the
+    /// points, so it counts how much the value varies over the patch; fewer points than paths
+    /// leave more of that variation in the reference.
+    #[arg(long, value_name = "M")]
+    pub footprint_points: Option<usize>,
     /// The baked file whose patches give the points (and, unless --bounces, the bounce count).
     #[arg(long, value_name = "FILE")]
     pub baked: Option<PathBuf>,
@@ -81,6 +84,7 @@ impl Traced {
 }
 
 pub fn run(args: &ReferenceArgs) -> Result<()> {
+    let footprint_points = args.footprint_points.unwrap_or(args.spp as usize).max(1);
     let scene =
         import_path(&args.scene).with_context(|| format!("importing {}", args.scene.display()))?;
     let baked = args
@@ -119,7 +123,7 @@ pub fn run(args: &ReferenceArgs) -> Result<()> {
             &reference,
             &lights,
             &baked.layout,
-            args.footprint_points,
+            footprint_points,
             &options,
             args.quiet,
         )?,
@@ -139,7 +143,7 @@ pub fn run(args: &ReferenceArgs) -> Result<()> {
         if args.points == "footprints" {
             eprintln!(
                 "points: {} footprint points a patch; {} patches had none and used their snapped centroid",
-                args.footprint_points, s.kept
+                footprint_points, s.kept
             );
         } else {
             eprintln!(

@@ -38,9 +38,12 @@ pub struct VerifyArgs {
     /// centroid moved onto the nearest surface).
     #[arg(long, value_name = "footprints|patches", default_value = "footprints")]
     pub points: String,
-    /// Points drawn on each patch's footprint (they share --spp).
-    #[arg(long, value_name = "M", default_value_t = 16)]
-    pub footprint_points: usize,
+    /// Points drawn on each patch's footprint (they share --spp)
+    /// [default: as many as --spp, one path each]. The standard error is taken across the
+    /// points, so it counts how much the value varies over the patch; fewer points than paths
+    /// leave more of that variation in the reference.
+    #[arg(long, value_name = "M")]
+    pub footprint_points: Option<usize>,
     /// The relight engine computing the pipeline's values: auto, gpu or cpu.
     #[arg(long, default_value = "cpu")]
     pub engine: String,
@@ -109,6 +112,7 @@ pub(crate) struct Report {
 }
 
 pub fn run(args: &VerifyArgs) -> Result<()> {
+    let footprint_points = args.footprint_points.unwrap_or(args.spp as usize).max(1);
     let baked =
         Baked::read(&args.baked).with_context(|| format!("reading {}", args.baked.display()))?;
     let scene =
@@ -156,13 +160,13 @@ pub fn run(args: &VerifyArgs) -> Result<()> {
                 &reference,
                 &lights,
                 &baked.layout,
-                args.footprint_points,
+                footprint_points,
                 &options,
                 args.quiet,
             )?;
             let placement = format!(
                 "{} footprint points a patch ({} patches with none found used their snapped centroid)",
-                args.footprint_points,
+                footprint_points,
                 traced.snap.map_or(0, |s| s.kept)
             );
             (traced, placement)
@@ -174,7 +178,7 @@ pub fn run(args: &VerifyArgs) -> Result<()> {
     // same footprints or points as the reference) instead of on the voxel patches: what is left
     // against the reference is the transport's own error (voxel geometry, form-factor noise).
     let surface_direct = if args.points == "footprints" {
-        reference.footprint_direct(&lights, &baked.layout, args.footprint_points, args.seed)
+        reference.footprint_direct(&lights, &baked.layout, footprint_points, args.seed)
     } else {
         reference.direct(&lights, &traced.points)
     };

@@ -17,6 +17,7 @@ use std::collections::{HashMap, HashSet};
 
 use bounce_core::patch::PatchLayout;
 use glam::Vec3;
+use rayon::prelude::*;
 
 use crate::Point;
 use crate::mesh::Mesh;
@@ -72,9 +73,10 @@ pub(crate) fn footprints(
             }
         }
     }
+    // Each patch draws from its own generator, so the points do not depend on the threads.
     layout
         .patches
-        .iter()
+        .par_iter()
         .enumerate()
         .map(|(index, patch)| {
             let dir = patch.face.normal();

@@ -295,7 +295,12 @@ impl Reference {
         self.average(sources, std::slice::from_ref(p), index, options)
     }
 
-    /// `options.spp` samples spread round-robin over `points` (non-empty).
+    /// `options.spp` samples spread round-robin over `points` (non-empty): the mean of the
+    /// points' means. Where the points are draws from a patch's footprint, the standard error is
+    /// taken across the points' means, so it counts how much the value varies over the patch
+    /// (how well the points stand for it) as well as the paths' noise; from the paths alone it
+    /// would miss the first, which on a patch half in shadow is most of it. With one point, or
+    /// as many points as paths, the two agree.
     fn average(
         &self,
         sources: &[Source],
@@ -304,11 +309,14 @@ impl Reference {
         options: &Options,
     ) -> Estimate {
         let mut rng = Pcg32::new(mix(options.seed), mix(index ^ mix(options.seed)));
-        // Welford: a mean and variance that stay accurate over many samples.
+        let used = points.len().min(options.spp as usize);
+        // Per point: its samples' sum and count; Welford over all paths for the one-point case.
+        let mut sums = vec![([0.0f64; 3], 0u32); used];
         let mut mean = [0.0f64; 3];
         let mut m2 = [0.0f64; 3];
         for k in 0..options.spp {
-            let p = &points[k as usize % points.len()];
+            let slot = k as usize % used;
+            let p = &points[slot];
             let x = Vec3::from(p.position);
             let n = Vec3::from(p.normal).normalize_or_zero();
             let s = estimate::sample(&self.mesh, sources, x, n, options.bounces, &mut rng);
@@ -318,12 +326,27 @@ impl Reference {
                 let delta = v - mean[c];
                 mean[c] += delta / count;
                 m2[c] += delta * (v - mean[c]);
+                sums[slot].0[c] += v;
             }
+            sums[slot].1 += 1;
         }
-        let n = f64::from(options.spp);
-        Estimate {
-            mean,
-            stderr: m2.map(|m| (m / (n - 1.0) / n).sqrt()),
+        if used < 2 {
+            let n = f64::from(options.spp);
+            return Estimate {
+                mean,
+                stderr: m2.map(|m| (m / (n - 1.0) / n).sqrt()),
+            };
         }
+        let means: Vec<[f64; 3]> = sums
+            .iter()
+            .map(|(s, n)| s.map(|v| v / f64::from(*n)))
+            .collect();
+        let p = used as f64;
+        let mean: [f64; 3] = std::array::from_fn(|c| means.iter().map(|m| m[c]).sum::<f64>() / p);
+        let stderr = std::array::from_fn(|c| {
+            let var = means.iter().map(|m| (m[c] - mean[c]).powi(2)).sum::<f64>() / (p - 1.0);
+            (var / p).sqrt()
+        });
+        Estimate { mean, stderr }
     }
 }

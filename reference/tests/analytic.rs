@@ -195,3 +195,81 @@ fn the_same_seed_gives_the_same_values_and_bad_input_is_an_error() {
     assert!(err.to_string().contains("point 0"), "{err}");
     assert!(Reference::new(&Scene::default()).is_err());
 }
+
+/// A patch's reference is a mean over points drawn on its footprint. Under a small emitter the
+/// floor's irradiance falls several times from the middle of the patch to its corners, so a few
+/// points stand for the patch far worse than their paths' noise says. The standard error must
+/// count that: independent estimates (other seeds, other points) disagree within what their
+/// errors claim, at 16 points a patch and at one path a point.
+#[test]
+fn the_standard_error_counts_how_the_value_varies_over_the_footprint() {
+    use bounce_core::patch::{Face, Patch, PatchLayout};
+    let square = quad(
+        [
+            Vec3::new(-0.5, 1.0, -0.5),
+            Vec3::new(-0.5, 1.0, 0.5),
+            Vec3::new(0.5, 1.0, 0.5),
+            Vec3::new(0.5, 1.0, -0.5),
+        ],
+        0.0,
+        3.0,
+    );
+    let floor = quad(
+        [
+            Vec3::new(-50.0, 0.0, -50.0),
+            Vec3::new(50.0, 0.0, -50.0),
+            Vec3::new(50.0, 0.0, 50.0),
+            Vec3::new(-50.0, 0.0, 50.0),
+        ],
+        0.0,
+        0.0,
+    );
+    let scene = Scene {
+        triangles: square.into_iter().chain(floor).collect(),
+        ..Scene::default()
+    };
+    let reference = Reference::new(&scene).unwrap();
+    // One patch: the floor over [-2, 2]² facing up.
+    let layout = PatchLayout {
+        origin: [-2.0, -0.5, -2.0],
+        voxel_size: 4.0,
+        dims: [1, 1, 1],
+        patches: vec![Patch {
+            voxel: [0, 0, 0],
+            face: Face::PosY,
+            albedo: [0.0; 3],
+            centroid: [0.0, 0.0, 0.0],
+            normal: [0.0, 1.0, 0.0],
+            source_area: 16.0,
+            emission: [0.0; 3],
+        }],
+    };
+    let estimate = |points: usize, spp: u32, seed: u64| {
+        let options = Options {
+            spp,
+            bounces: Bounces::K(1),
+            seed,
+        };
+        let (e, _, _) = reference
+            .estimate_footprints(&LightSet::default(), &layout, points, &options, &|_| {})
+            .unwrap();
+        (e[0].mean[1], e[0].stderr[1])
+    };
+    let truth = estimate(20_000, 20_000, 1000).0;
+    for (points, spp) in [(16, 16_000), (400, 400)] {
+        let mut within = 0;
+        let mut spread = 0.0;
+        for seed in 0..40 {
+            let (mean, se) = estimate(points, spp, seed);
+            spread += (mean - truth).powi(2) / 40.0;
+            if (mean - truth).abs() < 3.0 * se {
+                within += 1;
+            }
+        }
+        eprintln!(
+            "{points} points, {spp} paths: {within} of 40 within 3 standard errors, rms {:.4} of {truth:.4}",
+            spread.sqrt()
+        );
+        assert!(within >= 36, "{points} points: {within} of 40 within 3σ");
+    }
+}
