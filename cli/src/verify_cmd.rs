@@ -5,11 +5,14 @@
 use std::path::PathBuf;
 
 use anyhow::{Context, Result, bail};
-use bounce_core::bake::{BakeOptions, CodecRequest, NoProgress, bake_scene, options_of};
+use bounce_core::bake::{BakeOptions, CodecRequest, NoProgress, bake_scene, options_of, simplify};
 use bounce_core::codec;
+use bounce_core::direct::exitance_b0;
 use bounce_core::format::Baked;
 use bounce_core::import::import_path;
+use bounce_core::light::LightSet;
 use bounce_core::matrix::DENSE_F32;
+use bounce_core::pointwise;
 use bounce_engine::{Engine, EngineChoice};
 use bounce_reference::{Options, Reference};
 use clap::Args;
@@ -87,6 +90,13 @@ pub(crate) struct Report {
     /// The transport itself (voxel geometry, form-factor noise): exact `T` on the surfaces'
     /// `B0` against the reference.
     pub transport_rel_l2: f64,
+    /// Surface bakes: how far `E_ind` (exact `T`) moves when its first bounce takes `B0` where
+    /// each form-factor ray lands instead of each element's mean (`bounce_core::pointwise`):
+    /// what holding the source constant over an element costs. `None` for voxel faces.
+    pub source_rel_l2: Option<f64>,
+    /// Surface bakes: the method error with that first bounce: what is left is the transport's
+    /// geometry, the later bounces' constant sources and the form factors' noise.
+    pub method_pointwise_source_rel_l2: Option<f64>,
     /// `method_rel_l2` with the reference's noise taken out in quadrature.
     pub method_rel_l2_without_noise: f64,
     /// `‖stderr‖ / ‖reference‖`.
@@ -213,11 +223,13 @@ pub fn run(args: &VerifyArgs) -> Result<()> {
         }
     };
 
+    let pointwise = pointwise_source(&baked, &scene, &engine, &lights, &exact_e, args.quiet)?;
     let report = compare(
         &compressed,
         &exact_e,
         &surface_lit,
         &reference_e,
+        pointwise.as_deref(),
         traced.rel_stderr(),
         Meta {
             geometry: baked.meta.settings.geometry.to_string(),
@@ -259,6 +271,59 @@ pub fn run(args: &VerifyArgs) -> Result<()> {
         print_table(&report);
     }
     Ok(())
+}
+
+/// A surface bake's exact `E_ind` with its first bounce gathered with `B0` where each
+/// form-factor ray lands (`bounce_core::pointwise`), restricted to the patches as a relight is:
+/// `E_ind + restrict(pointwise − F · B0)`. The rays are the bake's (its seed and count, its
+/// elements found again from its recorded settings). `None` for voxel faces.
+fn pointwise_source(
+    baked: &Baked,
+    scene: &bounce_core::scene::Scene,
+    engine: &Engine,
+    lights: &LightSet,
+    exact_e: &[[f32; 3]],
+    quiet: bool,
+) -> Result<Option<Vec<[f32; 3]>>> {
+    let Some(elements) = &baked.elements else {
+        return Ok(None);
+    };
+    let s = &baked.meta.settings;
+    if !quiet {
+        eprintln!("tracing the form-factor rays again, with the light where each lands");
+    }
+    let vox = simplify(scene, &options_of(s, false))?;
+    let (rows, Some(pieces)) = (vox.transport_layout(), vox.pieces.as_ref()) else {
+        return Ok(None);
+    };
+    if *rows != elements.layout {
+        bail!(
+            "the file's settings give other elements ({} against {}): the scene is not the one \
+             baked, or the file was baked by another version",
+            rows.len(),
+            elements.len()
+        );
+    }
+    let loaded = engine.load(baked)?;
+    let direct = engine
+        .direct_on_rows(&loaded, std::slice::from_ref(lights))?
+        .remove(0);
+    let b0 = exitance_b0(rows, &direct);
+    let first = pointwise::first_bounce(scene, rows, pieces, lights, &b0, s.rays_per_patch, s.seed);
+    let shift: Vec<[f32; 3]> = first
+        .pointwise
+        .iter()
+        .zip(&first.element)
+        .map(|(p, e)| std::array::from_fn(|c| p[c] - e[c]))
+        .collect();
+    let shift = elements.restrict(&baked.layout, &shift);
+    Ok(Some(
+        exact_e
+            .iter()
+            .zip(&shift)
+            .map(|(e, d)| std::array::from_fn(|c| e[c] + d[c]))
+            .collect(),
+    ))
 }
 
 /// The exact (`dense-f32`) transport on the same patches: the file itself when it is exact,
@@ -331,6 +396,14 @@ pub(crate) fn rel_l2(a: &[[f64; 3]], b: &[[f64; 3]]) -> f64 {
     if n > 0.0 { (d / n).sqrt() } else { d.sqrt() }
 }
 
+/// `‖a‖ / ‖b‖`: turns a relative L2 against `a` into one against `b`, so that every row of the
+/// report is relative to the reference.
+fn norm_ratio(a: &[[f64; 3]], b: &[[f64; 3]]) -> f64 {
+    let sq = |v: &[[f64; 3]]| v.iter().flatten().map(|x| x * x).sum::<f64>();
+    let nb = sq(b);
+    if nb > 0.0 { (sq(a) / nb).sqrt() } else { 1.0 }
+}
+
 pub(crate) fn widen(v: &[[f32; 3]]) -> Vec<[f64; 3]> {
     v.iter().map(|c| c.map(f64::from)).collect()
 }
@@ -340,10 +413,12 @@ pub(crate) fn compare(
     exact: &[[f32; 3]],
     surface_lit: &[[f32; 3]],
     reference: &[[f64; 3]],
+    pointwise_source: Option<&[[f32; 3]]>,
     reference_rel_stderr: f64,
     meta: Meta,
 ) -> Report {
     let (compressed, exact, surface_lit) = (widen(compressed), widen(exact), widen(surface_lit));
+    let pointwise_source = pointwise_source.map(widen);
     let method = rel_l2(&exact, reference);
     let norm = |c: &[f64; 3]| (c[0] * c[0] + c[1] * c[1] + c[2] * c[2]).sqrt();
     let rms = (reference.iter().map(|r| norm(r).powi(2)).sum::<f64>()
@@ -387,6 +462,10 @@ pub(crate) fn compare(
         direct_at_patches_rel_l2: rel_l2(&exact, &surface_lit),
         transport_rel_l2: rel_l2(&surface_lit, reference),
         total_rel_l2: rel_l2(&compressed, reference),
+        source_rel_l2: pointwise_source
+            .as_ref()
+            .map(|p| rel_l2(&exact, p) * norm_ratio(p, reference)),
+        method_pointwise_source_rel_l2: pointwise_source.as_ref().map(|p| rel_l2(p, reference)),
         method_rel_l2_without_noise: (method * method
             - reference_rel_stderr * reference_rel_stderr)
             .max(0.0)
@@ -447,14 +526,28 @@ fn print_table(r: &Report) {
         "| method: exact T vs reference | {} |",
         pct(r.method_rel_l2)
     );
-    println!(
-        "| · of which direct light at the patches' samples, not the reference's | {} |",
-        pct(r.direct_at_patches_rel_l2)
-    );
-    println!(
-        "| · of which transport (geometry, form-factor noise) | {} |",
-        pct(r.transport_rel_l2)
-    );
+    match (r.source_rel_l2, r.method_pointwise_source_rel_l2) {
+        (Some(source), Some(rest)) => {
+            println!(
+                "| · the element-constant source: E_ind moves by this when the first bounce takes B0 where each ray lands | {} |",
+                pct(source)
+            );
+            println!(
+                "| · method with that first bounce (geometry, later bounces, form-factor noise) | {} |",
+                pct(rest)
+            );
+        }
+        _ => {
+            println!(
+                "| · of which direct light at the patches' samples, not the reference's | {} |",
+                pct(r.direct_at_patches_rel_l2)
+            );
+            println!(
+                "| · of which transport (geometry, form-factor noise) | {} |",
+                pct(r.transport_rel_l2)
+            );
+        }
+    }
     println!(
         "| method, reference noise removed | {} |",
         pct(r.method_rel_l2_without_noise)
@@ -512,7 +605,7 @@ mod tests {
         let reference = [[1.0, 1.0, 1.0], [2.0, 2.0, 2.0], [0.0, 0.0, 0.0]];
         let exact = [[1.1, 1.1, 1.1], [2.0, 2.0, 2.0], [0.0, 0.0, 0.0]];
         let compressed = [[1.1, 1.1, 1.1], [2.0, 2.0, 2.0], [0.01, 0.01, 0.01]];
-        let r = compare(&compressed, &exact, &exact, &reference, 0.0, meta());
+        let r = compare(&compressed, &exact, &exact, &reference, None, 0.0, meta());
         // ‖(0.1,0.1,0.1)‖ / ‖ref‖ = √0.03 / √15.
         assert!((r.method_rel_l2 - (0.03f64 / 15.0).sqrt()).abs() < 1e-6);
         assert!((r.codec_rel_l2 - (0.0003f64 / (3.0 * 1.21 + 12.0)).sqrt()).abs() < 1e-6);
@@ -529,7 +622,7 @@ mod tests {
         let leak = leak_share(&widen(&compressed), &reference);
         assert!((leak - 0.03 / 9.33).abs() < 1e-9, "{leak}");
         // Noise removal never goes below zero.
-        let noisy = compare(&compressed, &exact, &exact, &reference, 1.0, meta());
+        let noisy = compare(&compressed, &exact, &exact, &reference, None, 1.0, meta());
         assert_eq!(noisy.method_rel_l2_without_noise, 0.0);
     }
 }

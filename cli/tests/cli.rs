@@ -1068,6 +1068,9 @@ fn verify_and_reference_on_the_cornell_box() {
         "reference_rel_stderr",
         "direct_at_patches_rel_l2",
         "transport_rel_l2",
+        // A surface bake: the first bounce with the light where each ray lands.
+        "source_rel_l2",
+        "method_pointwise_source_rel_l2",
     ] {
         let v = get(key);
         assert!(v.is_finite() && v >= 0.0, "{key} = {v}");

@@ -22,6 +22,7 @@ pub mod matrix;
 pub mod meta;
 pub mod openness;
 pub mod patch;
+pub mod pointwise;
 pub mod rays;
 pub mod scene;
 pub mod shard;

@@ -219,6 +219,33 @@ impl SurfaceScene {
         }
     }
 
+    /// Where form-factor ray `k` of `row` lands (the same ray [`RowTracer::trace_row`] traces
+    /// with this seed): the hit point, the unit normal of the side it met, the original triangle
+    /// and the row owning that surface. `None` where the ray carries nothing (escaped, a back
+    /// face, surface of no row). `scene` is the one this was built from.
+    pub(crate) fn landing(&self, scene: &Scene, row: usize, k: u32, seed: u64) -> Option<Landing> {
+        if self.pieces.of(row).is_empty() {
+            return None;
+        }
+        let (origin, dir) = self.ray(row, k, 0, row_seed(seed, row));
+        let hit = self.mesh.closest(origin, dir, f32::INFINITY)?;
+        if !self.sides[hit.triangle as usize][usize::from(!hit.front)] {
+            return None;
+        }
+        let point = origin + dir * hit.t;
+        let row = self.owners.row_at(point, hit.triangle, !hit.front)? as usize;
+        let front = scene.triangles[hit.triangle as usize]
+            .cross()
+            .normalize_or_zero();
+        let normal = if hit.front { front } else { -front };
+        Some(Landing {
+            position: offset_origin(point, normal, self.extent),
+            normal,
+            triangle: hit.triangle,
+            row,
+        })
+    }
+
     /// Ray `k` of row `row` in Sobol dimension set `set`: its origin (off the surface) and
     /// direction.
     #[inline]
@@ -263,6 +290,19 @@ impl RowTracer for SurfaceScene {
             matches!(self.fate(origin, dir), RayFate::Patch(_))
         })
     }
+}
+
+/// Where a form-factor ray lands ([`SurfaceScene::landing`]).
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Landing {
+    /// The hit point, pushed off the surface along `normal` (a shadow ray starts from it).
+    pub position: Vec3,
+    /// Unit normal of the side the ray met.
+    pub normal: Vec3,
+    /// The original triangle (index into [`Scene::triangles`]).
+    pub triangle: u32,
+    /// The transport row owning the surface met.
+    pub row: usize,
 }
 
 /// Which transport row owns each point of surface: per side of each original triangle, the piece
@@ -392,3 +432,4 @@ fn cell(p: Vec3, origin: Vec3, size: f32, dims: [u32; 3]) -> [u32; 3] {
 fn key(dims: [u32; 3], c: [u32; 3]) -> u64 {
     (u64::from(c[2]) * u64::from(dims[1]) + u64::from(c[1])) * u64::from(dims[0]) + u64::from(c[0])
 }
+

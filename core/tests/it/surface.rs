@@ -460,3 +460,87 @@ fn elements_split_patches_by_surface_and_conserve_area() {
         assert_eq!(vox.refinement.voxels.is_empty(), factor == 1);
     }
 }
+
+/// `bounce verify`'s source split (`bounce_core::pointwise`): the element-constant sum is `F · B0`
+/// on the very rays of `F`; a source that is uniform over its elements gives the two sums alike;
+/// a point light close to one wall does not, and the pointwise sum is what a finer source would
+/// converge to: the same light in total, placed where it falls.
+#[test]
+fn the_pointwise_first_bounce_retraces_the_form_factor_rays() {
+    use bounce_core::pointwise::first_bounce;
+    let mut scene = closed_box(1.0, 0.5);
+    let vox = cluster_at(&scene, 0.26).unwrap();
+    let rows = vox.transport_layout();
+    let pieces = vox.pieces.as_ref().unwrap();
+    let (rays, seed) = (512, 3);
+    let (f, _) = form_factors(&surface_scene(&scene, &vox), rays, seed, &no_progress).unwrap();
+    let n = rows.len();
+    // Any per-row B0 will do for the identity with F: make every row different.
+    let b0: Vec<[f32; 3]> = (0..n)
+        .map(|i| [1.0 + i as f32, 2.0 * i as f32, 0.5])
+        .collect();
+    let dark = first_bounce(&scene, rows, pieces, &LightSet::default(), &b0, rays, seed);
+    for (i, row) in dark.element.iter().enumerate() {
+        for (c, &got) in row.iter().enumerate() {
+            let fb: f32 = (0..n).map(|j| f.get(0, i, j) * b0[j][c]).sum();
+            assert!(
+                (got - fb).abs() <= 1e-4 * fb.abs().max(1.0),
+                "row {i}: {got} against F·B0 {fb}"
+            );
+        }
+    }
+    // No light, every wall emitting alike: B0 is uniform, where it lands or as a mean.
+    for t in &mut scene.triangles {
+        t.emission = Vec3::splat(2.0);
+    }
+    let uniform = vec![[2.0f32; 3]; n];
+    let same = first_bounce(
+        &scene,
+        rows,
+        pieces,
+        &LightSet::default(),
+        &uniform,
+        rays,
+        seed,
+    );
+    assert_eq!(same.pointwise, same.element);
+    // A point light a hand's breadth from the floor: the floor's elements are far from uniform.
+    for t in &mut scene.triangles {
+        t.emission = Vec3::ZERO;
+    }
+    let light = LightSet {
+        lights: vec![Light::Point {
+            position: [0.5, 0.1, 0.5],
+            color: [1.0; 3],
+            intensity: 1.0,
+            range: None,
+            name: None,
+        }],
+    };
+    let data = SurfaceData {
+        triangles: occluder_triangles_of(&scene_mesh(&scene)),
+        per_patch: 64,
+        points: sample_points(pieces, 64, 1),
+    };
+    let e = direct_irradiance(&ShadowScene::surface(&data), rows, &light, 64);
+    let b0: Vec<[f32; 3]> = rows
+        .patches
+        .iter()
+        .zip(&e)
+        .map(|(p, e)| std::array::from_fn(|c| p.albedo[c] * e[c]))
+        .collect();
+    let lit = first_bounce(&scene, rows, pieces, &light, &b0, rays, seed);
+    let total = |v: &[[f32; 3]]| -> f64 { v.iter().map(|x| f64::from(x[0])).sum() };
+    let (pw, el) = (total(&lit.pointwise), total(&lit.element));
+    assert!(
+        (pw - el).abs() < 0.1 * el,
+        "in total alike: {pw} against {el}"
+    );
+    let moved = (0..n)
+        .filter(|&i| (lit.pointwise[i][0] - lit.element[i][0]).abs() > 0.1 * lit.element[i][0])
+        .count();
+    assert!(
+        moved > 0,
+        "some receiver sees the lit spot, not the floor's mean"
+    );
+}
