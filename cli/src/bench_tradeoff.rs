@@ -117,8 +117,17 @@ pub fn run(args: &BenchTradeoffArgs) -> Result<()> {
                         bounces: args.bounces,
                         seed: 1,
                     };
-                    let t =
-                        trace_footprints(&reference, &lights, &exact.layout, 16, &options, false)?;
+                    // One footprint point per path, as `verify` draws them: the standard
+                    // error then counts how the value varies over each patch.
+                    let points = args.spp as usize;
+                    let t = trace_footprints(
+                        &reference,
+                        &lights,
+                        &exact.layout,
+                        points,
+                        &options,
+                        false,
+                    )?;
                     let values = t.estimates.iter().map(|e| e.mean).collect();
                     traced = Some((exact.layout.clone(), values, t.rel_stderr()));
                 }
