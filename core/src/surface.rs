@@ -432,4 +432,3 @@ fn cell(p: Vec3, origin: Vec3, size: f32, dims: [u32; 3]) -> [u32; 3] {
 fn key(dims: [u32; 3], c: [u32; 3]) -> u64 {
     (u64::from(c[2]) * u64::from(dims[1]) + u64::from(c[1])) * u64::from(dims[0]) + u64::from(c[0])
 }
-
