@@ -235,6 +235,24 @@ impl Importer<'_> {
         let Some(image) = self.document.images().nth(index) else {
             return;
         };
+        // `gltf::Image::source` unwraps both: an image with neither a URI nor a buffer view, or
+        // a buffer view without a mimeType, passes glTF validation and panicked there (found by
+        // the `gltf_import` fuzz target).
+        let json = &self.document.as_json().images[index];
+        let malformed = match (&json.buffer_view, &json.uri, &json.mime_type) {
+            (None, None, _) => Some("it has neither a uri nor a bufferView"),
+            (Some(_), _, None) => Some("it has a bufferView but no mimeType"),
+            _ => None,
+        };
+        if let Some(reason) = malformed {
+            let name = image.name().map(|n| format!(" '{n}'")).unwrap_or_default();
+            self.scene
+                .report
+                .missing_textures
+                .push(format!("image {index}{name}: {reason}"));
+            self.materials.images[index] = ImageSlot::Failed;
+            return;
+        }
         let (what, bytes, mime) = match image.source() {
             gltf::image::Source::View { view, mime_type } => (
                 format!("buffer view {}", view.index()),

@@ -21,6 +21,7 @@ mod accessor;
 mod material;
 mod mesh;
 mod pack;
+mod packed;
 mod shading;
 mod source;
 mod texture;
@@ -35,6 +36,7 @@ use gltf::json::validation::{Checked, Validate};
 use crate::light::Light;
 
 pub use self::pack::{PackError, pack_bytes, pack_glb};
+pub use self::packed::{MAX_SERVED_MODEL_BYTES, PackedModelError, validate_packed};
 use crate::scene::{ImportReport, Scene};
 
 use self::accessor::BufferData;

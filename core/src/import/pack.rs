@@ -39,6 +39,11 @@ pub enum PackError {
     },
     #[error("{}: the packed model would be {bytes} bytes, over the GLB limit of 4 GiB", path.display())]
     TooLarge { path: PathBuf, bytes: u64 },
+    /// The result fails the check a server makes before serving a model
+    /// ([`validate_packed`](super::validate_packed)): an embedded image that is not what it
+    /// claims, an image with no data, a view past its buffer.
+    #[error("{}: the packed model would not be served: {reason}", path.display())]
+    Unservable { path: PathBuf, reason: String },
 }
 
 /// Alignment of each buffer and image in the BIN chunk: the largest glTF component size.
@@ -55,8 +60,18 @@ pub fn pack_glb(path: &Path) -> Result<Vec<u8>, PackError> {
 }
 
 /// As [`pack_glb`], from the file's bytes; external files are resolved relative to `base`.
-/// `path` names the scene in errors.
+/// `path` names the scene in errors. What it returns passes
+/// [`validate_packed`](super::validate_packed), so a server serves every model a bake keeps.
 pub fn pack_bytes(bytes: &[u8], base: Option<&Path>, path: &Path) -> Result<Vec<u8>, PackError> {
+    let glb = pack_unchecked(bytes, base, path)?;
+    super::validate_packed(&glb).map_err(|e| PackError::Unservable {
+        path: path.to_path_buf(),
+        reason: e.reason().to_string(),
+    })?;
+    Ok(glb)
+}
+
+fn pack_unchecked(bytes: &[u8], base: Option<&Path>, path: &Path) -> Result<Vec<u8>, PackError> {
     let not_gltf = |reason: String| PackError::NotGltf {
         path: path.to_path_buf(),
         reason,
@@ -126,7 +141,7 @@ pub fn pack_bytes(bytes: &[u8], base: Option<&Path>, path: &Path) -> Result<Vec<
                     format!("{} bytes, but byteLength says {len}", data.len()),
                 )
             })?;
-        placed.push(append(&mut bin, data));
+        placed.push((append(&mut bin, data), data.len() as u64));
     }
 
     // Buffer views: all into buffer 0, shifted by where their buffer went.
@@ -135,14 +150,28 @@ pub fn pack_bytes(bytes: &[u8], base: Option<&Path>, path: &Path) -> Result<Vec<
         let obj = v
             .as_object_mut()
             .ok_or_else(|| not_gltf(format!("buffer view {i} is not an object")))?;
-        let buffer = obj
+        let (at, buffer_len) = obj
             .get("buffer")
             .and_then(Value::as_u64)
             .and_then(|b| placed.get(usize::try_from(b).ok()?))
+            .copied()
             .ok_or_else(|| not_gltf(format!("buffer view {i} names no existing buffer")))?;
         let offset = obj.get("byteOffset").and_then(Value::as_u64).unwrap_or(0);
+        // Once every buffer is one, a view past the end of its own would read the next buffer's
+        // bytes (or past the BIN chunk, which the server refuses to serve).
+        let length = obj.get("byteLength").and_then(Value::as_u64);
+        match length.and_then(|n| offset.checked_add(n)) {
+            Some(end) if end <= buffer_len => {}
+            _ => {
+                return Err(not_gltf(format!(
+                    "buffer view {i} ({} bytes at {offset}) is not within its buffer ({buffer_len} \
+                     bytes)",
+                    length.map_or("no byteLength".to_string(), |n| n.to_string())
+                )));
+            }
+        }
         obj.insert("buffer".into(), json!(0));
-        obj.insert("byteOffset".into(), json!(offset + *buffer as u64));
+        obj.insert("byteOffset".into(), json!(offset + at as u64));
     }
 
     // Images with a URI: their bytes appended, each behind a new buffer view.
@@ -267,7 +296,7 @@ fn mime_of(uri: &str) -> Option<&'static str> {
 /// The type an image's bytes announce, for a URI that says nothing.
 /// The packed model is served to browsers: an image goes in only if its bytes are the type it
 /// claims, and PNG and JPEG (the types bounce decodes) only if they decode.
-fn check_image(data: &[u8], mime: &str) -> Result<(), String> {
+pub(super) fn check_image(data: &[u8], mime: &str) -> Result<(), String> {
     match sniff_mime(data) {
         Some(found) if found == mime => {}
         Some(found) => return Err(format!("its bytes are {found}, not {mime}")),
@@ -306,6 +335,29 @@ mod tests {
         assert_eq!(mime_of("a.ktx2"), Some("image/ktx2"));
         assert_eq!(mime_of("a.bmp"), None);
         assert_eq!(mime_of("data:application/octet-stream;base64,AA"), None);
+    }
+
+    /// Found by the `gltf_import` fuzz target: a view past the end of its buffer was packed, into
+    /// a model that reads the next buffer's bytes or that the server refuses to serve.
+    #[test]
+    fn a_view_past_its_buffer_is_refused() {
+        let gltf = |offset: u64, length: u64| {
+            format!(
+                r#"{{"asset":{{"version":"2.0"}},
+                "buffers":[{{"byteLength":4,"uri":"data:,abcd"}},{{"byteLength":4,"uri":"data:,efgh"}}],
+                "bufferViews":[{{"buffer":0,"byteOffset":{offset},"byteLength":{length}}}]}}"#
+            )
+        };
+        let path = Path::new("view.gltf");
+        pack_bytes(gltf(0, 4).as_bytes(), None, path).unwrap();
+        pack_bytes(gltf(2, 2).as_bytes(), None, path).unwrap();
+        for (offset, length) in [(0, 5), (4, 1), (u64::MAX, 2)] {
+            let e = pack_bytes(gltf(offset, length).as_bytes(), None, path).unwrap_err();
+            assert!(
+                e.to_string().contains("buffer view 0") && e.to_string().contains("not within"),
+                "{e}"
+            );
+        }
     }
 
     #[test]

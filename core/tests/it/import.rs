@@ -891,6 +891,31 @@ fn a_missing_texture_is_reported_and_the_factor_used() {
     assert_eq!(scene.triangles[0].albedo, Vec3::new(0.5, 0.25, 1.0));
 }
 
+/// Found by the `gltf_import` fuzz target (issue 19): an image with neither a `uri` nor a
+/// `bufferView`, or a `bufferView` without a `mimeType`, passes glTF validation and panicked in
+/// the `gltf` crate. Now it is a missing texture like any other.
+#[test]
+fn an_image_with_no_source_or_no_mime_type_is_reported_not_a_panic() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut doc = textured_triangle(
+        [[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]],
+        "unused.png",
+        [0.5, 0.25, 1.0, 1.0],
+        json!({}),
+    );
+    for (image, says) in [
+        (json!({}), "neither a uri nor a bufferView"),
+        (json!({"bufferView": 0}), "a bufferView but no mimeType"),
+    ] {
+        doc["images"] = json!([image]);
+        let scene = import_in(dir.path(), &doc);
+        assert_eq!(scene.triangles[0].albedo, Vec3::new(0.5, 0.25, 1.0));
+        let missing = &scene.report.missing_textures;
+        assert_eq!(missing.len(), 1, "{missing:?}");
+        assert!(missing[0].contains(says), "{}", missing[0]);
+    }
+}
+
 #[test]
 fn texture_is_srgb_decoded_averaged_over_the_footprint_and_times_the_factor() {
     let dir = tempfile::tempdir().unwrap();
