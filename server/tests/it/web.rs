@@ -417,3 +417,132 @@ async fn a_web_dir_is_read_on_every_request() {
     }
     server.stop().await;
 }
+
+/// One GLB: the JSON chunk (padded with spaces) and an optional BIN chunk (padded with zeros).
+fn glb(json: &str, bin: &[u8]) -> Vec<u8> {
+    let mut json = json.as_bytes().to_vec();
+    json.resize(json.len().next_multiple_of(4), b' ');
+    let mut bin = bin.to_vec();
+    bin.resize(bin.len().next_multiple_of(4), 0);
+    let chunks = 8 + json.len() + if bin.is_empty() { 0 } else { 8 + bin.len() };
+    let mut out = b"glTF".to_vec();
+    out.extend(2u32.to_le_bytes());
+    out.extend(((12 + chunks) as u32).to_le_bytes());
+    out.extend((json.len() as u32).to_le_bytes());
+    out.extend(b"JSON");
+    out.extend(&json);
+    if !bin.is_empty() {
+        out.extend((bin.len() as u32).to_le_bytes());
+        out.extend(b"BIN\0");
+        out.extend(&bin);
+    }
+    out
+}
+
+/// A model whose one image is `image`, claiming to be a PNG: what a bake before issue 19 packed
+/// from a glTF whose image URI was `/etc/passwd` with a `mimeType`.
+fn model_with_image(image: &[u8]) -> Vec<u8> {
+    let json = json!({
+        "asset": {"version": "2.0"},
+        "buffers": [{"byteLength": image.len()}],
+        "bufferViews": [{"buffer": 0, "byteLength": image.len()}],
+        "images": [{"bufferView": 0, "mimeType": "image/png"}],
+    });
+    glb(&json.to_string(), image)
+}
+
+/// Issue 19: a model is checked before it is served, whether it is packed in the baked file or
+/// lies beside it, and one that fails is not served while its scene is.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_model_that_is_not_a_clean_packed_glb_is_not_served() {
+    let root = tempfile::tempdir().expect("tempdir");
+    let dir = root.path().join("scenes");
+    std::fs::create_dir(&dir).expect("mkdir");
+    let secret = b"root:x:0:0:root:/root:/bin/bash\n";
+    std::fs::write(root.path().join("secret.txt"), secret).expect("write");
+
+    let mut baked = baked();
+    // In the baked file: a file's bytes packed as an image.
+    baked.model = Some(model_with_image(secret));
+    baked
+        .write_atomic(&dir.join("packed.bounce"))
+        .expect("write");
+    // In the baked file: a model that names a file instead of holding it.
+    baked.model = Some(glb(
+        &json!({"asset": {"version": "2.0"},
+                "buffers": [{"byteLength": secret.len(), "uri": "../secret.txt"}]})
+        .to_string(),
+        &[],
+    ));
+    baked.write_atomic(&dir.join("uri.bounce")).expect("write");
+    // Beside a file without a model: a GLB holding the same fake image (a GLB without URIs
+    // packs as it is, so only the check stops it), and a glTF whose buffer climbs out.
+    baked.model = None;
+    for name in ["beside-glb", "beside-gltf", "good"] {
+        baked
+            .write_atomic(&dir.join(format!("{name}.bounce")))
+            .expect("write");
+    }
+    std::fs::write(dir.join("beside-glb.glb"), model_with_image(secret)).expect("write");
+    std::fs::write(
+        dir.join("beside-gltf.gltf"),
+        json!({"asset": {"version": "2.0"},
+               "buffers": [{"byteLength": secret.len(), "uri": "../secret.txt"}]})
+        .to_string(),
+    )
+    .expect("write");
+    // And one that passes, beside a file, to show the check lets real models through.
+    let packed = bounce_core::import::pack_glb(&cornell_gltf()).expect("pack");
+    std::fs::write(dir.join("good.glb"), &packed).expect("write");
+
+    let mut config = HubConfig::new(&dir, EngineChoice::Cpu);
+    config.reload_interval = None;
+    let server = TestServer::start_with(config).await;
+    let http = client();
+    let scenes: Value = http
+        .get(server.url("/v1/scenes"))
+        .send()
+        .await
+        .expect("GET")
+        .json()
+        .await
+        .expect("JSON");
+    let has_model = |name: &str| {
+        scenes["scenes"]
+            .as_array()
+            .expect("scenes")
+            .iter()
+            .find(|s| s["name"] == name)
+            .map(|s| s["has_model"].clone())
+    };
+    for name in ["packed", "uri", "beside-glb", "beside-gltf"] {
+        // The scene is served, without a model.
+        assert_eq!(has_model(name), Some(json!(false)), "{name}: {scenes}");
+        let r = http
+            .get(server.url(&format!("/v1/scenes/{name}/model")))
+            .send()
+            .await
+            .expect("GET");
+        assert_eq!(r.status(), StatusCode::NOT_FOUND, "{name}");
+        let body = r.bytes().await.expect("body");
+        assert!(
+            !body.windows(secret.len()).any(|w| w == secret),
+            "{name} served the secret"
+        );
+        let layout = http
+            .get(server.url(&format!("/v1/scenes/{name}/layout")))
+            .send()
+            .await
+            .expect("GET");
+        assert_eq!(layout.status(), StatusCode::OK, "{name}'s light is served");
+    }
+    assert_eq!(has_model("good"), Some(json!(true)));
+    let r = http
+        .get(server.url("/v1/scenes/good/model"))
+        .send()
+        .await
+        .expect("GET");
+    assert_eq!(r.status(), StatusCode::OK);
+    assert!(r.bytes().await.expect("body").as_ref() == packed.as_slice());
+    server.stop().await;
+}
