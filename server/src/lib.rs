@@ -39,6 +39,7 @@ pub use http::serve_http;
 pub use hub::{Hub, HubConfig, LightsVersion};
 pub use serve::serve_grpc;
 pub use worker::{MAX_BATCH, MAX_ONCE_QUEUED};
+pub use ws::{ClientText, parse_client_text};
 
 /// Code generated from `proto/bounce/v1/bounce.proto`: messages, the server trait and a client.
 pub mod proto {
