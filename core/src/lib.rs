@@ -14,6 +14,7 @@ pub mod bake;
 pub mod codec;
 pub mod direct;
 pub mod element;
+pub mod extent;
 pub mod format;
 pub mod formfactor;
 pub mod import;

@@ -76,6 +76,8 @@ pub enum VoxelError {
     AllDropped { candidates: usize, size: f32 },
     #[error("no patches: no surface of the scene faces open space at voxel size {size}")]
     NoPatches { size: f32 },
+    #[error(transparent)]
+    AbsurdExtent(#[from] crate::extent::AbsurdExtent),
 }
 
 /// The result of voxelisation: the patch layout plus what the form-factor rays need.
@@ -450,6 +452,7 @@ pub fn simplify_refined(
     geometry: Geometry,
     refine: Refine<'_>,
 ) -> Result<Voxelization, VoxelError> {
+    crate::extent::check(scene)?;
     // The search counts patches, which the spaces surfaces face do not change: it clusters
     // without them, and only the chosen size is clustered again with them.
     let (count_at, final_at): (At, At) = match geometry {
