@@ -15,6 +15,7 @@ use bounce_core::voxel::{Geometry, PatchOrder, Resolution};
 use clap::{Args, Subcommand};
 use serde::{Deserialize, Serialize};
 
+use crate::budget::{Budget, BudgetArgs};
 use crate::memory::peak_rss_bytes;
 use crate::progress::TermProgress;
 
@@ -156,6 +157,8 @@ pub struct BakeArgs {
     /// Also write the bake's statistics, stage timings and peak memory as JSON here.
     #[arg(long, value_name = "REPORT.json")]
     pub report_json: Option<PathBuf>,
+    #[command(flatten)]
+    pub budget: BudgetArgs,
 }
 
 impl BakeArgs {
@@ -220,10 +223,18 @@ fn run_bake(args: &BakeArgs) -> Result<()> {
             spec,
             !args.no_model,
             args.quiet,
+            args.budget.budget()?,
         );
     }
     let start = Instant::now();
-    let baked = bake(scene, out, &args.options()?, !args.no_model, args.quiet)?;
+    let baked = bake_within(
+        scene,
+        out,
+        &args.options()?,
+        !args.no_model,
+        args.quiet,
+        args.budget.budget()?,
+    )?;
     if let Some(path) = &args.report_json {
         let report = BakeReport {
             wall_seconds: start.elapsed().as_secs_f64(),
@@ -269,13 +280,29 @@ pub fn bake(
     keep_model: bool,
     quiet: bool,
 ) -> Result<Baked> {
+    bake_within(scene, out, options, keep_model, quiet, Budget::default())
+}
+
+/// [`bake`] within `budget` (`--max-seconds`, `--max-memory`): over it, the process ends with
+/// an error naming the budget and the stage, and nothing is written (see [`crate::budget`]).
+pub fn bake_within(
+    scene: &Path,
+    out: &Path,
+    options: &BakeOptions,
+    keep_model: bool,
+    quiet: bool,
+    budget: Budget,
+) -> Result<Baked> {
     let start = Instant::now();
     let progress = TermProgress::new(quiet);
-    let mut baked = bake_file(scene, options, &progress)
+    let watched = budget.watch(&progress);
+    let mut baked = bake_file(scene, options, &watched)
         .with_context(|| format!("baking {}", scene.display()))?;
     // After the bake, so that a file that is not a scene gets the importer's error; by now the
     // files it names have been read once, so packing rarely fails.
+    watched.step("pack model");
     baked.model = keep_model.then(|| pack_model(scene)).transpose()?;
+    watched.disarm();
     let write_start = Instant::now();
     baked
         .write_atomic(out)

@@ -9,6 +9,7 @@ mod bench_codecs;
 mod bench_engines;
 mod bench_serve;
 mod bench_tradeoff;
+mod budget;
 mod demo;
 #[cfg(test)]
 mod deploy_check;

@@ -14,6 +14,7 @@ use bounce_core::shard::{self, Phase, ShardSpec};
 use clap::Args;
 
 use crate::bake_cmd::{human_bytes, print_summary};
+use crate::budget::{Budget, BudgetArgs};
 use crate::memory::peak_rss_bytes;
 use crate::progress::TermProgress;
 
@@ -58,23 +59,26 @@ pub fn form_factors(
     spec: ShardSpec,
     keep_model: bool,
     quiet: bool,
+    budget: Budget,
 ) -> Result<()> {
     let start = Instant::now();
     let path = shard_path(out, Phase::FormFactors, spec)?;
     let progress = TermProgress::new(quiet);
-    let mut file =
-        shard::form_factor_shard(scene, options, spec, &progress).with_context(|| {
-            format!(
-                "baking form-factor shard {}/{} of {}",
-                spec.index,
-                spec.count,
-                scene.display()
-            )
-        })?;
+    let watched = budget.watch(&progress);
+    let mut file = shard::form_factor_shard(scene, options, spec, &watched).with_context(|| {
+        format!(
+            "baking form-factor shard {}/{} of {}",
+            spec.index,
+            spec.count,
+            scene.display()
+        )
+    })?;
     // After the shard's import, as in a whole bake, so a bad scene gets the importer's error.
+    watched.step("pack model");
     file.model = keep_model
         .then(|| crate::bake_cmd::pack_model(scene))
         .transpose()?;
+    watched.disarm();
     write(&file, &path, quiet, start)
 }
 
@@ -94,6 +98,8 @@ pub struct TransportArgs {
     /// No progress bars or stage lines; the summary is still printed.
     #[arg(short, long)]
     pub quiet: bool,
+    #[command(flatten)]
+    pub budget: BudgetArgs,
 }
 
 /// Phase 2: this shard's rows of the transport, from all of the form factors.
@@ -102,8 +108,10 @@ pub fn transport(args: &TransportArgs) -> Result<()> {
     let spec = spec(&args.shard)?;
     let path = shard_path(&args.out, Phase::Transport, spec)?;
     let progress = TermProgress::new(args.quiet);
-    let file = shard::transport_shard(&args.inputs, spec, &progress)
+    let watched = args.budget.budget()?.watch(&progress);
+    let file = shard::transport_shard(&args.inputs, spec, &watched)
         .with_context(|| format!("baking transport shard {}/{}", spec.index, spec.count))?;
+    watched.disarm();
     write(&file, &path, args.quiet, start)
 }
 
@@ -120,13 +128,17 @@ pub struct MergeArgs {
     /// No progress bars or stage lines; the summary is still printed.
     #[arg(short, long)]
     pub quiet: bool,
+    #[command(flatten)]
+    pub budget: BudgetArgs,
 }
 
 /// The last step: assemble, encode (the codec's global steps run here) and write.
 pub fn merge(args: &MergeArgs) -> Result<()> {
     let start = Instant::now();
     let progress = TermProgress::new(args.quiet);
-    let mut baked = shard::merge(&args.inputs, &progress).context("merging the shards")?;
+    let watched = args.budget.budget()?.watch(&progress);
+    let mut baked = shard::merge(&args.inputs, &watched).context("merging the shards")?;
+    watched.disarm();
     let write_start = Instant::now();
     baked
         .write_atomic(&args.out)
