@@ -401,4 +401,16 @@ fn the_repositorys_scenes_pack() {
     // A GLB that is self-contained already passes through unchanged.
     let room = repo_scene("../assets/room-with-objects/room.glb");
     assert_eq!(pack_glb(&room).unwrap(), std::fs::read(&room).unwrap());
+
+    // Every other scene packs too: packing now also runs the check a server makes before it
+    // serves a model (`validate_packed`), which a self-contained GLB must pass as it is.
+    for scene in [
+        "../assets/pandora/pandora.glb",
+        "../assets/small-room/IrradianceVolumeExample.glb",
+        "../assets/cornell-box-emissive/CornellBox.glb",
+    ] {
+        let path = repo_scene(scene);
+        let glb = pack_glb(&path).unwrap_or_else(|e| panic!("{scene}: {e}"));
+        bounce_core::import::validate_packed(&glb).unwrap();
+    }
 }
