@@ -136,15 +136,14 @@ fn cornell_with_far_vertex(dir: &Path, far: f32) -> std::path::PathBuf {
 }
 
 /// One vertex at 1e9 made `--patches 200` voxelise for minutes and a gigabyte; the scene is
-/// refused at once, naming the vertex, and nothing is written.
+/// refused at once, naming the vertex, and nothing is written. "At once" without a timer: a bake
+/// that started voxelising would end on its 10 s budget instead, with the budget's message.
 #[test]
 fn a_stray_vertex_is_refused_at_once() {
     let dir = tempfile::tempdir().unwrap();
     let out_file = dir.path().join("stray.bounce");
     for far in [1e9f32, 1e15] {
         let scene = cornell_with_far_vertex(dir.path(), far);
-        let start = std::time::Instant::now();
-        // The budget only keeps a regression from hanging the test run.
         common::refused(
             bounce()
                 .args([
@@ -153,17 +152,12 @@ fn a_stray_vertex_is_refused_at_once() {
                     "--patches",
                     "200",
                     "--max-seconds",
-                    "120",
+                    "10",
                     "-o",
                 ])
                 .arg(&out_file)
                 .arg(&scene),
             "a stray vertex",
-        );
-        assert!(
-            start.elapsed().as_secs_f64() < 20.0,
-            "refusing took {:?}",
-            start.elapsed()
         );
         assert!(!out_file.exists());
     }
