@@ -21,6 +21,11 @@ use crate::trimesh::TriMesh;
 /// The most patches a bake accepts: the dense transport grows as n², and at this size a
 /// three-channel f32 matrix is already 4.8 GB.
 pub const MAX_PATCHES: u32 = 20_000;
+/// The most candidate patches one voxel size may make before the ones that see nothing are
+/// dropped: each is probed with rays, so this bounds the work of every step of the voxel-size
+/// search. Real scenes drop a few percent; a stray sliver triangle across the whole scene made
+/// 250,000 candidates a step, and minutes of probing (issue 19).
+pub const MAX_CANDIDATES: usize = 3 * MAX_PATCHES as usize;
 
 /// The most voxels a grid may span (about 8 GB of nothing if it were ever dense; we keep it
 /// sparse, but the count still bounds the clipping work).
@@ -70,6 +75,16 @@ pub enum VoxelError {
          accepts; use a larger --voxel-size or --patches"
     )]
     TooManyPatches { size: f32, patches: usize },
+    #[error(
+        "voxel size {size} makes {candidates} candidate patches, more than the {max} a bake probes \
+         (most would see nothing: usually sliver or stray geometry across the scene); use a larger \
+         --voxel-size or fewer --patches"
+    )]
+    TooManyCandidates {
+        size: f32,
+        candidates: usize,
+        max: usize,
+    },
     #[error(
         "all {candidates} candidate patches at voxel size {size} were dropped (none sees another)"
     )]
@@ -464,7 +479,7 @@ pub fn simplify_refined(
             if !(size.is_finite() && size > 0.0) {
                 return Err(VoxelError::VoxelSize(size));
             }
-            accepted(refine(final_at(scene, size)?))
+            accepted(refine(probeable(final_at(scene, size)?)?))
         }
         Resolution::TargetPatches(n) => {
             if n == 0 || n > MAX_PATCHES {
@@ -476,7 +491,7 @@ pub fn simplify_refined(
             }
             // Should the elements by space pass the most rows a bake accepts, the elements
             // without them (which the search kept within it) stand.
-            let spaced = refine(final_at(scene, found.layout.voxel_size)?);
+            let spaced = refine(probeable(final_at(scene, found.layout.voxel_size)?)?);
             if spaced.transport_layout().len() > MAX_PATCHES as usize {
                 tracing::warn!(
                     rows = spaced.transport_layout().len(),
@@ -505,6 +520,18 @@ fn accepted(v: Voxelization) -> Result<Voxelization, VoxelError> {
         return Err(VoxelError::TooManyPatches {
             size,
             patches: v.transport_layout().len(),
+        });
+    }
+    Ok(v)
+}
+
+/// `v` if its candidate patches are few enough to probe ([`MAX_CANDIDATES`]).
+fn probeable(v: Voxelization) -> Result<Voxelization, VoxelError> {
+    if v.layout.len() > MAX_CANDIDATES {
+        return Err(VoxelError::TooManyCandidates {
+            size: v.layout.voxel_size,
+            candidates: v.layout.len(),
+            max: MAX_CANDIDATES,
         });
     }
     Ok(v)
@@ -539,10 +566,16 @@ fn search_voxel_size(
     let mut best: Option<Voxelization> = None;
     let mut best_err = f64::INFINITY;
     let mut all_dropped = None;
+    let mut too_many = None;
     for _ in 0..16 {
-        let wanted = match at(scene, size).map(refine) {
+        let wanted = match at(scene, size).and_then(probeable).map(refine) {
             Err(VoxelError::GridTooLarge { .. } | VoxelError::TooManyPatches { .. }) => {
                 too_fine = too_fine.max(size);
+                size * 2.0
+            }
+            Err(e @ VoxelError::TooManyCandidates { .. }) => {
+                too_fine = too_fine.max(size);
+                too_many = Some(e);
                 size * 2.0
             }
             Err(e) => return Err(e),
@@ -584,10 +617,11 @@ fn search_voxel_size(
             break; // the bracket has closed: no size in between gives anything new
         }
     }
-    match (best, all_dropped) {
-        (Some(v), _) => Ok(v),
-        (None, Some((candidates, size))) => Err(VoxelError::AllDropped { candidates, size }),
-        (None, None) => Err(VoxelError::NoPatches { size }),
+    match (best, all_dropped, too_many) {
+        (Some(v), _, _) => Ok(v),
+        (None, Some((candidates, size)), _) => Err(VoxelError::AllDropped { candidates, size }),
+        (None, None, Some(e)) => Err(e),
+        (None, None, None) => Err(VoxelError::NoPatches { size }),
     }
 }
 

@@ -544,3 +544,46 @@ fn the_pointwise_first_bounce_retraces_the_form_factor_rays() {
         "some receiver sees the lit spot, not the floor's mean"
     );
 }
+
+/// Issue 19's bake amplification: a sliver triangle running from a one-unit room to 1e5 units
+/// away (under the stray-vertex ratio, so not refused outright) cut into a candidate patch per
+/// voxel along its length, every one probed with rays: minutes at a fine size. Each step of the
+/// voxel-size search now stops at `MAX_CANDIDATES` candidates before probing any.
+#[test]
+fn a_sliver_across_the_scene_bounds_the_voxel_size_search() {
+    use bounce_core::bake::{BakeError, BakeOptions, simplify};
+    use bounce_core::voxel::{MAX_CANDIDATES, Resolution, VoxelError};
+    let mut scene = closed_box(1.0, 0.5);
+    let sliver = Triangle {
+        positions: [
+            Vec3::new(1.0, 0.0, 0.0),
+            Vec3::new(1.0, 0.0, 0.02),
+            Vec3::new(1e5, 0.0, 0.0),
+        ],
+        double_sided: true,
+        ..scene.triangles[0]
+    };
+    scene.triangles.push(sliver);
+    let at = |resolution| {
+        simplify(
+            &scene,
+            &BakeOptions {
+                resolution,
+                ..BakeOptions::default()
+            },
+        )
+    };
+    // Half-unit voxels: some 400,000 candidates along the sliver, refused before probing.
+    match at(Resolution::VoxelSize(0.5)) {
+        Err(BakeError::Voxel(VoxelError::TooManyCandidates {
+            candidates, max, ..
+        })) => assert!(candidates > max && max == MAX_CANDIDATES),
+        other => panic!(
+            "expected too many candidates, got {:?}",
+            other.map(|v| v.layout.len())
+        ),
+    }
+    // A patch count: the search settles on a size it could probe.
+    let v = at(Resolution::TargetPatches(200)).expect("a size within the probe budget");
+    assert!(v.layout.len() + v.dropped_patches <= MAX_CANDIDATES);
+}
