@@ -68,6 +68,7 @@ pub async fn serve_http(
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> Result<(), ServerError> {
     let sockets = TaskTracker::new();
+    let hub_header_timeout = hub.header_read_timeout();
     let app = router(hub.clone(), sockets.clone());
     let listener = LimitedListener {
         listener,
@@ -85,11 +86,7 @@ pub async fn serve_http(
         // The worker may be mid-batch: wait for it off the runtime's threads.
         let _ = tokio::task::spawn_blocking(move || hub.shutdown()).await;
     };
-    // With the peer's address, for the per-client session cap.
-    axum::serve(listener, app.into_make_service_with_connect_info::<Peer>())
-        .with_graceful_shutdown(stopping)
-        .await
-        .map_err(ServerError::Http)?;
+    serve_connections(listener, app, hub_header_timeout, stopping).await;
     // Upgraded connections are no longer the HTTP server's: wait for their close frames here.
     sockets.close();
     if tokio::time::timeout(SOCKETS_GRACE, sockets.wait())
@@ -102,6 +99,72 @@ pub async fn serve_http(
         );
     }
     Ok(())
+}
+
+/// axum's own accept-and-serve loop (`axum::serve`), with one difference: each connection's
+/// HTTP/1 has a timer and a header-read timeout. `axum::serve` installs no timer, so hyper's
+/// header-read timeout never fires there: a client that sends one byte of a request head and then
+/// stalls (slowloris), or leaves a keep-alive connection idle, would hold its connection slot for
+/// good. With the timer, a request head must arrive whole within `header_timeout` of hyper
+/// starting to read it, which on a keep-alive connection also bounds the wait for the next
+/// request. An upgraded WebSocket is no longer HTTP and keeps its own keep-alive
+/// ([`crate::ws`]). On `shutdown`, accepting stops, every connection finishes its request in
+/// flight and closes, and this returns once they have.
+async fn serve_connections(
+    mut listener: LimitedListener,
+    app: Router,
+    header_timeout: Duration,
+    shutdown: impl Future<Output = ()> + Send + 'static,
+) {
+    use hyper::server::conn::http1;
+    use hyper_util::rt::{TokioIo, TokioTimer};
+    use hyper_util::service::TowerToHyperService;
+    use tower::ServiceExt;
+
+    let (signal_tx, signal_rx) = tokio::sync::watch::channel(());
+    let (close_tx, close_rx) = tokio::sync::watch::channel(());
+    let mut shutdown = std::pin::pin!(shutdown);
+    loop {
+        let (io, addr) = tokio::select! {
+            accepted = Listener::accept(&mut listener) => accepted,
+            () = &mut shutdown => break,
+        };
+        // The peer's address reaches handlers as axum's connect info would (the per-client
+        // session cap reads it).
+        let service =
+            app.clone()
+                .map_request(move |mut req: axum::http::Request<hyper::body::Incoming>| {
+                    req.extensions_mut().insert(ConnectInfo(Peer(addr)));
+                    req.map(axum::body::Body::new)
+                });
+        let service = TowerToHyperService::new(service);
+        let mut signal = signal_rx.clone();
+        let close = close_rx.clone();
+        tokio::spawn(async move {
+            let conn = http1::Builder::new()
+                .timer(TokioTimer::new())
+                .header_read_timeout(header_timeout)
+                .serve_connection(TokioIo::new(io), service)
+                .with_upgrades();
+            let mut conn = std::pin::pin!(conn);
+            loop {
+                tokio::select! {
+                    result = conn.as_mut() => {
+                        if let Err(e) = result {
+                            tracing::debug!(error = %e, "HTTP connection ended");
+                        }
+                        break;
+                    }
+                    _ = signal.changed() => conn.as_mut().graceful_shutdown(),
+                }
+            }
+            drop(close);
+        });
+    }
+    drop(listener);
+    drop(close_rx);
+    let _ = signal_tx.send(());
+    close_tx.closed().await;
 }
 
 /// Accepts for axum: no Nagle delay (frames are small and latency matters), and past the

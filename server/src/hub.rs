@@ -58,6 +58,9 @@ pub struct HubConfig {
     pub max_sessions_per_client: usize,
     /// A connection that sends nothing this long after it opens is closed.
     pub first_byte_timeout: Duration,
+    /// HTTP: a request head must arrive whole within this long of the server starting to read
+    /// it (which, on a keep-alive connection, bounds the wait for the next request too).
+    pub header_read_timeout: Duration,
     /// A WebSocket is pinged after this long without a message from its client, and closed
     /// when nothing at all (a pong included) comes back within this long again, or when a
     /// message to it cannot be sent within this long: a dead or stalled peer.
@@ -87,6 +90,7 @@ impl HubConfig {
             max_sessions_per_client: 64,
             allowed_origins: Vec::new(),
             first_byte_timeout: Duration::from_secs(10),
+            header_read_timeout: Duration::from_secs(30),
             ws_keepalive: Duration::from_secs(30),
         }
     }
@@ -126,6 +130,7 @@ struct Inner {
     orphans: Mutex<Vec<(String, StoredSession, Instant)>>,
     allowed_origins: Vec<String>,
     first_byte_timeout: Duration,
+    header_read_timeout: Duration,
     ws_keepalive: Duration,
     ready: AtomicBool,
     /// `true` once shutting down: every frame stream ends.
@@ -202,6 +207,7 @@ impl Hub {
                     .map(|o| o.trim_end_matches('/').to_ascii_lowercase())
                     .collect(),
                 first_byte_timeout: config.first_byte_timeout,
+                header_read_timeout: config.header_read_timeout.max(Duration::from_millis(1)),
                 ws_keepalive: config.ws_keepalive.max(Duration::from_millis(1)),
                 ready: AtomicBool::new(false),
                 shutdown: watch::Sender::new(false),
@@ -418,6 +424,11 @@ impl Hub {
     /// How long a new connection may stay silent before it is closed.
     pub fn first_byte_timeout(&self) -> Duration {
         self.inner.first_byte_timeout
+    }
+
+    /// How long an HTTP request head may take to arrive whole ([`HubConfig::header_read_timeout`]).
+    pub fn header_read_timeout(&self) -> Duration {
+        self.inner.header_read_timeout
     }
 
     /// A WebSocket's keep-alive period ([`HubConfig::ws_keepalive`]).

@@ -469,6 +469,56 @@ async fn silent_connections_are_closed_and_free_their_places() {
     server.stop().await;
 }
 
+/// A client that sends the start of a request head and then stalls (slowloris), or leaves a
+/// keep-alive connection idle after its answer, is closed after the header-read timeout. Before,
+/// both held their connection slots for good: the first-byte timeout only catches silence.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn stalled_request_heads_and_idle_keep_alives_are_closed() {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let mut config = HubConfig::new(scenes_dir(), EngineChoice::Cpu);
+    config.header_read_timeout = Duration::from_millis(500);
+    let server = TestServer::start_with(config).await;
+    let closed = |mut s: tokio::net::TcpStream| async move {
+        // Read whatever the server sends (an answer, a 408) until it closes.
+        let mut buf = Vec::new();
+        let read = tokio::time::timeout(PATIENCE, s.read_to_end(&mut buf)).await;
+        assert!(read.is_ok(), "the server never closed the connection");
+        String::from_utf8_lossy(&buf).into_owned()
+    };
+    // Half a request head, then nothing.
+    let mut stalled = tokio::net::TcpStream::connect(server.http_addr)
+        .await
+        .expect("connect");
+    stalled
+        .write_all(b"GET /healthz HTTP/1.1\r\nHost: x\r\n")
+        .await
+        .expect("write");
+    let started = Instant::now();
+    closed(stalled).await;
+    assert!(
+        started.elapsed() >= Duration::from_millis(400),
+        "closed before the timeout"
+    );
+    // A whole request, answered, then an idle keep-alive connection.
+    let mut idle = tokio::net::TcpStream::connect(server.http_addr)
+        .await
+        .expect("connect");
+    idle.write_all(b"GET /healthz HTTP/1.1\r\nHost: x\r\n\r\n")
+        .await
+        .expect("write");
+    let answer = closed(idle).await;
+    assert!(answer.starts_with("HTTP/1.1 200"), "{answer}");
+    // Requests that are quick are served as before.
+    let http = reqwest::Client::new();
+    let r = http
+        .get(server.url("/healthz"))
+        .send()
+        .await
+        .expect("served");
+    assert_eq!(r.status(), 200);
+    server.stop().await;
+}
+
 /// One address holds at most `max_connections_per_ip` connections: past it the next is closed at
 /// once, and counted; a closed one frees its place. (Every client here is on loopback, one
 /// address.)
