@@ -195,17 +195,10 @@ impl Listener for LimitedListener {
     }
 }
 
-/// The address a request came from, as the connection limit admitted it.
+/// The address a request came from, as the connection limit admitted it
+/// ([`serve_connections`] puts it in every request's extensions).
 #[derive(Clone, Copy, Debug)]
 struct Peer(SocketAddr);
-
-impl axum::extract::connect_info::Connected<axum::serve::IncomingStream<'_, LimitedListener>>
-    for Peer
-{
-    fn connect_info(stream: axum::serve::IncomingStream<'_, LimitedListener>) -> Peer {
-        Peer(*stream.remote_addr())
-    }
-}
 
 /// What every handler shares.
 #[derive(Clone)]
