@@ -23,7 +23,7 @@ pub use direct_surface::{
     GpuSample, GpuSurfaceDirect, RAYS_PER_PIECE, SURFACE_STACK, SURFACE_WG, SurfaceParams,
 };
 pub use error::GpuError;
-pub use kernel::{CHUNK, Params, ROWS, Split};
+pub use kernel::{CHUNK, CHUNKS, Params, ROWS, Split, variant_for};
 pub use matrix::GpuMatrix;
 
 /// WGSL sources as compiled (the shared prelude plus the kernel's file), for tools and the naga
@@ -31,7 +31,7 @@ pub use matrix::GpuMatrix;
 pub mod sources {
     pub use super::direct::direct_source;
     pub use super::direct_surface::direct_surface_source;
-    pub use super::kernel::{dense_source, logblock_source, sparse_source};
+    pub use super::kernel::{dense_source, logblock_source, sparse_source, with_chunk};
 
     /// The bandwidth probe's kernel.
     pub fn bandwidth_source() -> &'static str {

@@ -6,7 +6,7 @@ use std::time::Instant;
 use bytemuck::{Pod, Zeroable};
 use wgpu::util::DeviceExt;
 
-use super::kernel::{pipeline, read_words, scoped};
+use super::kernel::{Loops, pipeline_with, read_words, scoped};
 use super::{GpuContext, GpuError};
 
 const SOURCE: &str = include_str!("shaders/bandwidth.wgsl");
@@ -90,7 +90,7 @@ pub fn measure(ctx: &GpuContext, bytes: u64, repeats: u32) -> Result<Bandwidth, 
         });
     }
     let (data, sums, readback, probe) = buffers;
-    let pipeline = pipeline(device, "bandwidth", SOURCE, "read_all", &[])?;
+    let pipeline = pipeline_with(device, "bandwidth", SOURCE, "read_all", &[], Loops::Counted)?;
     let group = device.create_bind_group(&wgpu::BindGroupDescriptor {
         label: None,
         layout: &pipeline.get_bind_group_layout(0),

@@ -8,7 +8,7 @@ use bounce_core::matrix::{DENSE_F32, EncodedMatrix};
 use bounce_core::codec::CodecError;
 
 use super::GpuError;
-use super::kernel::{ROWS, Split, dense_source, pipeline, storage};
+use super::kernel::{ROWS, Split, dense_source, matvec_pipelines, storage};
 use super::matrix::{Bound, Pass};
 
 pub(super) fn upload(
@@ -36,7 +36,7 @@ pub(super) fn upload(
         });
     }
     let constants = [("HALF", if half { 1.0 } else { 0.0 })];
-    let pipeline = pipeline(
+    let pipelines = matvec_pipelines(
         device,
         "dense_matvec",
         &dense_source(),
@@ -59,7 +59,7 @@ pub(super) fn upload(
             storage(device, "dense matrix band", &bytes)?
         };
         passes.push(Pass {
-            pipeline: pipeline.clone(),
+            pipelines: pipelines.clone(),
             bound: vec![(3, Bound::Buffer(matrix))],
             groups: (rows as u32).div_ceil(ROWS),
             row0: row0 as u32,

@@ -10,9 +10,23 @@ use super::GpuError;
 
 /// Rows a workgroup owns (mirrors `ROWS` in `common.wgsl`).
 pub const ROWS: u32 = 4;
-/// Light sets a workgroup serves per pass over its rows (mirrors `CHUNK` in `common.wgsl`): a
-/// batch of `b` light sets reads the matrix `ceil(b / CHUNK)` times.
+/// Light sets a workgroup serves per pass over its rows, at most (mirrors `CHUNK` in
+/// `common.wgsl`): a batch of `b` light sets reads the matrix `ceil(b / CHUNK)` times.
 pub const CHUNK: u32 = 8;
+
+/// The chunk sizes each matvec kernel is compiled for. A thread keeps `ROWS · chunk` RGB sums in
+/// registers whatever the batch holds, so one kernel for every batch would make a batch of one
+/// light set pay 32 accumulators (and the occupancy they cost) to use 4.
+pub const CHUNKS: [u32; 3] = [1, 4, CHUNK];
+
+/// Which of [`CHUNKS`] serves a batch of `sets` light sets: the smallest that takes the batch in
+/// one pass over the matrix, else the largest.
+pub fn variant_for(sets: u32) -> usize {
+    CHUNKS
+        .iter()
+        .position(|&c| c >= sets)
+        .unwrap_or(CHUNKS.len() - 1)
+}
 
 /// The uniform every kernel reads (`Params` in `common.wgsl`; a test checks the layouts agree).
 #[repr(C)]
@@ -89,6 +103,54 @@ pub fn sparse_source() -> String {
     [COMMON, include_str!("shaders/sparse.wgsl")].concat()
 }
 
+const CHUNK_LINE: &str = "const CHUNK: u32 = 8u;";
+
+/// A matvec source compiled for `chunk` light sets a pass (one of [`CHUNKS`]).
+pub fn with_chunk(source: &str, chunk: u32) -> String {
+    debug_assert!(source.contains(CHUNK_LINE), "the prelude declares CHUNK");
+    source.replace(CHUNK_LINE, &format!("const CHUNK: u32 = {chunk}u;"))
+}
+
+/// One pipeline per entry of [`CHUNKS`] for a matvec kernel, with the loops compiled as counted
+/// loops (see [`Loops::Counted`]).
+pub fn matvec_pipelines(
+    device: &wgpu::Device,
+    label: &'static str,
+    source: &str,
+    entry: &str,
+    constants: &[(&str, f64)],
+) -> Result<Vec<wgpu::ComputePipeline>, GpuError> {
+    CHUNKS
+        .iter()
+        .map(|&c| {
+            pipeline_with(
+                device,
+                label,
+                &with_chunk(source, c),
+                entry,
+                constants,
+                Loops::Counted,
+            )
+        })
+        .collect()
+}
+
+/// Whether naga guards a kernel's loops against running forever.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Loops {
+    /// wgpu's default: every loop carries a 64-bit iteration counter that breaks out at 2^64.
+    /// Kept for kernels whose loops walk data (BVH stacks, voxel walks): a NaN ray must not hang
+    /// the device.
+    Bounded,
+    /// No added counter, for kernels whose every loop steps a counter by a positive constant up
+    /// to a bound read from `Params` (the matvec kernels and the bandwidth probe). The counter
+    /// hides the trip count of the constant inner loops from the driver, which then keeps the
+    /// per-thread accumulator arrays in local memory instead of unrolling them into registers.
+    /// `BOUNCE_GPU_SHADER_CHECKS=full` puts the counter back (to rule it out when a kernel
+    /// misbehaves, and to measure what it costs).
+    Counted,
+}
+
 /// A pipeline with its layout derived from the shader, overrides set by name. A shader the
 /// driver or naga rejects is an error here, not wgpu's default panic.
 pub fn pipeline(
@@ -98,11 +160,33 @@ pub fn pipeline(
     entry: &str,
     constants: &[(&str, f64)],
 ) -> Result<wgpu::ComputePipeline, GpuError> {
+    pipeline_with(device, label, source, entry, constants, Loops::Bounded)
+}
+
+/// [`pipeline`] with the loop guard chosen (see [`Loops`]).
+pub fn pipeline_with(
+    device: &wgpu::Device,
+    label: &'static str,
+    source: &str,
+    entry: &str,
+    constants: &[(&str, f64)],
+    loops: Loops,
+) -> Result<wgpu::ComputePipeline, GpuError> {
+    let full = std::env::var("BOUNCE_GPU_SHADER_CHECKS").is_ok_and(|v| v == "full");
+    let checks = wgpu::ShaderRuntimeChecks {
+        force_loop_bounding: loops == Loops::Bounded || full,
+        // Bounds checks, division checks and the rest stay as wgpu has them.
+        ..wgpu::ShaderRuntimeChecks::checked()
+    };
     let (pipeline, error) = scoped(device, wgpu::ErrorFilter::Validation, || {
-        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+        let desc = wgpu::ShaderModuleDescriptor {
             label: Some(label),
             source: wgpu::ShaderSource::Wgsl(source.into()),
-        });
+        };
+        // SAFETY: the one check this may leave out is the loop counter, and only for kernels
+        // declared `Loops::Counted`, whose loops all end (see `Loops`); memory accesses stay
+        // bounds-checked.
+        let module = unsafe { device.create_shader_module_trusted(desc, checks) };
         device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
             label: Some(label),
             layout: None,
@@ -196,12 +280,12 @@ pub fn check_binding(
 }
 
 /// A grid of `groups` workgroups along x (folded into y past the per-dimension limit) times
-/// `ceil(sets / CHUNK)` along z. Returns the grid and the x extent the shader linearises with.
-pub fn grid(device: &wgpu::Device, groups: u32, sets: u32) -> ([u32; 3], u32) {
+/// `ceil(sets / chunk)` along z. Returns the grid and the x extent the shader linearises with.
+pub fn grid(device: &wgpu::Device, groups: u32, sets: u32, chunk: u32) -> ([u32; 3], u32) {
     let max = device.limits().max_compute_workgroups_per_dimension.max(1);
     let gx = groups.clamp(1, max);
     let gy = groups.div_ceil(gx).max(1);
-    ([gx, gy, sets.div_ceil(CHUNK)], gx)
+    ([gx, gy, sets.div_ceil(chunk)], gx)
 }
 
 pub fn u32_bytes(values: &[u32]) -> &[u8] {

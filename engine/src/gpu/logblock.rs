@@ -8,7 +8,7 @@ use bounce_core::codec::MatrixOp;
 use bounce_core::codec::logblock::{self, Blocks, LogBlockOp};
 use bounce_core::matrix::EncodedMatrix;
 
-use super::kernel::{ROWS, Split, logblock_source, pipeline, storage, u32_bytes};
+use super::kernel::{ROWS, Split, logblock_source, matvec_pipelines, storage, u32_bytes};
 use super::matrix::{Bound, Pass};
 use super::{GpuContext, GpuError, sparse};
 
@@ -45,7 +45,7 @@ pub(super) fn upload(
     let col_perm = storage(device, "column order", u32_bytes(op.col_perm()))?;
     let bc4 = if blocks == Blocks::Bc1 { 0.0 } else { 1.0 };
     let pass = Pass {
-        pipeline: pipeline(
+        pipelines: matvec_pipelines(
             device,
             "logblock_matvec",
             &logblock_source(),

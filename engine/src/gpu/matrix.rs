@@ -6,7 +6,7 @@ use std::sync::Mutex;
 use bounce_core::codec::CodecError;
 use bounce_core::matrix::EncodedMatrix;
 
-use super::kernel::{CHUNK, Params, Split, check_binding, grid, scoped};
+use super::kernel::{CHUNKS, Params, Split, check_binding, grid, scoped, variant_for};
 use super::{GpuContext, GpuError, dense, logblock};
 
 /// A resource a pass binds besides the shared params, light and output buffers (bindings 0–2).
@@ -15,10 +15,10 @@ pub(super) enum Bound {
     Texture(wgpu::TextureView),
 }
 
-/// One dispatch per batch chunk: a pipeline, its own resources, how many workgroups a chunk
-/// of light sets needs, and the part of the matrix it covers.
+/// One dispatch per batch chunk: a pipeline per entry of [`CHUNKS`], its own resources, how
+/// many workgroups a chunk of light sets needs, and the part of the matrix it covers.
 pub(super) struct Pass {
-    pub pipeline: wgpu::ComputePipeline,
+    pub pipelines: Vec<wgpu::ComputePipeline>,
     pub bound: Vec<(u32, Bound)>,
     pub groups: u32,
     /// First matrix row and row count (a dense band); the whole matrix for the other passes.
@@ -40,7 +40,8 @@ struct Io {
     out: wgpu::Buffer,
     readback: wgpu::Buffer,
     params: Vec<wgpu::Buffer>,
-    groups: Vec<wgpu::BindGroup>,
+    /// `groups[variant][pass]`: pipelines with derived layouts take only their own bind groups.
+    groups: Vec<Vec<wgpu::BindGroup>>,
 }
 
 /// Two timestamps (start and end of the product's compute pass), resolved and read back.
@@ -166,7 +167,8 @@ impl GpuMatrix {
 
     /// How many times a batch of `sets` light sets reads the matrix.
     pub fn passes_for(sets: usize) -> usize {
-        sets.div_ceil(CHUNK as usize)
+        let sets = u32::try_from(sets).unwrap_or(u32::MAX);
+        sets.div_ceil(CHUNKS[variant_for(sets)]) as usize
     }
 
     /// `out[k·n + i][c] = Σ_j T_c(i, j) · x[k·n + j][c]` for every light set `k`, as
@@ -184,7 +186,8 @@ impl GpuMatrix {
             .max_storage_buffer_binding_size
             .min(limits.max_buffer_size)
             / set_bytes;
-        let by_grid = u64::from(limits.max_compute_workgroups_per_dimension) * u64::from(CHUNK);
+        let by_grid = u64::from(limits.max_compute_workgroups_per_dimension)
+            * u64::from(CHUNKS[CHUNKS.len() - 1]);
         let slice = by_binding.min(by_grid).min(sets as u64) as usize;
         if slice == 0 {
             return Err(GpuError::TooLarge {
@@ -235,8 +238,11 @@ impl GpuMatrix {
                     end_of_pass_write_index: Some(1),
                 }),
             });
-            for ((pass, params), group) in self.passes.iter().zip(&io.params).zip(&io.groups) {
-                let ([gx, gy, gz], groups_x) = grid(&self.device, pass.groups, sets);
+            let variant = variant_for(sets);
+            let groups = &io.groups[variant];
+            for ((pass, params), group) in self.passes.iter().zip(&io.params).zip(groups) {
+                let ([gx, gy, gz], groups_x) =
+                    grid(&self.device, pass.groups, sets, CHUNKS[variant]);
                 let p = Params {
                     n: self.n,
                     channels: self.channels,
@@ -249,7 +255,7 @@ impl GpuMatrix {
                     max: self.max,
                 };
                 self.queue.write_buffer(params, 0, bytemuck::bytes_of(&p));
-                cpass.set_pipeline(&pass.pipeline);
+                cpass.set_pipeline(&pass.pipelines[variant]);
                 cpass.set_bind_group(0, group, &[]);
                 // Dispatches in one pass are ordered: wgpu puts a barrier between the block
                 // pass's writes to `out` and the sparse pass's read-modify-write.
@@ -338,31 +344,8 @@ impl GpuMatrix {
                 })
             })
             .collect();
-        let groups = self
-            .passes
-            .iter()
-            .zip(&params)
-            .map(|(pass, params)| {
-                let mut entries = vec![
-                    entry(0, params.as_entire_binding()),
-                    entry(1, x.as_entire_binding()),
-                    entry(2, out.as_entire_binding()),
-                ];
-                for (binding, bound) in &pass.bound {
-                    entries.push(entry(
-                        *binding,
-                        match bound {
-                            Bound::Buffer(b) => b.as_entire_binding(),
-                            Bound::Texture(t) => wgpu::BindingResource::TextureView(t),
-                        },
-                    ));
-                }
-                self.device.create_bind_group(&wgpu::BindGroupDescriptor {
-                    label: None,
-                    layout: &pass.pipeline.get_bind_group_layout(0),
-                    entries: &entries,
-                })
-            })
+        let groups = (0..CHUNKS.len())
+            .map(|variant| self.bind_groups(variant, &params, &x, &out))
             .collect();
         let timer = self
             .device
@@ -396,6 +379,41 @@ impl GpuMatrix {
             params,
             groups,
         })
+    }
+
+    /// One bind group per pass for the pipelines of `variant`.
+    fn bind_groups(
+        &self,
+        variant: usize,
+        params: &[wgpu::Buffer],
+        x: &wgpu::Buffer,
+        out: &wgpu::Buffer,
+    ) -> Vec<wgpu::BindGroup> {
+        self.passes
+            .iter()
+            .zip(params)
+            .map(|(pass, params)| {
+                let mut entries = vec![
+                    entry(0, params.as_entire_binding()),
+                    entry(1, x.as_entire_binding()),
+                    entry(2, out.as_entire_binding()),
+                ];
+                for (binding, bound) in &pass.bound {
+                    entries.push(entry(
+                        *binding,
+                        match bound {
+                            Bound::Buffer(b) => b.as_entire_binding(),
+                            Bound::Texture(t) => wgpu::BindingResource::TextureView(t),
+                        },
+                    ));
+                }
+                self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                    label: None,
+                    layout: &pass.pipelines[variant].get_bind_group_layout(0),
+                    entries: &entries,
+                })
+            })
+            .collect()
     }
 }
 

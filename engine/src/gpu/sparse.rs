@@ -5,7 +5,7 @@
 use bounce_core::codec::transform::SparsePart;
 
 use super::GpuError;
-use super::kernel::{Split, pipeline, sparse_source, storage, u32_bytes};
+use super::kernel::{Split, matvec_pipelines, sparse_source, storage, u32_bytes};
 use super::matrix::{Bound, Pass};
 
 /// The passes, one per row band; none when nothing was kept.
@@ -22,7 +22,7 @@ pub(super) fn upload(
     let limit = split.binding_bytes as usize;
     // The largest of a band's bindings: its values (4 bytes an entry a channel).
     let bytes = |entries: usize| entries * 4 * channels;
-    let pipeline = pipeline(device, "sparse_add", &sparse_source(), "sparse_add", &[])?;
+    let pipelines = matvec_pipelines(device, "sparse_add", &sparse_source(), "sparse_add", &[])?;
     let mut passes = Vec::new();
     let mut row0 = 0;
     while row0 < sp.n {
@@ -51,7 +51,7 @@ pub(super) fn upload(
             .copied()
             .collect();
         passes.push(Pass {
-            pipeline: pipeline.clone(),
+            pipelines: pipelines.clone(),
             bound: vec![
                 (
                     3,

@@ -103,7 +103,7 @@ fn dense_against_cpu(codec: &dyn Codec) {
         for n in SIZES {
             let enc = codec.encode(&transport(n, channels, n as u64)).unwrap();
             let m = GpuMatrix::upload(ctx, &enc).unwrap();
-            for sets in [1, 8, 64] {
+            for sets in [1, 3, 8, 64] {
                 let x = lights(n, sets, 7 + sets as u64);
                 let err = rel_l2(&gpu(&m, &x), &cpu(&enc, &x), n);
                 // Same f32 products summed in another order: a few ulps times log2(n).
@@ -172,7 +172,7 @@ fn blocks_against_cpu(codec: LogBlock) {
                 .unwrap();
             let m = GpuMatrix::upload(ctx, &enc).unwrap();
             let mut worst = 0.0f64;
-            for sets in [1, 8, 64] {
+            for sets in [1, 3, 8, 64] {
                 let x = lights(n, sets, 11 + sets as u64);
                 let (got, want) = (gpu(&m, &x), cpu(&enc, &x));
                 for (k, (g, w)) in got.iter().zip(&want).enumerate() {
@@ -221,7 +221,7 @@ fn bc1_resid_matvec_matches_cpu_decode() {
             .sparse()
             .clone();
             let m = GpuMatrix::upload(ctx, &enc).unwrap();
-            for sets in [1, 8] {
+            for sets in [1, 3, 8] {
                 let x = lights(n, sets, 17 + sets as u64);
                 let (got, want) = (gpu(&m, &x), cpu(&enc, &x));
                 for k in 0..sets {
@@ -326,7 +326,7 @@ fn batched_equals_one_by_one() {
     for codec in codecs {
         let enc = codec.encode(&t).unwrap();
         let m = GpuMatrix::upload(ctx, &enc).unwrap();
-        for sets in [1, 8, 64] {
+        for sets in [1, 3, 8, 64] {
             let x = lights(n, sets, 3);
             let batched = gpu(&m, &x);
             for k in 0..sets {
@@ -411,7 +411,7 @@ fn split_matrices_equal_whole_ones() {
                 if *width == 1 && n == 130 {
                     assert!(cut.sparse_bands() > 1, "{} ch={channels}", enc.codec);
                 }
-                for sets in [1, 9] {
+                for sets in [1, 3, 9] {
                     let x = lights(n, sets, 23 + sets as u64);
                     let got = gpu(&cut, &x);
                     assert_eq!(

@@ -1,7 +1,7 @@
 //! The Rust mirror of the shaders' shared declarations matches what naga reads from the WGSL:
 //! `Params`'s size and member offsets, and the work split constants.
 
-use bounce_engine::gpu::{CHUNK, Params, ROWS, sources};
+use bounce_engine::gpu::{CHUNK, CHUNKS, Params, ROWS, sources};
 use naga::{Expression, Literal, Module, TypeInner};
 
 fn parse(name: &str, source: &str) -> Module {
@@ -67,18 +67,34 @@ fn constant(module: &Module, name: &str) -> u32 {
 
 #[test]
 fn work_split_constants_match_wgsl() {
+    assert_eq!(CHUNKS.last(), Some(&CHUNK), "the largest variant is CHUNK");
     for (name, source) in all_sources() {
-        let module = parse(name, &source);
-        assert_eq!(constant(&module, "ROWS"), ROWS, "{name}");
-        assert_eq!(constant(&module, "CHUNK"), CHUNK, "{name}");
-        assert_eq!(constant(&module, "SLOTS"), ROWS * CHUNK, "{name}");
-        // The reduction buffer holds WG * LANES values and a round covers LANES slots.
-        assert_eq!(
-            constant(&module, "WG") % 2,
-            0,
-            "{name}: WG halves down to 1"
-        );
-        assert_eq!(CHUNK % constant(&module, "LANES"), 0, "{name}");
+        for chunk in CHUNKS {
+            let variant = sources::with_chunk(&source, chunk);
+            let module = parse(name, &variant);
+            assert_eq!(constant(&module, "ROWS"), ROWS, "{name}");
+            assert_eq!(
+                constant(&module, "CHUNK"),
+                chunk,
+                "{name} compiled for {chunk}"
+            );
+            assert_eq!(constant(&module, "SLOTS"), ROWS * chunk, "{name}");
+            // The reduction buffer holds WG * LANES values and a round covers LANES slots.
+            let lanes = constant(&module, "LANES");
+            assert_eq!(
+                constant(&module, "WG") % 2,
+                0,
+                "{name}: WG halves down to 1"
+            );
+            assert_eq!((ROWS * chunk) % lanes, 0, "{name}: rounds cover the slots");
+            if name == "sparse" {
+                let padded = constant(&module, "PADDED");
+                assert!(
+                    padded >= lanes && padded >= chunk && padded % lanes == 0,
+                    "{name}"
+                );
+            }
+        }
     }
 }
 

@@ -32,8 +32,10 @@ struct Params {
 
 const WG: u32 = 64u;
 const ROWS: u32 = 4u;
+// The host compiles one variant per entry of `kernel::CHUNKS`, replacing this line: a batch of one
+// light set then keeps 4 accumulators a thread, not 32.
 const CHUNK: u32 = 8u;
-const SLOTS: u32 = 32u; // ROWS * CHUNK
+const SLOTS: u32 = ROWS * CHUNK;
 // Accumulator slots reduced per round: bounded by workgroup memory (WG * LANES vec3s).
 const LANES: u32 = 4u;
 

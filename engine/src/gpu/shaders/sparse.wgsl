@@ -8,6 +8,8 @@
 @group(0) @binding(4) var<storage, read> col_idx: array<u32>;
 @group(0) @binding(5) var<storage, read> values: array<f32>;
 
+const PADDED: u32 = max(CHUNK, LANES);
+
 @compute @workgroup_size(64)
 fn sparse_add(
     @builtin(workgroup_id) wid: vec3<u32>,
@@ -20,7 +22,9 @@ fn sparse_add(
     let base = wid.z * CHUNK;
     let sets = min(CHUNK, params.sets - base);
     let nnz = params.nnz;
-    var acc: array<vec3<f32>, CHUNK>;
+    // At least LANES slots, so a round of the reduction never reads past them (CHUNK may be 1);
+    // slots past `sets` stay zero and are never stored.
+    var acc: array<vec3<f32>, PADDED>;
     for (var e = row_ptr[i] + tid; e < row_ptr[i + 1u]; e += WG) {
         let j = col_idx[e];
         var v = vec3<f32>(values[e]);
