@@ -93,7 +93,7 @@ fn work_split_constants_match_wgsl() {
             if name == "sparse" {
                 let padded = constant(&module, "PADDED");
                 assert!(
-                    padded >= lanes && padded >= chunk && padded % lanes == 0,
+                    padded >= lanes && padded >= chunk && padded.is_multiple_of(lanes),
                     "{name}"
                 );
             }
