@@ -279,13 +279,23 @@ pub fn check_binding(
     Ok(())
 }
 
-/// A grid of `groups` workgroups along x (folded into y past the per-dimension limit) times
-/// `ceil(sets / chunk)` along z. Returns the grid and the x extent the shader linearises with.
+/// A grid of `groups · ceil(sets / chunk)` workgroups (row groups times chunks of light sets,
+/// the chunk varying fastest: `work` in `common.wgsl`) along x, folded into y past the
+/// per-dimension limit. Returns the grid and the x extent the shader linearises with.
 pub fn grid(device: &wgpu::Device, groups: u32, sets: u32, chunk: u32) -> ([u32; 3], u32) {
     let max = device.limits().max_compute_workgroups_per_dimension.max(1);
-    let gx = groups.clamp(1, max);
-    let gy = groups.div_ceil(gx).max(1);
-    ([gx, gy, sets.div_ceil(chunk)], gx)
+    let total = groups.saturating_mul(sets.div_ceil(chunk));
+    let gx = total.clamp(1, max);
+    let gy = total.div_ceil(gx).max(1);
+    ([gx, gy, 1], gx)
+}
+
+/// The most light sets one dispatch of `groups` row groups can take: the grid holds at most
+/// `max²` workgroups (and their linear index must fit u32).
+pub fn sets_per_dispatch(device: &wgpu::Device, groups: u32) -> u64 {
+    let max = u64::from(device.limits().max_compute_workgroups_per_dimension.max(1));
+    let workgroups = (max * max).min(u64::from(u32::MAX));
+    workgroups / u64::from(groups.max(1)) * u64::from(CHUNK)
 }
 
 pub fn u32_bytes(values: &[u32]) -> &[u8] {

@@ -6,7 +6,9 @@ use std::sync::Mutex;
 use bounce_core::codec::CodecError;
 use bounce_core::matrix::EncodedMatrix;
 
-use super::kernel::{CHUNKS, Params, Split, check_binding, grid, scoped, variant_for};
+use super::kernel::{
+    CHUNKS, Params, Split, check_binding, grid, scoped, sets_per_dispatch, variant_for,
+};
 use super::{GpuContext, GpuError, dense, logblock};
 
 /// A resource a pass binds besides the shared params, light and output buffers (bindings 0–2).
@@ -186,8 +188,8 @@ impl GpuMatrix {
             .max_storage_buffer_binding_size
             .min(limits.max_buffer_size)
             / set_bytes;
-        let by_grid = u64::from(limits.max_compute_workgroups_per_dimension)
-            * u64::from(CHUNKS[CHUNKS.len() - 1]);
+        let widest = self.passes.iter().map(|p| p.groups).max().unwrap_or(1);
+        let by_grid = sets_per_dispatch(&self.device, widest);
         let slice = by_binding.min(by_grid).min(sets as u64) as usize;
         if slice == 0 {
             return Err(GpuError::TooLarge {

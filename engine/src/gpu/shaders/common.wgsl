@@ -3,8 +3,8 @@
 // A batch of light sets is `x[(s * n + j) * 3 + c]`: packed RGB, light set `s`, patch `j`, the
 // same layout as the host's `[[f32; 3]]`, so uploads are a plain byte copy.
 //
-// Work split: a workgroup owns ROWS consecutive rows and one chunk of CHUNK light sets (its
-// `workgroup_id.z`); its threads stride over the columns, so every matrix value is loaded once per
+// Work split: a workgroup owns ROWS consecutive rows and one chunk of CHUNK light sets (see
+// `work`); its threads stride over the columns, so every matrix value is loaded once per
 // chunk and multiplied into all the chunk's light sets. A batch of b sets thus costs
 // ceil(b / CHUNK) passes over the matrix. ROWS rows share each gathered light value; CHUNK is
 // bounded by the ROWS * CHUNK RGB accumulators each thread keeps in registers.
@@ -47,6 +47,22 @@ var<workgroup> red: array<vec3<f32>, 256>; // WG * LANES
 
 fn group_index(wid: vec3<u32>) -> u32 {
     return wid.x + wid.y * params.groups_x;
+}
+
+// A workgroup's share of a pass: which group of rows (`ROWS` rows for the matvec kernels, one row
+// for the sparse kernel) and the first light set of its chunk.
+struct Work {
+    group: u32,
+    base: u32,
+}
+
+// The chunks of light sets over the same rows are neighbours in the dispatch (chunk fastest), so
+// they run at about the same time and all but the first find the rows' matrix bytes in the L2
+// cache: a batch of 64 sets reads the matrix from memory about once, not once per chunk.
+fn work(wid: vec3<u32>) -> Work {
+    let g = group_index(wid);
+    let chunks = (params.sets + CHUNK - 1u) / CHUNK;
+    return Work(g / chunks, (g % chunks) * CHUNK);
 }
 
 fn light(li: u32, j: u32) -> vec3<f32> {

@@ -10,12 +10,13 @@
 fn row_block(wid: vec3<u32>, tid: u32) {
     let n = params.n;
     let rows = params.rows;
-    let row0 = group_index(wid) * ROWS;
+    let w = work(wid);
+    let row0 = w.group * ROWS;
     // Whole workgroup leaves together, so the barriers below stay in uniform control flow.
     if row0 >= rows {
         return;
     }
-    let base = wid.z * CHUNK;
+    let base = w.base;
     let sets = min(CHUNK, params.sets - base);
     var acc: array<vec3<f32>, SLOTS>;
     for (var l = tid; l < n; l += WG) {

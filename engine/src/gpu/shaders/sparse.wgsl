@@ -15,11 +15,12 @@ fn sparse_add(
     @builtin(workgroup_id) wid: vec3<u32>,
     @builtin(local_invocation_index) tid: u32,
 ) {
-    let i = group_index(wid);
+    let w = work(wid);
+    let i = w.group;
     if i >= params.rows {
         return;
     }
-    let base = wid.z * CHUNK;
+    let base = w.base;
     let sets = min(CHUNK, params.sets - base);
     let nnz = params.nnz;
     // At least LANES slots, so a round of the reduction never reads past them (CHUNK may be 1);
