@@ -7,6 +7,18 @@
 // Storage rows and columns are matrix rows and columns for dense kernels (rows counted from
 // the pass's band, params.row0), image rows and columns for block kernels. A pass computes
 // params.rows storage rows over all params.n columns.
+// acc[k] for a run-time k, reading acc only at constant indices. Indexing a thread's array with a
+// run-time value makes the driver keep the whole array in local memory, the hot loop's sums too
+// (an H100 ran the 8-set kernel 7 times slower a pass than the 1-set one); this loop unrolls, so
+// the array stays in registers, for SLOTS selects once a round.
+fn pick(acc: array<vec3<f32>, SLOTS>, k: u32) -> vec3<f32> {
+    var v = vec3<f32>(0.0);
+    for (var s = 0u; s < SLOTS; s++) {
+        v = select(v, acc[s], s == k);
+    }
+    return v;
+}
+
 fn row_block(wid: vec3<u32>, tid: u32) {
     let n = params.n;
     let rows = params.rows;
@@ -42,7 +54,7 @@ fn row_block(wid: vec3<u32>, tid: u32) {
             continue;
         }
         for (var q = 0u; q < LANES; q++) {
-            red[q * WG + tid] = acc[round + q];
+            red[q * WG + tid] = pick(acc, round + q);
         }
         reduce_lanes(tid);
         if tid < LANES {

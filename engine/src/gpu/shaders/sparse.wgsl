@@ -10,6 +10,16 @@
 
 const PADDED: u32 = max(CHUNK, LANES);
 
+// acc[k] read at constant indices only (see `pick` in row_block.wgsl: a run-time index moves the
+// array to local memory).
+fn pick_padded(acc: array<vec3<f32>, PADDED>, k: u32) -> vec3<f32> {
+    var v = vec3<f32>(0.0);
+    for (var s = 0u; s < PADDED; s++) {
+        v = select(v, acc[s], s == k);
+    }
+    return v;
+}
+
 @compute @workgroup_size(64)
 fn sparse_add(
     @builtin(workgroup_id) wid: vec3<u32>,
@@ -43,7 +53,7 @@ fn sparse_add(
             continue;
         }
         for (var q = 0u; q < LANES; q++) {
-            red[q * WG + tid] = acc[round + q];
+            red[q * WG + tid] = pick_padded(acc, round + q);
         }
         reduce_lanes(tid);
         if tid < LANES && round + tid < sets {
