@@ -20,12 +20,24 @@ pub const CHUNK: u32 = 8;
 pub const CHUNKS: [u32; 3] = [1, 4, CHUNK];
 
 /// Which of [`CHUNKS`] serves a batch of `sets` light sets: the smallest that takes the batch in
-/// one pass over the matrix, else the largest.
+/// one pass over the matrix, else the largest allowed. `BOUNCE_GPU_MAX_CHUNK` (1, 4 or 8) caps
+/// it, to measure the variants against each other on a device.
 pub fn variant_for(sets: u32) -> usize {
-    CHUNKS
+    let allowed = CHUNKS.iter().filter(|&&c| c <= max_chunk()).count().max(1);
+    CHUNKS[..allowed]
         .iter()
         .position(|&c| c >= sets)
-        .unwrap_or(CHUNKS.len() - 1)
+        .unwrap_or(allowed - 1)
+}
+
+fn max_chunk() -> u32 {
+    static MAX: std::sync::OnceLock<u32> = std::sync::OnceLock::new();
+    *MAX.get_or_init(|| {
+        std::env::var("BOUNCE_GPU_MAX_CHUNK")
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(CHUNK)
+    })
 }
 
 /// The uniform every kernel reads (`Params` in `common.wgsl`; a test checks the layouts agree).
@@ -291,11 +303,12 @@ pub fn grid(device: &wgpu::Device, groups: u32, sets: u32, chunk: u32) -> ([u32;
 }
 
 /// The most light sets one dispatch of `groups` row groups can take: the grid holds at most
-/// `max²` workgroups (and their linear index must fit u32).
+/// `max²` workgroups (and their linear index must fit u32), counted as if every chunk held one
+/// set, whichever variant runs.
 pub fn sets_per_dispatch(device: &wgpu::Device, groups: u32) -> u64 {
     let max = u64::from(device.limits().max_compute_workgroups_per_dimension.max(1));
     let workgroups = (max * max).min(u64::from(u32::MAX));
-    workgroups / u64::from(groups.max(1)) * u64::from(CHUNK)
+    workgroups / u64::from(groups.max(1))
 }
 
 pub fn u32_bytes(values: &[u32]) -> &[u8] {
