@@ -1,7 +1,6 @@
 //! `dense-f32` and `dense-f16` on the GPU: the stored bytes (little-endian, channel-major,
 //! row-major) go up as row bands, each as large as one storage binding allows and read by its
-//! own pass of `dense.wgsl`, with each row's channels side by side; a one-channel matrix that
-//! fits one binding goes up as its stored bytes.
+//! own pass of `dense.wgsl`; a matrix that fits one binding is one band of the stored bytes.
 
 use bounce_core::codec::dense::DENSE_F16;
 use bounce_core::matrix::{DENSE_F32, EncodedMatrix};
@@ -49,18 +48,14 @@ pub(super) fn upload(
     let mut row0 = 0;
     while row0 < n {
         let rows = band.min(n - row0);
-        let matrix = if rows == n && channels == 1 {
+        let matrix = if rows == n {
             storage(device, "dense matrix", &m.payload)?
         } else {
-            // Rows interleaved by channel (see dense.wgsl): row i's channels side by side.
-            let row_len = n * width;
-            let mut bytes = Vec::with_capacity(rows * channels * row_len);
-            for i in row0..row0 + rows {
-                for c in 0..channels {
-                    let from = c * plane + i * row_len;
-                    bytes.extend_from_slice(&m.payload[from..from + row_len]);
-                }
-            }
+            let (from, len) = (row0 * n * width, rows * n * width);
+            let bytes: Vec<u8> = (0..channels)
+                .flat_map(|c| &m.payload[c * plane + from..c * plane + from + len])
+                .copied()
+                .collect();
             storage(device, "dense matrix band", &bytes)?
         };
         passes.push(Pass {

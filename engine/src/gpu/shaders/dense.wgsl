@@ -1,9 +1,6 @@
-// Dense batched matvec over `dense-f32` or `dense-f16`: one row band of the matrix per pass, rows
-// interleaved by channel, `m[((i - row0) * channels + c) * n + j]` (the stored payload is the whole
-// matrix channel-major; the host cuts it into bands that each fit one binding and interleaves
-// them). Interleaved, the 4 rows × 3 channels a workgroup reads lie within 12 · n values of each
-// other; channel-major, they were a third of the band apart (gigabytes at 32,768 rows). Both
-// come in as u32 words so one kernel serves both: f32 bit-cast, f16 unpacked with
+// Dense batched matvec over `dense-f32` or `dense-f16`: one row band of the matrix per pass,
+// `m[c * rows * n + (i - row0) * n + j]`, one or three channels (the stored payload is the whole
+// matrix channel-major; the host cuts it into bands that each fit one binding). Both come in as u32 words so one kernel serves both: f32 bit-cast, f16 unpacked with
 // unpack2x16float (no `shader-f16` feature needed, which lavapipe and some drivers lack).
 
 override HALF: bool = false;
@@ -20,11 +17,12 @@ fn value(at: u32) -> f32 {
 
 fn entry(i: u32, j: u32) -> vec3<f32> {
     let n = params.n;
+    let at = i * n + j;
     if params.channels == 1u {
-        return vec3<f32>(value(i * n + j));
+        return vec3<f32>(value(at));
     }
-    let at = i * 3u * n + j;
-    return vec3<f32>(value(at), value(at + n), value(at + 2u * n));
+    let plane = params.rows * n;
+    return vec3<f32>(value(at), value(plane + at), value(2u * plane + at));
 }
 
 fn column(l: u32) -> u32 {
