@@ -1,24 +1,10 @@
-//! Compiles `proto/bounce/v1/bounce.proto` with `protox` (pure Rust, so no system `protoc`) and
-//! writes the file descriptor set that gRPC reflection serves; and writes the table of the web
-//! client's files (`web/public/`), which the server embeds and serves (`src/web.rs`).
+//! Writes the table of the web client's files (`web/public/`), which the server embeds and serves
+//! (`src/web.rs`). The protobuf code is `bounce-wire`'s.
 
 use std::path::{Path, PathBuf};
 
-use prost::Message;
-
 fn main() -> Result<(), Box<dyn std::error::Error>> {
-    let proto_root = PathBuf::from("../proto");
-    let file = "bounce/v1/bounce.proto";
-    println!("cargo:rerun-if-changed=../proto/{file}");
-    let fds = protox::compile([file], [&proto_root])?;
     let out = PathBuf::from(std::env::var("OUT_DIR")?);
-    std::fs::write(out.join("bounce_v1_descriptor.bin"), fds.encode_to_vec())?;
-    tonic_prost_build::configure()
-        // A message that does not decode is the client's error (see src/codec.rs).
-        .codec_path("crate::codec::StrictCodec")
-        // Frames are encoded once and shared by every viewer: `Bytes` clones are reference counts.
-        .bytes(".bounce.v1.Frame.data")
-        .compile_fds(fds)?;
     write_web_table(&out)?;
     Ok(())
 }

@@ -15,8 +15,8 @@ mod websocket;
 
 use std::time::Duration;
 
-use bounce_core::light::LightSet;
-use bounce_server::frame::Frame;
+use bounce_types::light::LightSet;
+use bounce_wire::frame::Frame;
 
 pub use address::Scheme;
 

@@ -3,7 +3,7 @@
 use std::fmt;
 use std::time::Duration;
 
-use bounce_server::frame::FrameError;
+use bounce_wire::frame::FrameError;
 use thiserror::Error;
 
 use crate::layout::LayoutError;

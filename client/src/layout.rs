@@ -8,12 +8,12 @@
 
 use std::collections::HashMap;
 
-use bounce_server::proto;
+use bounce_wire::proto;
 use glam::{UVec3, Vec3};
 use serde::Deserialize;
 use thiserror::Error;
 
-pub use bounce_core::patch::Face;
+pub use bounce_types::face::Face;
 
 /// Largest voxel count along one axis a layout may claim. Far beyond any real bake (grids of
 /// 2^28 voxels are the largest the baker walks), and small enough that products of three never

@@ -12,9 +12,9 @@
 //! - [`watcher`]: [`Watcher`], a subscription that reconnects with backoff, keeps the newest
 //!   frame through outages and never goes back to an older one.
 //!
-//! Not here: the frame byte layout and its RGB9E5 codec (`bounce_server::frame`, one definition
+//! Not here: the frame byte layout and its RGB9E5 codec (`bounce_wire::frame`, one definition
 //! for the server and every client; re-exported as [`Frame`]), light validation (the server
-//! judges; `bounce_core::light` defines the JSON form), windows, GPU textures, shaders and
+//! judges; `bounce_types::light` defines the JSON form), windows, GPU textures, shaders and
 //! direct light (the viewer's).
 
 pub mod connection;
@@ -24,8 +24,8 @@ pub mod lights;
 pub mod volume;
 pub mod watcher;
 
-pub use bounce_core::light::{Light, LightSet};
-pub use bounce_server::frame::{Frame, FrameHeader};
+pub use bounce_types::light::{Light, LightSet};
+pub use bounce_wire::frame::{Frame, FrameHeader};
 pub use connection::{
     Client, ClientConfig, FrameStream, LightsChange, MAX_MESSAGE_BYTES, Scheme, SessionInfo,
     SessionState,

@@ -1,12 +1,12 @@
-//! Light configurations on the wire: `bounce-core`'s [`LightSet`] (docs/design.md §5's JSON form)
+//! Light configurations on the wire: `bounce-types`' [`LightSet`] (docs/design.md §5's JSON form)
 //! as proto messages for gRPC and as JSON for WebSocket and HTTP.
 //!
 //! Nothing is validated here: the server is the one judge of a light configuration, and its
 //! refusal names the field (`lights[0].intensity: ...`).
 
-use bounce_core::light::LightSet;
+use bounce_types::light::LightSet;
 
-pub use bounce_server::lights::to_proto;
+pub use bounce_wire::lights::to_proto;
 
 /// The `lights` array of the JSON form.
 pub fn to_json(set: &LightSet) -> serde_json::Value {
@@ -29,7 +29,7 @@ mod tests {
     #[test]
     fn proto_and_json_round_trip_through_the_servers_readers() {
         let set = LightSet::from_json(DESIGN_EXAMPLE).unwrap();
-        let back = bounce_server::lights::light_set(&to_proto(&set)).unwrap();
+        let back = bounce_wire::lights::light_set(&to_proto(&set)).unwrap();
         assert_eq!(back, set);
         let json = serde_json::json!({ "lights": to_json(&set) }).to_string();
         assert_eq!(LightSet::from_json(&json).unwrap(), set);

@@ -44,8 +44,8 @@
 //! the texels and weighs them itself (no hardware filter), so the two agree to f32 rounding of
 //! the f16 texels' values, except for points within rounding of a voxel boundary.
 
-use bounce_core::voxel::dominant_face;
-use bounce_server::frame::{FLAG_CLAMPED, FLAG_NON_FINITE, Frame, FrameHeader, decode_rgb9e5};
+use bounce_types::face::dominant_face;
+use bounce_wire::frame::{FLAG_CLAMPED, FLAG_NON_FINITE, Frame, FrameHeader, decode_rgb9e5};
 use glam::{IVec3, UVec3, Vec3, Vec4};
 use half::f16;
 use thiserror::Error;

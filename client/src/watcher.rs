@@ -18,7 +18,7 @@
 
 use std::time::Duration;
 
-use bounce_server::frame::{Frame, FrameHeader};
+use bounce_wire::frame::{Frame, FrameHeader};
 use tokio::sync::watch;
 use tokio::task::JoinHandle;
 use tokio::time::Instant;

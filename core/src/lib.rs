@@ -2,9 +2,10 @@
 //!
 //! It owns scene import (glTF), voxel simplification into patches, form factors with visibility,
 //! the multi-bounce transport matrix, the baked file format and the bake pipeline that ties them
-//! together, and the CPU side of relighting: light validation and shadowed direct irradiance. It
-//! does not own any GPU code, networking or command-line handling: those live in the crates that
-//! depend on this one.
+//! together, and the CPU side of relighting: shadowed direct irradiance. It does not own any GPU
+//! code, networking or command-line handling: those live in the crates that depend on this one.
+//! Lights and patch faces are `bounce-types`' (re-exported as [`light`], [`patch::Face`] and
+//! [`voxel::dominant_face`]), so a thin client can name them without building the bake.
 //!
 //! Conventions (see docs/design.md §1): `F[i][j]` is the fraction of energy leaving patch `i` that
 //! arrives at patch `j`; the transport `T` maps initial exitance `B0` to indirect irradiance
@@ -18,7 +19,7 @@ pub mod extent;
 pub mod format;
 pub mod formfactor;
 pub mod import;
-pub mod light;
+pub use bounce_types::light;
 pub mod matrix;
 pub mod meta;
 pub mod openness;

@@ -315,19 +315,7 @@ impl Pieces {
     }
 }
 
-/// The face direction a surface with unit normal `n` faces most: the axis of its largest
-/// component (the lower axis on a tie), signed as that component.
-pub fn dominant_face(n: Vec3) -> Face {
-    let a = n.abs();
-    let axis = if a.x >= a.y && a.x >= a.z {
-        0
-    } else if a.y >= a.z {
-        1
-    } else {
-        2
-    };
-    Face::from_axis_sign(axis, n[axis] >= 0.0)
-}
+pub use bounce_types::face::dominant_face;
 
 /// The order patches are numbered in, which is the order of the transport's rows and columns.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]

@@ -4,23 +4,21 @@
 //! from a directory and reloaded when they change ([`scenes`]), sessions (a scene, a light
 //! configuration and its version, [`session`]) kept in an embedded store so they survive
 //! restarts ([`store`]), the engine worker that solves every changed session of a scene in one
-//! batch ([`worker`]), frames and their byte layout ([`frame`]) and what each viewer reads of
-//! them ([`viewer`]), the hub tying these together ([`hub`]), Prometheus [`metrics`], and the
+//! batch ([`worker`]), what each viewer reads of the frames ([`viewer`]), the hub tying these together ([`hub`]), Prometheus [`metrics`], and the
 //! front ends: gRPC ([`grpc`], [`serve`]) with health and reflection, and HTTP with WebSockets
 //! ([`http`]), which also serves the browser page ([`web`]) and each scene's model ([`model`]),
 //! both cached by tag ([`cache`]).
 //!
-//! Not here: the math (`bounce-core`), the engines themselves (`bounce-engine`), the command
-//! line and its runtime, logging setup and signals (`bounce serve` in `bounce-cli`).
+//! Not here: the math (`bounce-core`), the engines themselves (`bounce-engine`), the protobuf
+//! messages, the frame byte layout and the light messages (`bounce-wire`, re-exported here as
+//! [`proto`], [`frame`], [`lights`] and [`codec`]), the command line and its runtime, logging
+//! setup and signals (`bounce serve` in `bounce-cli`).
 
 pub mod cache;
-pub mod codec;
 pub mod error;
-pub mod frame;
 pub mod grpc;
 pub mod http;
 pub mod hub;
-pub mod lights;
 pub mod limits;
 pub mod metrics;
 pub mod model;
@@ -41,12 +39,5 @@ pub use serve::serve_grpc;
 pub use worker::{MAX_BATCH, MAX_ONCE_QUEUED};
 pub use ws::{ClientText, parse_client_text};
 
-/// Code generated from `proto/bounce/v1/bounce.proto`: messages, the server trait and a client.
-pub mod proto {
-    #![allow(clippy::all, missing_docs)]
-    tonic::include_proto!("bounce.v1");
-
-    /// The proto's file descriptor set, served by gRPC reflection.
-    pub const FILE_DESCRIPTOR_SET: &[u8] =
-        tonic::include_file_descriptor_set!("bounce_v1_descriptor");
-}
+// The wire vocabulary is `bounce-wire`'s; these paths stay for the server's users.
+pub use bounce_wire::{codec, frame, lights, proto};

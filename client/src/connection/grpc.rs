@@ -3,9 +3,9 @@
 use std::future::Future;
 use std::time::Duration;
 
-use bounce_core::light::LightSet;
-use bounce_server::frame::Frame;
-use bounce_server::proto::{self, bounce_client::BounceClient};
+use bounce_types::light::LightSet;
+use bounce_wire::frame::Frame;
+use bounce_wire::proto::{self, bounce_client::BounceClient};
 use tonic::Request;
 use tonic::metadata::{Ascii, MetadataValue};
 use tonic::transport::{Channel, Endpoint};
@@ -123,7 +123,7 @@ impl Grpc {
             session_id: session.to_string(),
         });
         let r = self.call("GetSession", c.get_session(request)).await?;
-        let lights = bounce_server::lights::light_set(&r.lights).map_err(|e| {
+        let lights = bounce_wire::lights::light_set(&r.lights).map_err(|e| {
             ClientError::Protocol(format!(
                 "GetSession answered lights the client cannot read: {e}"
             ))

@@ -11,8 +11,8 @@
 
 use std::time::Duration;
 
-use bounce_core::light::LightSet;
-use bounce_server::frame::Frame;
+use bounce_types::light::LightSet;
+use bounce_wire::frame::Frame;
 use futures_util::{SinkExt, StreamExt};
 use http::Method;
 use serde::Deserialize;

@@ -6,7 +6,7 @@
 //! the type's name, vector lengths, required and unused fields. Values are checked by
 //! [`LightSet::validate`], the one place that knows what a light engine accepts.
 
-use bounce_core::light::{Light, LightError, LightSet, MAX_LIGHTS};
+use bounce_types::light::{Light, LightError, LightSet, MAX_LIGHTS};
 
 use crate::proto;
 

@@ -6,7 +6,7 @@
 //!
 //! This module owns the types, their JSON form and their validation ([`LightSet::from_json`],
 //! [`LightSet::validate`]): whatever reaches a light engine has passed these checks. What a light
-//! does to a surface is [`crate::direct`]'s business.
+//! does to a surface is `bounce_core::direct`'s business.
 
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
@@ -173,11 +173,11 @@ impl LightSet {
 }
 
 /// A field name and why its value was refused.
-pub(crate) type FieldError = (&'static str, String);
+pub type FieldError = (&'static str, String);
 
 impl Light {
     /// As [`LightSet::validate`] for one light; the error names the field.
-    pub(crate) fn validate(&self) -> Result<(), FieldError> {
+    pub fn validate(&self) -> Result<(), FieldError> {
         let name = match self {
             Light::Directional { name, .. }
             | Light::Point { name, .. }
