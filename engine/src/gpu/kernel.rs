@@ -155,7 +155,9 @@ pub enum Loops {
     /// the device.
     Bounded,
     /// No added counter, for kernels whose every loop steps a counter by a positive constant up
-    /// to a bound read from `Params` (the matvec kernels and the bandwidth probe). The counter
+    /// to a bound read from `Params` or from the sparse part's row pointers (which decoding checks
+    /// are non-decreasing and at most the entry count, so a counter cannot wrap): the matvec
+    /// kernels and the bandwidth probe. The counter
     /// hides the trip count of the constant inner loops from the driver, which then keeps the
     /// per-thread accumulator arrays in local memory instead of unrolling them into registers.
     /// `BOUNCE_GPU_SHADER_CHECKS=full` puts the counter back (to rule it out when a kernel
