@@ -1,4 +1,4 @@
-// Frames as the server sends them (server/src/frame.rs): a 32-byte little-endian header, then one
+// Frames as the server sends them (wire/src/frame.rs): a 32-byte little-endian header, then one
 // RGB9E5 word per patch. This module only reads bytes; what a frame means for the picture is
 // volume.js's business.
 
