@@ -17,8 +17,8 @@ fuzz_target!(|data: &[u8]| {
     assert!(set.validate().is_ok(), "a parsed light set must validate");
     // Round trips: to gRPC's messages and back (the server's own conversion), and to the JSON the
     // client sends and back through the parser.
-    let proto = bounce_server::lights::to_proto(&set);
-    let _ = bounce_server::lights::light_set(&proto);
+    let proto = bounce_wire::lights::to_proto(&set);
+    let _ = bounce_wire::lights::light_set(&proto);
     // The client sends the `lights` array; the document around it is the server's.
     let json = format!(r#"{{"lights":{}}}"#, bounce_client::lights::to_json(&set));
     assert!(

@@ -534,8 +534,7 @@ fn bearer(headers: &HeaderMap) -> Option<&str> {
 /// `lights` (the array of a `{"lights": [...]}` document) read and validated as
 /// [`LightSet::from_json`] does, so errors name the light and field (`lights[2].intensity`).
 pub(crate) fn light_set(lights: serde_json::Value) -> Result<LightSet, ServerError> {
-    let document = serde_json::json!({ "lights": lights });
-    Ok(LightSet::from_json(&document.to_string())?)
+    Ok(bounce_wire::text::light_set(lights)?)
 }
 
 fn body_str(body: &Bytes) -> Result<&str, ServerError> {

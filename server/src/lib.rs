@@ -31,13 +31,13 @@ pub mod web;
 mod worker;
 mod ws;
 
+pub use bounce_wire::text::{ClientText, parse_client_text};
 pub use error::ServerError;
 pub use frame::Frame;
 pub use http::serve_http;
 pub use hub::{Hub, HubConfig, LightsVersion};
 pub use serve::serve_grpc;
 pub use worker::{MAX_BATCH, MAX_ONCE_QUEUED};
-pub use ws::{ClientText, parse_client_text};
 
 // The wire vocabulary is `bounce-wire`'s; these paths stay for the server's users.
 pub use bounce_wire::{codec, frame, lights, proto};

@@ -20,15 +20,15 @@ use axum::extract::ws::rejection::WebSocketUpgradeRejection;
 use axum::extract::ws::{CloseFrame, Message, WebSocket, WebSocketUpgrade};
 use axum::extract::{Path, State};
 use axum::response::Response;
-use serde::{Deserialize, Serialize};
+use serde::Serialize;
 use tokio::sync::watch;
 use tracing::debug;
 
-use bounce_core::light::LightSet;
+use bounce_wire::text::{ClientText, parse_client_text};
 
 use crate::error::ServerError;
 use crate::frame::Frame;
-use crate::http::{ApiError, AppState, ErrorCode, Token, light_set};
+use crate::http::{ApiError, AppState, ErrorCode, Token};
 use crate::hub::Hub;
 use crate::metrics::{Metrics, Transport};
 use crate::serve::MAX_REQUEST_BYTES;
@@ -69,47 +69,6 @@ pub(crate) async fn upgrade(
             connection.run(socket).await;
             drop(tracked);
         }))
-}
-
-/// A client's text message on a session WebSocket, as [`parse_client_text`] reads it.
-#[derive(Debug)]
-pub enum ClientText {
-    /// `{"type": "ping"}`.
-    Ping,
-    /// `{"type": "set_lights", "lights": [...], "token"?}`.
-    SetLights {
-        /// The lights, read and validated as every front end does. An invalid set is kept as
-        /// its error rather than refusing the message, because the server answers a missing or
-        /// wrong token before a bad light set.
-        lights: Result<LightSet, ServerError>,
-        token: Option<String>,
-    },
-}
-
-/// Parses one text message from a session WebSocket: the server's own reading of everything a
-/// client may send there, short of the session it acts on. Public (the only public part of this
-/// module) so that the `ws_text` fuzz target in `fuzz/` runs exactly this code.
-pub fn parse_client_text(text: &str) -> Result<ClientText, ServerError> {
-    let message: ClientMessage =
-        serde_json::from_str(text).map_err(|e| ServerError::Invalid(format!("message: {e}")))?;
-    Ok(match message {
-        ClientMessage::Ping => ClientText::Ping,
-        ClientMessage::SetLights { lights, token } => ClientText::SetLights {
-            lights: light_set(lights),
-            token,
-        },
-    })
-}
-
-#[derive(Deserialize)]
-#[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
-enum ClientMessage {
-    SetLights {
-        lights: serde_json::Value,
-        #[serde(default)]
-        token: Option<String>,
-    },
-    Ping,
 }
 
 #[derive(Serialize)]
@@ -263,7 +222,7 @@ impl Connection {
 
     /// One text message from the client, and the reply to send.
     async fn handle(&self, session_id: &str, text: &str) -> Result<Message, ServerError> {
-        match parse_client_text(text)? {
+        match parse_client_text(text).map_err(|e| ServerError::Invalid(e.0))? {
             ClientText::Ping => Ok(ServerMessage::Pong.to_message()),
             ClientText::SetLights { lights, token } => {
                 let token = token.filter(|t| !t.is_empty()).or(self.token.clone());

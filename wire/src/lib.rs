@@ -4,7 +4,8 @@
 //! `proto/bounce/v1/bounce.proto` ([`proto`], compiled with `protox`, so no system `protoc`), the
 //! gRPC codec that answers undecodable messages as the sender's error ([`codec`]), the frame byte
 //! layout with its RGB9E5 payload ([`frame`]), and the light messages' conversion to and from
-//! [`bounce_types::light::LightSet`] with the JSON form's field paths in its errors ([`lights`]).
+//! [`bounce_types::light::LightSet`] with the JSON form's field paths in its errors ([`lights`]),
+//! and the text messages a client sends on a session WebSocket ([`text`]).
 //!
 //! Not here: sessions, scenes, engines and the front ends (`bounce-server`), connecting and
 //! rendering (`bounce-client`), the lights' own validation (`bounce-types`). A thin client depends
@@ -13,6 +14,7 @@
 pub mod codec;
 pub mod frame;
 pub mod lights;
+pub mod text;
 
 pub use frame::Frame;
 
