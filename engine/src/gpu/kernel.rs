@@ -157,9 +157,8 @@ pub enum Loops {
     /// No added counter, for kernels whose every loop steps a counter by a positive constant up
     /// to a bound read from `Params` or from the sparse part's row pointers (which decoding checks
     /// are non-decreasing and at most the entry count, so a counter cannot wrap): the matvec
-    /// kernels and the bandwidth probe. The counter
-    /// hides the trip count of the constant inner loops from the driver, which then keeps the
-    /// per-thread accumulator arrays in local memory instead of unrolling them into registers.
+    /// kernels and the bandwidth probe. The counter hides the trip count of the constant inner
+    /// loops from the driver (on an H100 it cost 1.2–2× in kernel time, docs/h100).
     /// `BOUNCE_GPU_SHADER_CHECKS=full` puts the counter back (to rule it out when a kernel
     /// misbehaves, and to measure what it costs).
     Counted,
