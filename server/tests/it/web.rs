@@ -171,14 +171,7 @@ async fn a_model_beside_the_baked_file_serves_and_none_is_a_404_that_says_how_to
         .await
         .expect("JSON");
     assert_eq!(scenes["writes_need_token"], true);
-    let has_model = |name: &str| {
-        scenes["scenes"]
-            .as_array()
-            .expect("scenes")
-            .iter()
-            .find(|s| s["name"] == name)
-            .map(|s| s["has_model"].clone())
-    };
+    let has_model = |name: &str| has_model(&scenes, name);
     assert_eq!(has_model(SCENE), Some(json!(true)));
     assert_eq!(has_model("sibling"), Some(json!(true)));
     assert_eq!(has_model("bare"), Some(json!(false)));
@@ -507,14 +500,7 @@ async fn a_model_that_is_not_a_clean_packed_glb_is_not_served() {
         .json()
         .await
         .expect("JSON");
-    let has_model = |name: &str| {
-        scenes["scenes"]
-            .as_array()
-            .expect("scenes")
-            .iter()
-            .find(|s| s["name"] == name)
-            .map(|s| s["has_model"].clone())
-    };
+    let has_model = |name: &str| has_model(&scenes, name);
     for name in ["packed", "uri", "beside-glb", "beside-gltf"] {
         // The scene is served, without a model.
         assert_eq!(has_model(name), Some(json!(false)), "{name}: {scenes}");
@@ -545,4 +531,14 @@ async fn a_model_that_is_not_a_clean_packed_glb_is_not_served() {
     assert_eq!(r.status(), StatusCode::OK);
     assert!(r.bytes().await.expect("body").as_ref() == packed.as_slice());
     server.stop().await;
+}
+
+/// A scene's `has_model` in a `/v1/scenes` listing; `None` when the scene is not listed.
+fn has_model(scenes: &Value, name: &str) -> Option<Value> {
+    scenes["scenes"]
+        .as_array()
+        .expect("scenes")
+        .iter()
+        .find(|s| s["name"] == name)
+        .map(|s| s["has_model"].clone())
 }
