@@ -116,23 +116,13 @@ pub fn run(args: &BenchServeArgs) -> Result<()> {
         let grpc_addr = grpc.local_addr()?;
         let http = tokio::net::TcpListener::bind("127.0.0.1:0").await?;
         let http_addr = http.local_addr()?;
-        let (down_tx, down_rx) = watch::channel(false);
-        let grpc_task = tokio::spawn(bounce_server::serve_grpc(hub.clone(), grpc, {
-            let mut d = down_rx.clone();
+        let served = tokio::spawn(bounce_server::run(
+            hub.clone(),
+            bounce_server::Listeners::both(grpc, http),
             async move {
-                let _ = d.wait_for(|&v| v).await;
-            }
-        }));
-        let http_task = tokio::spawn(bounce_server::serve_http(hub.clone(), http, {
-            let mut d = down_rx.clone();
-            async move {
-                let _ = d.wait_for(|&v| v).await;
-            }
-        }));
-        tokio::spawn(async move {
-            let _ = stop_rx.await;
-            let _ = down_tx.send(true);
-        });
+                let _ = stop_rx.await;
+            },
+        ));
         let mut rows = Vec::new();
         for &sessions in &args.sessions {
             for &viewers in &args.viewers {
@@ -157,8 +147,7 @@ pub fn run(args: &BenchServeArgs) -> Result<()> {
             }
         }
         let _ = stop_tx.send(());
-        let _ = grpc_task.await;
-        let _ = http_task.await;
+        let _ = served.await;
         anyhow::Ok(rows)
     })?;
     crate::bench::emit(&HEADER, &rows, args.csv.as_deref())?;

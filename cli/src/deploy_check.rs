@@ -420,9 +420,13 @@ fn the_probes_answer_on_a_real_server() {
         .unwrap();
     let addr = listener.local_addr().unwrap();
     let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
-    let served = runtime.spawn(bounce_server::serve_http(hub, listener, async {
-        let _ = stopped.await;
-    }));
+    let served = runtime.spawn(bounce_server::run(
+        hub,
+        bounce_server::Listeners::http_only(listener),
+        async {
+            let _ = stopped.await;
+        },
+    ));
 
     let status = |path: &str| {
         let mut s = std::net::TcpStream::connect(addr).expect("connect");

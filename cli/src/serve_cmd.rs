@@ -13,7 +13,6 @@ use bounce_core::format::Baked;
 use bounce_engine::EngineChoice;
 use bounce_server::{Hub, HubConfig};
 use clap::Args;
-use tokio::sync::watch;
 use tracing::{info, warn};
 
 #[derive(Args, Debug)]
@@ -278,35 +277,14 @@ pub fn run(args: &ServeArgs) -> Result<()> {
             );
         }
 
-        // One stop for both front ends: the signal, or either of them ending on an error.
-        let stop = watch::Sender::new(false);
-        let stopped = |mut rx: watch::Receiver<bool>| async move {
-            let _ = rx.wait_for(|&s| s).await;
-        };
-        let signal = async {
-            tokio::select! {
-                _ = shutdown_signal() => {
-                    stop.send_replace(true);
-                }
-                _ = stopped(stop.subscribe()) => {}
-            }
-        };
-        let serving_grpc = async {
-            let served =
-                bounce_server::serve_grpc(hub.clone(), grpc_listener, stopped(stop.subscribe()))
-                    .await;
-            stop.send_replace(true);
-            served.context("serving gRPC")
-        };
-        let serving_http = async {
-            let served =
-                bounce_server::serve_http(hub.clone(), http_listener, stopped(stop.subscribe()))
-                    .await;
-            stop.send_replace(true);
-            served.context("serving HTTP")
-        };
-        let ((), grpc, http) = tokio::join!(signal, serving_grpc, serving_http);
-        grpc.and(http)
+        // Both front ends stop on the signal, or when either ends on an error.
+        bounce_server::run(
+            hub,
+            bounce_server::Listeners::both(grpc_listener, http_listener),
+            shutdown_signal(),
+        )
+        .await
+        .context("serving")
     })?;
     info!("stopped");
     Ok(())

@@ -24,9 +24,7 @@ use crate::error::ClientError;
 use crate::layout::Layout;
 use address::Address;
 
-/// The largest message (a layout, a frame) this client reads: 64 MiB, a frame of 16 million
-/// patches. A server that sends more is refused rather than buffered.
-pub const MAX_MESSAGE_BYTES: usize = 64 << 20;
+pub use bounce_wire::limits::MAX_MESSAGE_BYTES;
 
 /// Where and how to connect.
 #[derive(Debug, Clone)]

@@ -3,12 +3,12 @@
 
 use std::sync::{Mutex, MutexGuard, mpsc};
 
-use bounce_client::{Layout, PatchFace, Volume};
+use bounce_client::{Layout, Volume};
 use bounce_core::light::LightSet;
 use bounce_core::patch::PatchLayout;
 use bounce_core::scene::Scene;
 use bounce_engine::gpu::GpuContext;
-use glam::{UVec3, Vec3};
+use glam::Vec3;
 use thiserror::Error;
 use wgpu::util::DeviceExt;
 
@@ -828,22 +828,15 @@ pub fn volume_from_baked(
     Ok(volume)
 }
 
-/// A baked file's patch layout in the form a client receives it from a server.
+/// A baked file's patch layout in the form a client receives it from a server: the server's own
+/// conversion, read back as a client reads it.
 pub fn layout_from_baked(name: &str, layout: &PatchLayout) -> Result<Layout, RenderError> {
-    let patches = layout
-        .patches
-        .iter()
-        .map(|p| PatchFace {
-            voxel: UVec3::from_array(p.voxel),
-            face: p.face,
-        })
-        .collect();
-    Layout::new(
+    let wire = bounce_wire::layout::to_proto(
         name,
-        Vec3::from_array(layout.origin),
+        layout.origin,
         layout.voxel_size,
-        UVec3::from_array(layout.dims),
-        patches,
-    )
-    .map_err(|e| RenderError::Volume(e.to_string()))
+        layout.dims,
+        layout.patches.iter().map(|p| (p.voxel, p.face)),
+    );
+    Layout::from_proto(&wire).map_err(|e| RenderError::Volume(e.to_string()))
 }

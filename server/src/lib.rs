@@ -4,10 +4,12 @@
 //! from a directory and reloaded when they change ([`scenes`]), sessions (a scene, a light
 //! configuration and its version, [`session`]) kept in an embedded store so they survive
 //! restarts ([`store`]), the engine worker that solves every changed session of a scene in one
-//! batch ([`worker`]), what each viewer reads of the frames ([`viewer`]), the hub tying these together ([`hub`]), Prometheus [`metrics`], and the
-//! front ends: gRPC ([`grpc`], [`serve`]) with health and reflection, and HTTP with WebSockets
-//! ([`http`]), which also serves the browser page ([`web`]) and each scene's model ([`model`]),
-//! both cached by tag ([`cache`]).
+//! batch ([`worker`]), what each viewer reads of the frames ([`viewer`]), the hub tying these
+//! together ([`hub`]), Prometheus [`metrics`], connection limits ([`limits`]), and the front ends,
+//! one folder each: gRPC ([`grpc`]) with health and reflection, and HTTP ([`http`]) with the
+//! session WebSockets, the browser page and each scene's model ([`model`]), cached by tag
+//! ([`cache`]). [`run()`] serves both over one hub and stops them together; the command line, the
+//! benchmark and the tests all start a server through it.
 //!
 //! Not here: the math (`bounce-core`), the engines themselves (`bounce-engine`), the protobuf
 //! messages, the frame byte layout and the light messages (`bounce-wire`, re-exported here as
@@ -22,21 +24,21 @@ pub mod hub;
 pub mod limits;
 pub mod metrics;
 pub mod model;
+pub mod run;
 pub mod scenes;
-pub mod serve;
 pub mod session;
 pub mod store;
 pub mod viewer;
-pub mod web;
 mod worker;
-mod ws;
 
+pub use bounce_wire::limits::MAX_REQUEST_BYTES;
 pub use bounce_wire::text::{ClientText, parse_client_text};
 pub use error::ServerError;
 pub use frame::Frame;
+pub use grpc::serve_grpc;
 pub use http::serve_http;
 pub use hub::{Hub, HubConfig, LightsVersion};
-pub use serve::serve_grpc;
+pub use run::{Listeners, run};
 pub use worker::{MAX_BATCH, MAX_ONCE_QUEUED};
 
 // The wire vocabulary is `bounce-wire`'s; these paths stay for the server's users.

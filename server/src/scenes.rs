@@ -39,6 +39,18 @@ impl SceneInfo {
             model,
         }
     }
+
+    /// The layout as the wire sends it, for gRPC and (as JSON) HTTP alike.
+    pub fn wire_layout(&self) -> bounce_wire::proto::Layout {
+        let l = &self.layout;
+        bounce_wire::layout::to_proto(
+            &self.name,
+            l.origin,
+            l.voxel_size,
+            l.dims,
+            l.patches.iter().map(|p| (p.voxel, p.face)),
+        )
+    }
 }
 
 /// A scene read from disk, not yet on the engine.

@@ -5,7 +5,8 @@
 //! gRPC codec that answers undecodable messages as the sender's error ([`codec`]), the frame byte
 //! layout with its RGB9E5 payload ([`frame`]), and the light messages' conversion to and from
 //! [`bounce_types::light::LightSet`] with the JSON form's field paths in its errors ([`lights`]),
-//! and the text messages a client sends on a session WebSocket ([`text`]).
+//! the text messages a client sends on a session WebSocket ([`text`]), a scene's patch layout as
+//! it is sent ([`layout`]) and how large a message may be each way ([`limits`]).
 //!
 //! Not here: sessions, scenes, engines and the front ends (`bounce-server`), connecting and
 //! rendering (`bounce-client`), the lights' own validation (`bounce-types`). A thin client depends
@@ -13,7 +14,9 @@
 
 pub mod codec;
 pub mod frame;
+pub mod layout;
 pub mod lights;
+pub mod limits;
 pub mod text;
 
 pub use frame::Frame;

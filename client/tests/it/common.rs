@@ -11,7 +11,7 @@ pub use bounce_core::bake::{BakeOptions, NoProgress, bake_file};
 pub use bounce_core::format::Baked;
 pub use bounce_core::voxel::Resolution;
 pub use bounce_engine::EngineChoice;
-pub use bounce_server::{Hub, HubConfig, serve_grpc};
+pub use bounce_server::{Hub, HubConfig, Listeners};
 use tokio::net::TcpListener;
 use tokio::sync::oneshot;
 use tokio::task::JoinHandle;
@@ -93,9 +93,13 @@ impl TestServer {
             .expect("hub");
         let addr = listener.local_addr().expect("addr");
         let (stop, stopped) = oneshot::channel::<()>();
-        let task = tokio::spawn(serve_grpc(hub, listener, async {
-            let _ = stopped.await;
-        }));
+        let task = tokio::spawn(bounce_server::run(
+            hub,
+            Listeners::grpc_only(listener),
+            async {
+                let _ = stopped.await;
+            },
+        ));
         TestServer {
             addr,
             stop: Some(stop),

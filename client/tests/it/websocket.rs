@@ -39,25 +39,17 @@ impl BothServer {
             }
         };
         let grpc_listener = TcpListener::bind("127.0.0.1:0").await.expect("bind");
-        let (stop, stopped) = watch::channel(false);
-        let shutdown = |mut rx: watch::Receiver<bool>| async move {
-            let _ = rx.wait_for(|s| *s).await;
-        };
+        let (stop, mut stopped) = watch::channel(false);
         BothServer {
             grpc: grpc_listener.local_addr().expect("addr"),
             http: http_listener.local_addr().expect("addr"),
-            tasks: vec![
-                tokio::spawn(serve_grpc(
-                    hub.clone(),
-                    grpc_listener,
-                    shutdown(stopped.clone()),
-                )),
-                tokio::spawn(bounce_server::serve_http(
-                    hub,
-                    http_listener,
-                    shutdown(stopped),
-                )),
-            ],
+            tasks: vec![tokio::spawn(bounce_server::run(
+                hub,
+                Listeners::both(grpc_listener, http_listener),
+                async move {
+                    let _ = stopped.wait_for(|s| *s).await;
+                },
+            ))],
             stop,
         }
     }

@@ -14,7 +14,7 @@ pub use bounce_engine::{Engine, EngineChoice};
 pub use bounce_server::frame::Frame;
 pub use bounce_server::proto::bounce_client::BounceClient;
 pub use bounce_server::proto::{self, Light as PbLight};
-pub use bounce_server::{Hub, HubConfig, serve_grpc, serve_http};
+pub use bounce_server::{Hub, HubConfig, Listeners};
 pub use tokio::net::TcpListener;
 pub use tokio::sync::watch;
 pub use tokio::task::JoinHandle;
@@ -63,8 +63,7 @@ pub struct TestServer {
     pub addr: std::net::SocketAddr,
     pub http_addr: std::net::SocketAddr,
     stop: watch::Sender<bool>,
-    grpc: JoinHandle<Result<(), bounce_server::ServerError>>,
-    http: JoinHandle<Result<(), bounce_server::ServerError>>,
+    served: JoinHandle<Result<(), bounce_server::ServerError>>,
 }
 
 impl TestServer {
@@ -82,24 +81,22 @@ impl TestServer {
         let addr = listener.local_addr().expect("addr");
         let http_listener = TcpListener::bind("127.0.0.1:0").await.expect("bind");
         let http_addr = http_listener.local_addr().expect("addr");
-        // One signal for both front ends, as `bounce serve` has.
+        // Both front ends under one stop, as `bounce serve` runs them.
         let stop = watch::Sender::new(false);
-        let stopped = |mut rx: watch::Receiver<bool>| async move {
-            let _ = rx.wait_for(|&s| s).await;
-        };
-        let grpc = tokio::spawn(serve_grpc(hub.clone(), listener, stopped(stop.subscribe())));
-        let http = tokio::spawn(serve_http(
+        let mut stopped = stop.subscribe();
+        let served = tokio::spawn(bounce_server::run(
             hub.clone(),
-            http_listener,
-            stopped(stop.subscribe()),
+            Listeners::both(listener, http_listener),
+            async move {
+                let _ = stopped.wait_for(|&s| s).await;
+            },
         ));
         TestServer {
             hub,
             addr,
             http_addr,
             stop,
-            grpc,
-            http,
+            served,
         }
     }
 
@@ -124,13 +121,11 @@ impl TestServer {
     /// Graceful shutdown: must end open streams and sockets, and both front ends return.
     pub async fn stop(self) {
         self.stop.send_replace(true);
-        for task in [self.grpc, self.http] {
-            tokio::time::timeout(PATIENCE, task)
-                .await
-                .expect("shutdown timed out")
-                .expect("join")
-                .expect("serve");
-        }
+        tokio::time::timeout(PATIENCE, self.served)
+            .await
+            .expect("shutdown timed out")
+            .expect("join")
+            .expect("serve");
     }
 }
 

@@ -420,7 +420,7 @@ async fn request_bodies_over_the_limit_are_413() {
     let id = server.http_session(&http, 2.0).await;
     let huge = format!(
         r#"{{"lights": [], "pad": "{}"}}"#,
-        "x".repeat(bounce_server::serve::MAX_REQUEST_BYTES)
+        "x".repeat(bounce_server::MAX_REQUEST_BYTES)
     );
     for (method, path) in [
         (reqwest::Method::POST, "/v1/sessions".to_string()),

@@ -217,7 +217,7 @@ async fn refused_messages_close_with_their_code_and_the_server_keeps_serving() {
     let http = client();
     let id = server.http_session(&http, 2.0).await;
     let url = server.ws_url(&id, None);
-    let max = bounce_server::serve::MAX_REQUEST_BYTES;
+    let max = bounce_server::MAX_REQUEST_BYTES;
     let cases: Vec<(WsMessage, &str, u16, &str)> = vec![
         (
             WsMessage::text(

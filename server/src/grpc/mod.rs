@@ -1,5 +1,9 @@
-//! Serving a hub over gRPC: the bounce service, standard health and reflection, graceful
-//! shutdown that ends every frame stream.
+//! The gRPC front end over the [`Hub`]: the bounce service ([`service`]), standard health and
+//! reflection, graceful shutdown that ends every frame stream.
+
+mod service;
+
+pub use service::BounceService;
 
 use std::future::Future;
 use std::sync::Arc;
@@ -11,16 +15,12 @@ use tonic::transport::Server;
 use tracing::info;
 
 use crate::error::ServerError;
-use crate::grpc::BounceService;
 use crate::hub::Hub;
 use crate::limits::ConnectionLimit;
 use crate::metrics::Transport;
 use crate::proto;
 use crate::proto::bounce_server::BounceServer;
-
-/// Largest request accepted: 256 lights take a few tens of kilobytes, so 1 MiB is generous and
-/// still refuses a client that tries to make the server buffer megabytes.
-pub const MAX_REQUEST_BYTES: usize = 1 << 20;
+use bounce_wire::limits::MAX_REQUEST_BYTES;
 
 /// Calls in flight on one connection (streams included).
 pub const MAX_CALLS_PER_CONNECTION: usize = 256;

@@ -26,13 +26,15 @@ use tracing::debug;
 
 use bounce_wire::text::{ClientText, parse_client_text};
 
+use super::access::Token;
+use super::error::{ApiError, ErrorCode};
+use super::state::AppState;
 use crate::error::ServerError;
 use crate::frame::Frame;
-use crate::http::{ApiError, AppState, ErrorCode, Token};
 use crate::hub::Hub;
 use crate::metrics::{Metrics, Transport};
-use crate::serve::MAX_REQUEST_BYTES;
 use crate::viewer::Viewer;
+use bounce_wire::limits::MAX_REQUEST_BYTES;
 
 /// Close code for a server going away (RFC 6455).
 const GOING_AWAY: u16 = 1001;

@@ -111,17 +111,7 @@ impl Bounce for BounceService {
         self.authorize_read(&request)?;
         let name = request.into_inner().scene;
         let scene = self.hub.scene(&name).map_err(|e| self.refuse(e.into()))?;
-        let l = &scene.layout;
-        Ok(Response::new(proto::Layout {
-            scene: scene.name.clone(),
-            origin: l.origin.to_vec(),
-            voxel_size: l.voxel_size,
-            dims: l.dims.to_vec(),
-            patch_count: u32::try_from(l.len()).unwrap_or(u32::MAX),
-            voxels: l.patches.iter().flat_map(|p| p.voxel).collect(),
-            // The proto enum's numbers are the face codes.
-            faces: l.patches.iter().map(|p| i32::from(p.face.code())).collect(),
-        }))
+        Ok(Response::new(scene.wire_layout()))
     }
 
     async fn create_session(

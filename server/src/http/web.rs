@@ -16,8 +16,9 @@ use axum::http::Method;
 use axum::response::{IntoResponse, Response};
 use bytes::Bytes;
 
+use super::error::{ApiError, ErrorCode};
+use super::state::AppState;
 use crate::cache;
-use crate::http::{ApiError, AppState, ErrorCode};
 
 include!(concat!(env!("OUT_DIR"), "/web_files.rs"));
 
