@@ -1,5 +1,5 @@
 //! Writes the table of the web client's files (`web/public/`), which the server embeds and serves
-//! (`src/web.rs`). The protobuf code is `bounce-wire`'s.
+//! (`src/http/web.rs`). The protobuf code is `bounce-wire`'s.
 
 use std::path::{Path, PathBuf};
 

@@ -183,7 +183,7 @@ fn the_sharded_bake_jobs_run_commands_bounce_accepts_in_the_right_phases() {
         );
         // Every index the job runs is a shard bounce accepts.
         for i in 0..completions {
-            bounce_core::shard::ShardSpec::parse(shard, Some(&i.to_string()))
+            bounce_core::bake::shard::ShardSpec::parse(shard, Some(&i.to_string()))
                 .unwrap_or_else(|e| panic!("{name}, index {i}: {e}"));
         }
         let restart = &job["spec"]["template"]["spec"]["restartPolicy"];

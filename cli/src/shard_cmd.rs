@@ -8,9 +8,9 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use bounce_core::bake::BakeOptions;
+use bounce_core::bake::shard::{self, Phase, ShardSpec};
 use bounce_core::format::ShardFile;
 use bounce_core::meta::StageTiming;
-use bounce_core::shard::{self, Phase, ShardSpec};
 use clap::Args;
 
 use crate::bake_cmd::{human_bytes, print_summary};

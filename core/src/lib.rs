@@ -27,7 +27,6 @@ pub mod patch;
 pub mod pointwise;
 pub mod rays;
 pub mod scene;
-pub mod shard;
 pub mod space;
 pub mod surface;
 pub mod transport;

@@ -4,7 +4,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::light::Light;
-use crate::scene::ImportReport;
+use crate::scene::{ImportReport, Scene};
 
 /// How many light bounces the transport carries: `k` (a number) or all of them (`"all"`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -176,4 +176,26 @@ pub struct BakeMeta {
     pub import_report: ImportReport,
     /// The scene's own lights (`KHR_lights_punctual`), the default light configuration.
     pub lights: Vec<Light>,
+}
+
+/// Where a bake's scene came from: recorded in the baked file, and in every shard of a sharded
+/// bake so that the merge can refuse shards of different scenes.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SourceInfo {
+    /// The scene file's name (no directories).
+    pub source_name: String,
+    pub source_bytes: u64,
+    pub import_report: ImportReport,
+    pub lights: Vec<Light>,
+}
+
+impl SourceInfo {
+    pub(crate) fn of(scene: &Scene, source_name: &str, source_bytes: u64) -> Self {
+        SourceInfo {
+            source_name: source_name.to_string(),
+            source_bytes,
+            import_report: scene.report.clone(),
+            lights: scene.lights.clone(),
+        }
+    }
 }

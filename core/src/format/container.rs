@@ -17,7 +17,7 @@ use super::{FORMAT_VERSION, FormatError, SHARD_FORMAT_VERSION};
 
 /// First 8 bytes of every baked file.
 pub const MAGIC: [u8; 8] = *b"BOUNCE\0B";
-/// First 8 bytes of every bake shard (a sharded bake's partial result, see [`crate::shard`]).
+/// First 8 bytes of every bake shard (a sharded bake's partial result, see [`crate::bake::shard`]).
 pub const SHARD_MAGIC: [u8; 8] = *b"BOUNCE\0S";
 
 /// Which kind of file a container holds: the same header, table and checksums serve baked files

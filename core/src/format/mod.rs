@@ -18,13 +18,14 @@
 //! binary), `MTRX` (the transport matrix) and optionally `FFAC` (the single-bounce form factors, same
 //! encoding as `MTRX`), `OCCU` (the occupied voxels, flagged optional so that a reader
 //! predating it skips it) and `MODL` (the scene the file was baked from as one self-contained
-//! GLB, for viewers that draw it; optional too). Bake shards (partial results of a sharded bake, [`crate::shard`]) use the
+//! GLB, for viewers that draw it; optional too). Bake shards (partial results of a sharded bake, [`crate::bake::shard`]) use the
 //! same container under the magic `BOUNCE\0S` with sections of their own ([`ShardFile`]). A reader skips sections of unknown kind whose [`SECTION_OPTIONAL`] flag is set
 //! and refuses the file otherwise, so later versions can add sections that old readers may ignore.
 
 mod baked;
 mod container;
 mod shard;
+mod shard_meta;
 
 use std::path::PathBuf;
 
@@ -40,6 +41,7 @@ pub use container::{
 };
 pub(crate) use shard::le_bytes as f32_le_bytes;
 pub use shard::{ROWS_HEADER_LEN, ShardFile, ShardHeader};
+pub use shard_meta::{FormFactorSummary, Phase, SHARD_EXTENSION, ShardMeta, ShardSpec, shard_rows};
 
 /// The version this build writes. Version 2 added surface patches: the `SURF` section and the
 /// `geometry` setting in `META`. Version 3 added transport elements (the `ELEM` section), so a

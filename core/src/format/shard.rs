@@ -1,4 +1,4 @@
-//! The bake-shard file: one process's share of a sharded bake (see [`crate::shard`]), in the same
+//! The bake-shard file: one process's share of a sharded bake (see [`crate::bake::shard`]), in the same
 //! container as a baked file (header, section table, CRC-32 per section, 64-byte alignment) under
 //! its own magic `BOUNCE\0S` and its own version ([`super::SHARD_FORMAT_VERSION`]).
 //!
@@ -22,14 +22,13 @@
 //!
 //! Reading checks, beyond the container, that the metadata, layout and rows agree with each other
 //! (row range of the shard index, channel count of the phase, lengths) and that every entry is
-//! finite and non-negative; whether shards belong together is [`crate::shard`]'s check.
+//! finite and non-negative; whether shards belong together is [`crate::bake::shard`]'s check.
 
 use std::borrow::Cow;
 use std::path::Path;
 
 use crate::element::Elements;
 use crate::patch::PatchLayout;
-use crate::shard::{Phase, ShardMeta, shard_rows};
 
 use super::FormatError;
 use super::baked::{
@@ -40,6 +39,7 @@ use super::container::{
     self, Assembled, Container, FieldReader, FileBytes, Flavour, SECTION_ALIGN, SECTION_OPTIONAL,
     Section, SectionKind,
 };
+use super::shard_meta::{Phase, ShardMeta, shard_rows};
 use crate::surface::SurfaceData;
 use crate::voxel::Geometry;
 

@@ -4,11 +4,11 @@
 
 use std::path::{Path, PathBuf};
 
+use bounce_core::bake::shard::{self, Phase, ShardError, ShardSpec, shard_rows};
 use bounce_core::bake::{BakeOptions, CodecRequest, NoProgress, bake_file};
 use bounce_core::format::{Baked, FormatError, ShardFile};
 use bounce_core::import::pack_glb;
 use bounce_core::meta::Bounces;
-use bounce_core::shard::{self, Phase, ShardError, ShardSpec, shard_rows};
 use bounce_core::voxel::Resolution;
 
 fn cornell() -> PathBuf {

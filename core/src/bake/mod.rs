@@ -3,11 +3,12 @@
 //! Each stage reports progress through [`Progress`] and its wall time into the file's metadata;
 //! the caller decides how progress is shown and where the file goes.
 
+pub mod shard;
+
 use std::path::Path;
 use std::sync::Arc;
 use std::time::Instant;
 
-use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
 use crate::codec::error::{irradiance_errors, probe_light_sets};
@@ -15,12 +16,12 @@ use crate::codec::{self, CodecError};
 use crate::format::Baked;
 use crate::formfactor::{self, FormFactorError, FormFactorStats, RayScene, RowTracer};
 use crate::import::{self, ImportError};
-use crate::light::Light;
 use crate::matrix::{DENSE_F32, DenseMatrix, EncodedMatrix};
+pub use crate::meta::SourceInfo;
 use crate::meta::{BakeMeta, BakeSettings, BakeStats, Bounces, StageTiming};
 use crate::patch::PatchLayout;
 use crate::rays::Tracer;
-use crate::scene::{ImportReport, Scene};
+use crate::scene::Scene;
 use crate::surface::{self, SurfaceData, SurfaceScene};
 use crate::transport::{self, TransportError};
 use crate::trimesh::TriMesh;
@@ -181,28 +182,6 @@ impl<'a> Timer<'a> {
             seconds,
         });
         out
-    }
-}
-
-/// Where a bake's scene came from: recorded in the baked file, and in every shard of a sharded
-/// bake so that the merge can refuse shards of different scenes.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct SourceInfo {
-    /// The scene file's name (no directories).
-    pub source_name: String,
-    pub source_bytes: u64,
-    pub import_report: ImportReport,
-    pub lights: Vec<Light>,
-}
-
-impl SourceInfo {
-    fn of(scene: &Scene, source_name: &str, source_bytes: u64) -> Self {
-        SourceInfo {
-            source_name: source_name.to_string(),
-            source_bytes,
-            import_report: scene.report.clone(),
-            lights: scene.lights.clone(),
-        }
     }
 }
 
