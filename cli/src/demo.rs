@@ -46,9 +46,9 @@ impl Default for DemoBake {
         DemoBake {
             patches: DEMO_PATCHES,
             bounces: Bounces::K(3),
-            codec: crate::bake_cmd::codec_request(
-                crate::bake_cmd::DEFAULT_CODEC,
-                crate::bake_cmd::DEFAULT_MAX_ERROR,
+            codec: crate::bake::codec_request(
+                crate::bake::DEFAULT_CODEC,
+                crate::bake::DEFAULT_MAX_ERROR,
             ),
         }
     }
@@ -67,7 +67,7 @@ pub fn bake_demo(dir: &Path, out: &Path, bake: &DemoBake, quiet: bool) -> Result
         ..BakeOptions::default()
     };
     // The model is kept: the browser page `bounce serve` hands out draws it.
-    crate::bake_cmd::bake(&gltf, out, &options, true, quiet)?;
+    crate::bake::bake(&gltf, out, &options, true, quiet)?;
     Ok(())
 }
 
@@ -84,10 +84,10 @@ pub struct DemoArgs {
     pub bounces: Bounces,
     /// How the transport is stored: auto (the smallest within --max-error), or a codec by name
     /// (dense-f32, dense-f16, bc1, bc4, log8, bc1-resid), as for `bounce bake`.
-    #[arg(long, value_name = "NAME|auto", default_value = crate::bake_cmd::DEFAULT_CODEC)]
+    #[arg(long, value_name = "NAME|auto", default_value = crate::bake::DEFAULT_CODEC)]
     pub codec: String,
     /// For --codec auto: the largest relative L2 error of the indirect irradiance allowed.
-    #[arg(long, value_name = "E", default_value_t = crate::bake_cmd::DEFAULT_MAX_ERROR)]
+    #[arg(long, value_name = "E", default_value_t = crate::bake::DEFAULT_MAX_ERROR)]
     pub max_error: f64,
     #[arg(short, long)]
     pub quiet: bool,
@@ -98,7 +98,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
     let bake = DemoBake {
         patches: args.patches,
         bounces: args.bounces,
-        codec: crate::bake_cmd::codec_request(&args.codec, args.max_error),
+        codec: crate::bake::codec_request(&args.codec, args.max_error),
     };
     bake_demo(&args.dir, &out, &bake, args.quiet)?;
     println!();

@@ -158,7 +158,7 @@ fn every_manifest_is_a_known_kind_with_a_name() {
 #[test]
 fn the_sharded_bake_jobs_run_commands_bounce_accepts_in_the_right_phases() {
     use crate::Command;
-    use crate::bake_cmd::BakeStep;
+    use crate::bake::BakeStep;
     let k8s = K8s::load();
     // Phase by phase: the Indexed jobs' --shard count is their completion count, and each phase
     // reads where the one before wrote.

@@ -4,12 +4,10 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 use bounce_core::format::{Baked, read_summary};
-use bounce_core::meta::StageTiming;
-use bounce_core::scene::ImportReport;
 use clap::Args;
 use serde_json::json;
 
-use crate::bake_cmd::human_bytes;
+use crate::bake::summary::{human_bytes, print_import_report, stage_list};
 
 #[derive(Args, Debug)]
 pub struct InspectArgs {
@@ -172,36 +170,4 @@ pub fn run(args: &InspectArgs) -> Result<()> {
     println!("  bake time     {total:.2} s: {}", stage_list(&m.timings));
     print_import_report(&m.import_report, m.lights.len());
     Ok(())
-}
-
-/// `import 0.01s, voxelize 0.20s, ...`
-pub fn stage_list(timings: &[StageTiming]) -> String {
-    let stages: Vec<String> = timings
-        .iter()
-        .map(|t| format!("{} {:.2}s", t.stage, t.seconds))
-        .collect();
-    stages.join(", ")
-}
-
-/// The importer's report, one line per kind of thing skipped.
-pub fn print_import_report(r: &ImportReport, lights: usize) {
-    println!(
-        "  import        {} triangles from {} primitives in {} meshes, {} light(s)",
-        r.triangles, r.primitives, r.meshes, lights
-    );
-    let list = |label: &str, items: &[String]| {
-        if !items.is_empty() {
-            println!("  {label:<13} {}", items.join("; "));
-        }
-    };
-    list("skipped", &r.skipped_primitives);
-    if r.degenerate_triangles > 0 {
-        println!(
-            "  degenerate    {} zero-area triangle(s) dropped",
-            r.degenerate_triangles
-        );
-    }
-    list("textures", &r.missing_textures);
-    list("lights", &r.skipped_lights);
-    list("warnings", &r.warnings);
 }

@@ -3,26 +3,20 @@
 //! This binary owns argument parsing, terminal output and exit codes; the work itself lives in
 //! `bounce-core` and `bounce-engine`. Errors reach the user through `anyhow` with the library's message on top.
 
-mod bake_cmd;
+mod bake;
 mod bench;
-mod bench_codecs;
-mod bench_engines;
-mod bench_serve;
-mod bench_tradeoff;
-mod budget;
 mod demo;
 #[cfg(test)]
 mod deploy_check;
+mod indirect;
 mod inspect;
 mod lights_file;
 mod memory;
-mod plot;
 mod progress;
 mod reference_cmd;
 mod relight_cmd;
 mod render_cmd;
 mod serve_cmd;
-mod shard_cmd;
 mod verify_cmd;
 mod view;
 
@@ -50,7 +44,7 @@ struct Cli {
 enum Command {
     /// Bake a glTF/GLB scene into a transport file, in one process or in shards (`--shard`,
     /// `bake transport`, `bake merge`).
-    Bake(bake_cmd::BakeCommand),
+    Bake(bake::BakeCommand),
     /// Show the header, layout, settings, timings and checks of a baked file.
     Inspect(inspect::InspectArgs),
     /// Bake the embedded Cornell box demo scene and inspect the result.
@@ -91,7 +85,7 @@ fn main() -> ExitCode {
     restore_sigpipe();
     let cli = Cli::parse();
     let result = match cli.command {
-        Command::Bake(args) => bake_cmd::run(&args),
+        Command::Bake(args) => bake::run(&args),
         Command::Inspect(args) => inspect::run(&args),
         Command::Demo(args) => demo::run(&args),
         Command::Relight(args) => relight_cmd::run(&args),

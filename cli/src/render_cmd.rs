@@ -1,25 +1,26 @@
 //! `bounce render`: one image of a glTF scene lit by a baked transport, offscreen, to a PNG
 //! (tonemapped) or to a PFM or OpenEXR file (linear radiance).
 //!
-//! `--baked` relights in this process (engine → indirect per patch → irradiance volume →
-//! renderer); `--server` takes the indirect light from a running `bounce serve` (layout, a
-//! session, its first frame → irradiance volume → renderer), as a viewer does.
+//! The indirect light comes from the viewer's own sources ([`crate::indirect`]): `--baked`
+//! relights in this process (engine → indirect per patch → irradiance volume → renderer);
+//! `--server` watches a session of a running `bounce serve` (layout, a session, its first frame →
+//! irradiance volume → renderer), as a viewer does.
 
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
-use bounce_client::{Client, ClientConfig, Volume};
-use bounce_core::format::Baked;
+use bounce_client::Volume;
 use bounce_core::import::{ImportOptions, import_path_with};
-use bounce_core::light::LightSet;
 use bounce_core::scene::Scene;
+use bounce_engine::EngineChoice;
 use bounce_engine::gpu::GpuContext;
-use bounce_engine::{Engine, EngineChoice};
-use bounce_render::{Camera, LinearImage, RenderOptions, Renderer, volume_from_baked};
+use bounce_render::{Camera, LinearImage, RenderOptions, Renderer};
 use clap::Args;
 use glam::Vec3;
+
+use crate::indirect::{Local, Remote, Source};
 
 #[derive(Args, Debug)]
 pub struct RenderArgs {
@@ -102,23 +103,38 @@ pub fn run(args: &RenderArgs) -> Result<()> {
     let lights = crate::lights_file::or_scene(args.lights.as_deref(), &scene)?;
     let camera = camera.unwrap_or_else(|| Camera::framing(bounds));
 
-    let volume = match (&args.baked, &args.server) {
-        (Some(baked), _) => relight_here(baked, choice, &lights)?,
+    // The viewer's own sources: the same engine thread or session watcher `bounce view` uses.
+    let (mut source, send) = match (&args.baked, &args.server) {
+        (Some(baked), _) => (Source::Local(Local::open(baked, choice)?), true),
         (None, Some(url)) => {
             let name = args
                 .scene_name
                 .as_deref()
                 .context("--server needs --scene-name NAME")?;
-            from_server(
+            // A new session is created with these lights; a given one keeps its own.
+            let (remote, _) = Remote::connect(
                 url,
                 args.token.as_deref(),
                 name,
                 args.session.as_deref(),
                 &lights,
-            )?
+            )?;
+            (Source::Remote(Box::new(remote)), false)
         }
         (None, None) => bail!("give the indirect light's source: --baked FILE or --server URL"),
     };
+    let mut volume = Volume::new(source.layout()).context("building the irradiance volume")?;
+    if send {
+        source.send(1, &lights);
+    }
+    let answer = source.first_answer(&mut volume, FIRST_ANSWER)?;
+    eprintln!(
+        "indirect light: {}, frame {} answering lights version {}",
+        source.status(),
+        answer.sequence,
+        answer.lights_version
+    );
+    drop(source);
 
     let ctx = GpuContext::new().context("the renderer needs a GPU adapter (lavapipe will do)")?;
     eprintln!("renderer: {}", ctx.adapter());
@@ -211,82 +227,9 @@ fn write_exr(path: &Path, image: &LinearImage) -> Result<()> {
     Ok(())
 }
 
-/// The engine in this process: relight once, fill a volume.
-fn relight_here(baked_path: &Path, choice: EngineChoice, lights: &LightSet) -> Result<Volume> {
-    let baked =
-        Baked::read(baked_path).with_context(|| format!("reading {}", baked_path.display()))?;
-    let engine = Engine::new(choice)?;
-    eprintln!("engine: {}", engine.describe());
-    let loaded = engine.load(&baked)?;
-    let lit = engine.relight(&loaded, std::slice::from_ref(lights))?;
-    let Some(lit) = lit.first() else {
-        bail!("the engine answered no light set");
-    };
-    let name = baked_path
-        .file_stem()
-        .map(|s| s.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    Ok(volume_from_baked(&name, &baked.layout, &lit.indirect)?)
-}
-
-/// How long to wait for a session's first frame.
-const FIRST_FRAME: Duration = Duration::from_secs(60);
-
-/// As a viewer: the layout, a session (given, or created with `lights`), its newest frame.
-fn from_server(
-    url: &str,
-    token: Option<&str>,
-    scene: &str,
-    session: Option<&str>,
-    lights: &LightSet,
-) -> Result<Volume> {
-    let runtime = tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()
-        .context("starting the async runtime")?;
-    runtime.block_on(async {
-        let mut config = ClientConfig::new(url);
-        if let Some(t) = token {
-            config = config.with_token(t);
-        }
-        let client = Client::connect(config)
-            .await
-            .with_context(|| format!("connecting to {url}"))?;
-        let layout = client
-            .get_layout(scene)
-            .await
-            .with_context(|| format!("fetching the layout of {scene:?}"))?;
-        let mut volume = Volume::new(&layout).context("building the irradiance volume")?;
-        let id = match session {
-            Some(id) => id.to_string(),
-            None => {
-                client
-                    .create_session(scene, lights)
-                    .await
-                    .context("creating a session")?
-                    .id
-            }
-        };
-        let mut frames = client
-            .subscribe(&id)
-            .await
-            .with_context(|| format!("subscribing to session {id}"))?;
-        let frame = tokio::time::timeout(FIRST_FRAME, frames.next())
-            .await
-            .with_context(|| format!("no frame from session {id} within a minute"))?
-            .with_context(|| format!("reading session {id}'s frames"))?
-            .with_context(|| format!("session {id}'s stream ended before its first frame"))?;
-        frames.close().await;
-        volume
-            .apply(&frame)
-            .context("the frame does not fit the layout")?;
-        eprintln!(
-            "session {id}: frame {} answering lights version {}",
-            frame.header.sequence, frame.header.lights_version
-        );
-        anyhow::Ok(volume)
-    })
-}
+/// How long to wait for the first answer: a session's first frame, or the engine's first solve
+/// (which includes loading the matrix).
+const FIRST_ANSWER: Duration = Duration::from_secs(60);
 
 /// The scene as the renderers draw it: with the file's normals, texture coordinates and
 /// base-colour images, which a bake does not import.

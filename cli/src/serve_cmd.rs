@@ -377,8 +377,8 @@ fn demo_scenes(cache_dir: Option<PathBuf>) -> Result<PathBuf> {
             } else if asked != bake.codec {
                 Err(format!(
                     "it was baked with codec {}, the demo now asks for {}",
-                    crate::bake_cmd::codec_request_label(&asked),
-                    crate::bake_cmd::codec_request_label(&bake.codec)
+                    crate::bake::codec_request_label(&asked),
+                    crate::bake::codec_request_label(&bake.codec)
                 ))
             } else {
                 Ok(())

@@ -5,12 +5,14 @@
 //! mesh, not the patches), its own light evaluation, random numbers and sampling, and the
 //! placement of reference points on the surfaces patches stand for. It shares nothing with the
 //! bake's form factors, transport or direct light but the scene and light *types* and the BVH
-//! crate, so a bug in one cannot hide in the other. It does not compare anything: `bounce verify`
-//! and `bounce bench tradeoff` do.
+//! crate, so a bug in one cannot hide in the other. How a pipeline's answer is measured against
+//! the reference, and the error split by its source, is [`compare`]: arrays in, a report out,
+//! for `bounce verify` and `bounce bench tradeoff` alike.
 //!
 //! Every value comes with its standard error, and a value depends only on the seed, the point's
 //! index and the sample count, not on the thread count.
 
+pub mod compare;
 mod estimate;
 mod footprint;
 mod lights;

@@ -21,8 +21,8 @@ use winit::window::{Window, WindowId};
 
 use super::edit;
 use super::fly::{Fly, Motion};
-use super::source::{Answer, Source};
 use super::stats::{Stats, quantile};
+use crate::indirect::{Answer, Source};
 
 pub struct Options {
     pub width: u32,

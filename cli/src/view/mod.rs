@@ -8,7 +8,6 @@
 mod app;
 mod edit;
 mod fly;
-mod source;
 mod stats;
 
 use std::path::PathBuf;
@@ -20,9 +19,9 @@ use bounce_engine::EngineChoice;
 use bounce_render::Camera;
 use clap::Args;
 
+use crate::indirect::{Local, Remote, Source};
 use crate::render_cmd::{import_for_drawing, parse_camera};
 use app::{App, Options};
-use source::{Local, Remote, Source};
 
 #[derive(Args, Debug)]
 pub struct ViewArgs {

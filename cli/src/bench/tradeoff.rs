@@ -20,9 +20,9 @@ use bounce_engine::{Engine, EngineChoice};
 use bounce_reference::{Options, Reference};
 use clap::Args;
 
-use crate::plot::{Point, plot_error};
+use super::plot::{Point, plot_error};
 use crate::reference_cmd::trace_footprints;
-use crate::verify_cmd::{rel_l2, widen};
+use bounce_reference::compare::{rel_l2, widen};
 
 #[derive(Args, Debug)]
 pub struct BenchTradeoffArgs {

@@ -13,8 +13,8 @@ use bounce_core::format::ShardFile;
 use bounce_core::meta::StageTiming;
 use clap::Args;
 
-use crate::bake_cmd::{human_bytes, print_summary};
-use crate::budget::{Budget, BudgetArgs};
+use super::budget::{Budget, BudgetArgs};
+use super::summary::{human_bytes, print_summary, stage_list};
 use crate::memory::peak_rss_bytes;
 use crate::progress::TermProgress;
 
@@ -76,7 +76,7 @@ pub fn form_factors(
     // After the shard's import, as in a whole bake, so a bad scene gets the importer's error.
     watched.step("pack model");
     file.model = keep_model
-        .then(|| crate::bake_cmd::pack_model(scene))
+        .then(|| super::job::pack_model(scene))
         .transpose()?;
     watched.disarm();
     write(&file, &path, quiet, start)
@@ -185,7 +185,7 @@ fn write(file: &ShardFile, path: &Path, quiet: bool, start: Instant) -> Result<(
     println!(
         "  time          {:.2} s: {}",
         start.elapsed().as_secs_f64(),
-        crate::inspect::stage_list(&m.timings)
+        stage_list(&m.timings)
     );
     if let Some(peak) = peak_rss_bytes() {
         println!("  peak memory   {}", human_bytes(peak));

@@ -14,8 +14,8 @@ use bounce_core::format::Baked;
 use bounce_core::matrix::{DENSE_F32, DenseMatrix};
 use clap::Args;
 
-use crate::bench::emit;
-use crate::plot::{Point, plot_codecs};
+use super::plot::{Point, plot_codecs};
+use super::table::emit;
 
 #[derive(Args, Debug)]
 pub struct BenchCodecsArgs {

@@ -21,7 +21,7 @@ use bounce_engine::{Engine, EngineChoice};
 use clap::Args;
 use rayon::prelude::*;
 
-use crate::bench::emit;
+use super::table::emit;
 
 #[derive(Args, Debug)]
 pub struct BenchEnginesArgs {

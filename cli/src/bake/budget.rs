@@ -20,7 +20,7 @@ use anyhow::{Result, bail};
 use bounce_core::bake::{Progress, Stage};
 use clap::Args;
 
-use crate::bake_cmd::human_bytes;
+use super::summary::human_bytes;
 use crate::memory::peak_rss_bytes;
 
 /// How often the watchdog looks at the clock and at peak memory.

@@ -150,7 +150,7 @@ pub fn run(args: &BenchServeArgs) -> Result<()> {
         let _ = served.await;
         anyhow::Ok(rows)
     })?;
-    crate::bench::emit(&HEADER, &rows, args.csv.as_deref())?;
+    super::table::emit(&HEADER, &rows, args.csv.as_deref())?;
     if let Some(r) = rows.iter().find(|r| r[0] == "1" && r[1] == "100") {
         let p99: f64 = r[8].parse().unwrap_or(f64::INFINITY);
         println!(

@@ -1,13 +1,14 @@
-//! Where the viewer's indirect light comes from: a session on a running server, watched as any
-//! viewer watches it, or a baked file relit in this process.
+//! Where indirect light comes from, for `bounce view` and `bounce render` alike: a session on a
+//! running server, watched as any viewer watches it, or a baked file relit in this process.
 //!
 //! Both take light changes without blocking the window (`send`) and hand back the newest
 //! answer (`poll`); a change is tagged so the window can time it from the key press to the
-//! frame that shows it.
+//! frame that shows it. A one-off image waits for the first answer ([`Source::first_answer`]).
 
 use std::path::Path;
 use std::sync::mpsc;
 use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 use bounce_client::{
@@ -123,6 +124,24 @@ impl Source {
                     }
                 }
             }
+        }
+    }
+
+    /// Waits up to `patience` for the first answer and applies it to `volume`.
+    pub fn first_answer(&mut self, volume: &mut Volume, patience: Duration) -> Result<Answer> {
+        let deadline = Instant::now() + patience;
+        loop {
+            if let Some(answer) = self.poll(volume)? {
+                return Ok(answer);
+            }
+            if Instant::now() >= deadline {
+                bail!(
+                    "no indirect light within {:.0} s from {}",
+                    patience.as_secs_f64(),
+                    self.status()
+                );
+            }
+            std::thread::sleep(Duration::from_millis(5));
         }
     }
 
