@@ -6,10 +6,28 @@
 //! A test never skips silently: a missing tool fails it with a message naming the command that
 //! installs it ([`SETUP`]), unless the tool's `BOUNCE_ALLOW_NO_*` variable is `1` (CI never sets
 //! one), where the test says on stderr that it skipped and returns.
+//!
+//! It also holds the fixtures more than one crate's tests use: the scenes in `assets/`
+//! ([`cornell_gltf`]), and behind features the Cornell box as the server and client tests bake
+//! it ([`fixtures::baked_cornell_box`], feature `bake`) and one GPU adapter a test binary
+//! ([`fixtures::gpu_context`], feature `gpu`).
 
 use std::fmt::Display;
 use std::path::{Path, PathBuf};
 use std::process::Command;
+
+#[cfg(any(feature = "bake", feature = "gpu"))]
+pub mod fixtures;
+
+/// The repository's `assets/` directory: the test scenes and their licences.
+pub fn assets() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets")
+}
+
+/// The Cornell box every crate's tests light: `assets/cornell-box/scene.gltf`.
+pub fn cornell_gltf() -> PathBuf {
+    assets().join("cornell-box/scene.gltf")
+}
 
 /// The command that installs what the tests need and then runs them all (the README's second
 /// command).

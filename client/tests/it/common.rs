@@ -7,9 +7,7 @@ pub use std::sync::OnceLock;
 pub use std::time::Duration;
 
 pub use bounce_client::*;
-pub use bounce_core::bake::{BakeOptions, NoProgress, bake_file};
 pub use bounce_core::format::Baked;
-pub use bounce_core::voxel::Resolution;
 pub use bounce_engine::EngineChoice;
 pub use bounce_server::{Hub, HubConfig, Listeners};
 use tokio::net::TcpListener;
@@ -28,14 +26,7 @@ pub fn scenes_dir() -> PathBuf {
     DIR.get_or_init(|| {
         let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("client-it-scenes");
         std::fs::create_dir_all(&dir).expect("creating the scenes directory");
-        let gltf =
-            PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../assets/cornell-box/scene.gltf");
-        let options = BakeOptions {
-            resolution: Resolution::TargetPatches(300),
-            rays: 512,
-            ..BakeOptions::default()
-        };
-        let baked = bake_file(&gltf, &options, &NoProgress).expect("baking the Cornell box");
+        let baked = bounce_testkit::fixtures::baked_cornell_box(300);
         baked
             .write_atomic(&dir.join(format!("{SCENE}.bounce")))
             .expect("writing the baked file");

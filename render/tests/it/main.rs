@@ -4,7 +4,7 @@
 //!
 //! GPU tests never skip silently: without an adapter they fail, unless `BOUNCE_ALLOW_NO_GPU=1`.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::OnceLock;
 
 use bounce_client::{Face, Volume};
@@ -21,20 +21,8 @@ use bounce_render::{
 };
 use glam::{UVec3, Vec3};
 
-fn gltf() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/cornell-box/scene.gltf")
-}
-
-fn context() -> Option<&'static GpuContext> {
-    static CTX: OnceLock<Result<GpuContext, String>> = OnceLock::new();
-    match CTX.get_or_init(|| GpuContext::new().map_err(|e| e.to_string())) {
-        Ok(ctx) => {
-            eprintln!("GPU tests on {}", ctx.adapter());
-            Some(ctx)
-        }
-        Err(e) => bounce_testkit::missing(bounce_testkit::Tool::GpuAdapter, e),
-    }
-}
+use bounce_testkit::cornell_gltf as gltf;
+use bounce_testkit::fixtures::gpu_context as context;
 
 struct Cornell {
     scene: Scene,

@@ -33,16 +33,12 @@ pub fn scenes_dir() -> PathBuf {
     DIR.get_or_init(|| {
         let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("server-it-scenes");
         std::fs::create_dir_all(&dir).expect("creating the scenes directory");
-        let gltf =
-            PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../assets/cornell-box/scene.gltf");
-        let options = BakeOptions {
-            resolution: Resolution::TargetPatches(300),
-            rays: 512,
-            ..BakeOptions::default()
-        };
-        let mut baked = bake_file(&gltf, &options, &NoProgress).expect("baking the Cornell box");
+        let mut baked = bounce_testkit::fixtures::baked_cornell_box(300);
         // As `bounce bake` keeps it: the browser page's model.
-        baked.model = Some(bounce_core::import::pack_glb(&gltf).expect("packing the model"));
+        baked.model = Some(
+            bounce_core::import::pack_glb(&bounce_testkit::cornell_gltf())
+                .expect("packing the model"),
+        );
         baked
             .write_atomic(&dir.join(format!("{SCENE}.bounce")))
             .expect("writing the baked file");
