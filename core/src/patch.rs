@@ -126,8 +126,8 @@ impl PatchLayout {
     /// Each patch's area as its form factors see it: the true area of its surface pieces
     /// (`source_area`) when it stands for them, else the voxel face's. Reciprocity
     /// (`A_i F_ij = A_j F_ji`) holds with these.
-    pub fn areas(&self, geometry: crate::voxel::Geometry) -> Vec<f32> {
-        let surface = geometry == crate::voxel::Geometry::Surface;
+    pub fn areas(&self, geometry: Geometry) -> Vec<f32> {
+        let surface = geometry == Geometry::Surface;
         self.patches
             .iter()
             .map(|p| {
@@ -163,5 +163,102 @@ impl PatchLayout {
 
     pub fn quads(&self) -> Vec<Quad> {
         (0..self.len()).map(|i| self.quad(i)).collect()
+    }
+}
+
+/// What geometry patches stand for and rays are traced against.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Geometry {
+    /// A patch is the pieces of original triangles in its voxel whose normal faces its direction
+    /// most; rays run between those pieces against the original triangles (docs/design.md §2).
+    #[default]
+    Surface,
+    /// The thesis' method: a patch is the exposed voxel face itself, and rays walk the voxel
+    /// occupancy. Kept as the baseline the surface method is measured against.
+    VoxelFaces,
+}
+
+impl Geometry {
+    /// What files from before the choice existed were baked with.
+    pub fn voxel_faces() -> Geometry {
+        Geometry::VoxelFaces
+    }
+}
+
+impl std::str::FromStr for Geometry {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "surface" => Ok(Geometry::Surface),
+            "voxel-faces" => Ok(Geometry::VoxelFaces),
+            _ => Err(format!(
+                "geometry must be 'surface' or 'voxel-faces', got '{s}'"
+            )),
+        }
+    }
+}
+
+impl std::fmt::Display for Geometry {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Geometry::Surface => "surface",
+            Geometry::VoxelFaces => "voxel-faces",
+        })
+    }
+}
+
+/// One triangle of a patch's surface: a fan triangle of a clipped piece of an original triangle,
+/// with the unit normal of the side the patch stands for.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PieceTri {
+    pub corners: [Vec3; 3],
+    pub normal: Vec3,
+    pub area: f32,
+    /// The original triangle (index into [`crate::scene::Scene::triangles`]).
+    pub triangle: u32,
+}
+
+/// Per patch, the triangles of real surface it stands for (compressed rows: patch `i` owns
+/// `tris[start[i]..start[i + 1]]`).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Pieces {
+    pub start: Vec<u32>,
+    pub tris: Vec<PieceTri>,
+}
+
+impl Pieces {
+    pub fn of(&self, patch: usize) -> &[PieceTri] {
+        &self.tris[self.start[patch] as usize..self.start[patch + 1] as usize]
+    }
+
+    pub fn patch_count(&self) -> usize {
+        self.start.len().saturating_sub(1)
+    }
+
+    pub(crate) fn retain(&mut self, keep: impl Fn(usize) -> bool) {
+        let mut out = Pieces {
+            start: vec![0],
+            tris: Vec::with_capacity(self.tris.len()),
+        };
+        for i in 0..self.patch_count() {
+            if keep(i) {
+                out.tris.extend_from_slice(self.of(i));
+                out.start.push(out.tris.len() as u32);
+            }
+        }
+        *self = out;
+    }
+
+    pub(crate) fn permuted(&self, perm: &[usize]) -> Pieces {
+        let mut out = Pieces {
+            start: vec![0],
+            tris: Vec::with_capacity(self.tris.len()),
+        };
+        for &i in perm {
+            out.tris.extend_from_slice(self.of(i));
+            out.start.push(out.tris.len() as u32);
+        }
+        out
     }
 }

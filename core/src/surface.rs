@@ -17,11 +17,10 @@ use glam::Vec3;
 use serde::{Deserialize, Serialize};
 
 use crate::formfactor::{RowTracer, row_seed};
-use crate::patch::PatchLayout;
+use crate::patch::{PatchLayout, PieceTri, Pieces};
 use crate::rays::{RayFate, RayTally};
 use crate::scene::Scene;
 use crate::trimesh::{TriMesh, extent_of, offset_origin};
-use crate::voxel::{PieceTri, Pieces};
 
 /// Direct-light sample points per patch a bake stores unless asked otherwise.
 pub const DEFAULT_SURFACE_SAMPLES: u32 = 16;

@@ -14,6 +14,8 @@ use thiserror::Error;
 
 use crate::element::{Elements, Refinement, sub_cell};
 use crate::patch::{Face, Patch, PatchLayout, Quad};
+// What a patch stands for is the patch's vocabulary; these paths stay for the voxeliser's users.
+pub use crate::patch::{Geometry, PieceTri, Pieces};
 use crate::scene::{Scene, Triangle};
 use crate::space::Spaces;
 use crate::trimesh::TriMesh;
@@ -215,103 +217,6 @@ impl Voxelization {
         if let Some(pieces) = &mut self.pieces {
             *pieces = pieces.permuted(&rows);
         }
-    }
-}
-
-/// What geometry patches stand for and rays are traced against.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum Geometry {
-    /// A patch is the pieces of original triangles in its voxel whose normal faces its direction
-    /// most; rays run between those pieces against the original triangles (docs/design.md §2).
-    #[default]
-    Surface,
-    /// The thesis' method: a patch is the exposed voxel face itself, and rays walk the voxel
-    /// occupancy. Kept as the baseline the surface method is measured against.
-    VoxelFaces,
-}
-
-impl Geometry {
-    /// What files from before the choice existed were baked with.
-    pub fn voxel_faces() -> Geometry {
-        Geometry::VoxelFaces
-    }
-}
-
-impl std::str::FromStr for Geometry {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
-        match s {
-            "surface" => Ok(Geometry::Surface),
-            "voxel-faces" => Ok(Geometry::VoxelFaces),
-            _ => Err(format!(
-                "geometry must be 'surface' or 'voxel-faces', got '{s}'"
-            )),
-        }
-    }
-}
-
-impl std::fmt::Display for Geometry {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(match self {
-            Geometry::Surface => "surface",
-            Geometry::VoxelFaces => "voxel-faces",
-        })
-    }
-}
-
-/// One triangle of a patch's surface: a fan triangle of a clipped piece of an original triangle,
-/// with the unit normal of the side the patch stands for.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct PieceTri {
-    pub corners: [Vec3; 3],
-    pub normal: Vec3,
-    pub area: f32,
-    /// The original triangle (index into [`Scene::triangles`]).
-    pub triangle: u32,
-}
-
-/// Per patch, the triangles of real surface it stands for (compressed rows: patch `i` owns
-/// `tris[start[i]..start[i + 1]]`).
-#[derive(Debug, Clone, Default, PartialEq)]
-pub struct Pieces {
-    pub start: Vec<u32>,
-    pub tris: Vec<PieceTri>,
-}
-
-impl Pieces {
-    pub fn of(&self, patch: usize) -> &[PieceTri] {
-        &self.tris[self.start[patch] as usize..self.start[patch + 1] as usize]
-    }
-
-    pub fn patch_count(&self) -> usize {
-        self.start.len().saturating_sub(1)
-    }
-
-    fn retain(&mut self, keep: impl Fn(usize) -> bool) {
-        let mut out = Pieces {
-            start: vec![0],
-            tris: Vec::with_capacity(self.tris.len()),
-        };
-        for i in 0..self.patch_count() {
-            if keep(i) {
-                out.tris.extend_from_slice(self.of(i));
-                out.start.push(out.tris.len() as u32);
-            }
-        }
-        *self = out;
-    }
-
-    fn permuted(&self, perm: &[usize]) -> Pieces {
-        let mut out = Pieces {
-            start: vec![0],
-            tris: Vec::with_capacity(self.tris.len()),
-        };
-        for &i in perm {
-            out.tris.extend_from_slice(self.of(i));
-            out.start.push(out.tris.len() as u32);
-        }
-        out
     }
 }
 

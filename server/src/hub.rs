@@ -20,6 +20,7 @@ use crate::error::ServerError;
 use crate::frame::Frame;
 use crate::metrics::{Metrics, Outcome, ReloadLabel, SessionLimit, SessionLimitLabel, Transport};
 use crate::scenes::{self, SceneInfo};
+pub use crate::session::LightsVersion;
 use crate::session::{Offered, Session, WriteReply};
 use crate::store::{Store, StoreError, StoredSession};
 use crate::viewer::Viewer;
@@ -136,14 +137,6 @@ struct Inner {
     /// `true` once shutting down: every frame stream ends.
     shutdown: watch::Sender<bool>,
     janitor: Mutex<Option<(std::sync::mpsc::Sender<()>, JoinHandle<()>)>>,
-}
-
-/// What [`Hub::set_lights`] answers.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct LightsVersion {
-    pub version: u64,
-    /// `false` when the lights equalled the current ones: no new version, no new frame.
-    pub changed: bool,
 }
 
 impl Hub {

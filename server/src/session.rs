@@ -14,7 +14,6 @@ use tokio::sync::{oneshot, watch};
 
 use crate::error::ServerError;
 use crate::frame::Frame;
-use crate::hub::LightsVersion;
 
 pub struct Session {
     pub id: String,
@@ -276,4 +275,12 @@ impl Session {
     pub fn viewers(&self) -> usize {
         self.frames.receiver_count()
     }
+}
+
+/// What [`crate::Hub::set_lights`] answers.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct LightsVersion {
+    pub version: u64,
+    /// `false` when the lights equalled the current ones: no new version, no new frame.
+    pub changed: bool,
 }

@@ -7,7 +7,7 @@
 use half::f16;
 use rayon::prelude::*;
 
-use super::lanes::{Lanes, dots, served};
+use super::lanes::{Entry, Lanes, dots, served};
 use super::{Codec, CodecError, MatrixOp, batch_len};
 use crate::matrix::{DenseMatrix, EncodedMatrix};
 
@@ -71,53 +71,11 @@ pub(super) fn decode_f16(m: &EncodedMatrix) -> Result<Dense<f16>, CodecError> {
     Ok(Dense { n, channels, data })
 }
 
-/// A stored entry type the dense product reads directly (so `dense-f16` products read half the
-/// bytes, which is the point of the codec).
-pub trait Entry: Copy + Send + Sync {
-    fn value(self) -> f32;
-    /// The entries as f32 when they are f32 already, for library matrix products.
-    fn as_f32(entries: &[Self]) -> Option<&[f32]> {
-        let _ = entries;
-        None
-    }
-    /// Widen `src` into `dst` (same length), as fast as the type allows.
-    fn widen(src: &[Self], dst: &mut [f32]) {
-        for (d, s) in dst.iter_mut().zip(src) {
-            *d = s.value();
-        }
-    }
-}
-
-impl Entry for f32 {
-    #[inline]
-    fn value(self) -> f32 {
-        self
-    }
-
-    fn as_f32(entries: &[f32]) -> Option<&[f32]> {
-        Some(entries)
-    }
-}
-
 /// From this many light sets on, a CPU product is a matrix–matrix product by faer's blocked
 /// kernels (dense f32 directly; the block codecs on panels decoded to f32); below, the row
 /// kernel, which also skips dark columns. Either way a light set's result is the same to f32
 /// rounding, but only the row kernel keeps its bits whatever else is in the batch.
 pub const GEMM_FROM: usize = 8;
-
-impl Entry for f16 {
-    #[inline]
-    fn value(self) -> f32 {
-        self.to_f32()
-    }
-
-    /// `half`'s slice conversion uses F16C where the CPU has it, eight values an instruction;
-    /// one at a time it is a software routine per value.
-    fn widen(src: &[f16], dst: &mut [f32]) {
-        use half::slice::HalfFloatSliceExt;
-        src.convert_to_f32_slice(dst);
-    }
-}
 
 /// A dense matrix ready for products: `data[c·n·n + i·n + j]`, as [`DenseMatrix`].
 pub struct Dense<T> {

@@ -8,7 +8,49 @@
 //! leave many patches dark (their `B0` is zero in every light set of the batch), and their columns
 //! contribute nothing, so dropping them is exact.
 
-use super::dense::Entry;
+use half::f16;
+
+/// A stored entry type the dense product reads directly (so `dense-f16` products read half the
+/// bytes, which is the point of the codec).
+pub trait Entry: Copy + Send + Sync {
+    fn value(self) -> f32;
+    /// The entries as f32 when they are f32 already, for library matrix products.
+    fn as_f32(entries: &[Self]) -> Option<&[f32]> {
+        let _ = entries;
+        None
+    }
+    /// Widen `src` into `dst` (same length), as fast as the type allows.
+    fn widen(src: &[Self], dst: &mut [f32]) {
+        for (d, s) in dst.iter_mut().zip(src) {
+            *d = s.value();
+        }
+    }
+}
+
+impl Entry for f32 {
+    #[inline]
+    fn value(self) -> f32 {
+        self
+    }
+
+    fn as_f32(entries: &[f32]) -> Option<&[f32]> {
+        Some(entries)
+    }
+}
+
+impl Entry for f16 {
+    #[inline]
+    fn value(self) -> f32 {
+        self.to_f32()
+    }
+
+    /// `half`'s slice conversion uses F16C where the CPU has it, eight values an instruction;
+    /// one at a time it is a software routine per value.
+    fn widen(src: &[f16], dst: &mut [f32]) {
+        use half::slice::HalfFloatSliceExt;
+        src.convert_to_f32_slice(dst);
+    }
+}
 
 /// Below this share of lit columns the products gather the lit ones; above it they run over all
 /// columns contiguously (a gather costs about twice a contiguous load).
