@@ -4,7 +4,9 @@
 //! (`dense-f32`, `dense-f16`, `bc1`, `bc1-resid`, `bc4`, `log8`) and multiplies batches against it, blocking until the
 //! result is read back. [`GpuDirect`] computes direct light with voxel-grid shadows and
 //! [`GpuSurfaceDirect`] with shadows against the triangles of a surface-geometry bake, both twins
-//! of `bounce_core::direct::direct_irradiance`. Kernels live in `gpu/shaders/*.wgsl`.
+//! of `bounce_core::direct::direct_irradiance`. Kernels live in `gpu/shaders/*.wgsl`. [`light`]
+//! is the light model both direct-light kernels and bounce-render's shading are compiled with:
+//! one [`GpuLight`] and one WGSL module, prepended to each shader.
 
 pub mod bandwidth;
 mod context;
@@ -13,17 +15,19 @@ mod direct;
 mod direct_surface;
 mod error;
 mod kernel;
+pub mod light;
 mod logblock;
 mod matrix;
 mod sparse;
 
 pub use context::{AdapterSummary, GpuContext};
-pub use direct::{DIRECT_WG, DirectParams, GpuDirect, GpuLight, GpuPatch};
+pub use direct::{DIRECT_WG, DirectParams, GpuDirect, GpuPatch};
 pub use direct_surface::{
     GpuSample, GpuSurfaceDirect, RAYS_PER_PIECE, SURFACE_STACK, SURFACE_WG, SurfaceParams,
 };
 pub use error::GpuError;
 pub use kernel::{CHUNK, CHUNKS, Params, ROWS, Split, variant_for};
+pub use light::GpuLight;
 pub use matrix::GpuMatrix;
 
 /// WGSL sources as compiled (the shared prelude plus the kernel's file), for tools and the naga

@@ -1,4 +1,6 @@
-//! The Rust mirrors of `shade.wgsl`'s shared structs (a naga test checks the layouts agree).
+//! The Rust mirrors of `shade.wgsl`'s own shared structs (a naga test checks the layouts agree).
+//! The light is the engine's: `bounce_engine::gpu::GpuLight`, with its WGSL prepended to the
+//! shader (`renderer::shade_source`).
 
 use bytemuck::{Pod, Zeroable};
 
@@ -25,23 +27,6 @@ pub const FLAG_LINEAR: u32 = 1;
 /// `Globals::flags`: leave emission out (indirect light only).
 pub const FLAG_NO_EMISSION: u32 = 2;
 
-/// `GpuLight` in `shade.wgsl`: a `bounce_core::direct::PreparedLight` and where its shadow
-/// views start.
-#[repr(C)]
-#[derive(Debug, Clone, Copy, Default, PartialEq, Pod, Zeroable)]
-pub struct GpuLight {
-    pub position: [f32; 3],
-    pub kind: u32,
-    pub axis: [f32; 3],
-    pub inv_range: f32,
-    pub radiant: [f32; 3],
-    pub angle_scale: f32,
-    pub angle_offset: f32,
-    pub first_view: u32,
-    pub pad0: u32,
-    pub pad1: u32,
-}
-
 /// One vertex of the scene's vertex buffer (`VertexIn` in `shade.wgsl`).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, Pod, Zeroable)]
@@ -62,7 +47,3 @@ pub struct Vertex {
 
 pub const WRAP_REPEAT_U: u32 = 1;
 pub const WRAP_REPEAT_V: u32 = 2;
-
-pub const KIND_DIRECTIONAL: u32 = 0;
-pub const KIND_POINT: u32 = 1;
-pub const KIND_SPOT: u32 = 2;

@@ -2,10 +2,10 @@
 
 use bounce_core::direct::{LightKind, PreparedLight};
 use bounce_core::light::LightSet;
+use bounce_engine::gpu::GpuLight;
 use glam::{Mat4, Vec3};
 
 use crate::camera::up_for;
-use crate::gpu_types::{GpuLight, KIND_DIRECTIONAL, KIND_POINT, KIND_SPOT};
 use crate::math::{look_at_rh, orthographic_rh, perspective_rh};
 
 /// The lights as the shader reads them, and the shadow views they use (one per directional
@@ -27,13 +27,12 @@ pub(crate) fn prepare_lights(
         // Depth range of a light inside or near the scene: from close by to past its far side.
         let reach = (l.position - centre).length() + radius;
         let near = (reach / 1000.0).max(1e-4);
-        let kind = match l.kind {
+        match l.kind {
             LightKind::Directional => {
                 let eye = centre - l.axis * radius * 2.0;
                 let view = look_at_rh(eye, centre, up_for(l.axis));
                 let proj = orthographic_rh(radius, 0.0, radius * 4.0);
                 views.push(proj * view);
-                KIND_DIRECTIONAL
             }
             LightKind::Spot => {
                 // The outer cone plus a margin, short of 180° where perspective breaks down.
@@ -43,7 +42,6 @@ pub(crate) fn prepare_lights(
                 let fov = (2.0 * outer + 0.1).min(3.0);
                 let view = look_at_rh(l.position, l.position + l.axis, up_for(l.axis));
                 views.push(perspective_rh(fov, 1.0, near, reach) * view);
-                KIND_SPOT
             }
             LightKind::Point => {
                 let faces = [
@@ -58,20 +56,11 @@ pub(crate) fn prepare_lights(
                 for (dir, up) in faces {
                     views.push(proj * look_at_rh(l.position, l.position + dir, up));
                 }
-                KIND_POINT
             }
-        };
+        }
         out.push(GpuLight {
-            position: l.position.to_array(),
-            kind,
-            axis: l.axis.to_array(),
-            inv_range: l.inv_range,
-            radiant: l.radiant.to_array(),
-            angle_scale: l.angle_scale,
-            angle_offset: l.angle_offset,
             first_view,
-            pad0: 0,
-            pad1: 0,
+            ..GpuLight::from(&l)
         });
     }
     (out, views)

@@ -7,7 +7,7 @@ use bounce_client::{Layout, Volume};
 use bounce_core::light::LightSet;
 use bounce_core::patch::PatchLayout;
 use bounce_core::scene::Scene;
-use bounce_engine::gpu::GpuContext;
+use bounce_engine::gpu::{GpuContext, light};
 use glam::Vec3;
 use thiserror::Error;
 use wgpu::util::DeviceExt;
@@ -16,8 +16,11 @@ use crate::camera::Camera;
 use crate::gpu_types::{FLAG_LINEAR, FLAG_NO_EMISSION, Globals, Vertex};
 use crate::stage::{Stage, VolumeGpu};
 
-/// The shading module (see the crate doc).
-pub const SHADER: &str = include_str!("shade.wgsl");
+/// The shading module (see the crate doc): the engine's light model (`bounce_engine::gpu::light`),
+/// then `shade.wgsl`, which lights with it.
+pub fn shade_source() -> String {
+    [light::WGSL, include_str!("shade.wgsl")].concat()
+}
 
 /// The offscreen images' format.
 pub const IMAGE_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8UnormSrgb;
@@ -145,7 +148,7 @@ impl<'a> Renderer<'a> {
         let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("shade"),
-            source: wgpu::ShaderSource::Wgsl(SHADER.into()),
+            source: wgpu::ShaderSource::Wgsl(shade_source().into()),
         });
         let attributes = wgpu::vertex_attr_array![
             0 => Float32x3, 1 => Float32x3, 2 => Float32x3, 3 => Float32x3,

@@ -1,13 +1,13 @@
 // The renderer's one shading module: direct light with shadow maps, indirect light from the
 // six-direction irradiance volume (client/src/volume.rs's convention; `sample_volume` is the twin
-// of `Volume::sample`), and the tonemap (or linear radiance, for a float target). The Rust mirrors of `Globals` and `GpuLight` live in
+// of `Volume::sample`), and the tonemap (or linear radiance, for a float target). The light model
+// (`GpuLight`, `KIND_*`, `light_sample`) is the engine's `light.wgsl`
+// (engine/src/gpu/shaders/light.wgsl), prepended to this file (`renderer::shade_source`), so a
+// pixel is lit with the same code as the engine's patches. The Rust mirror of `Globals` lives in
 // render/src/gpu_types.rs; a naga test checks that the layouts agree.
 
 const MIN_COVERAGE: f32 = 0.00390625; // 1/256, client::volume::MIN_COVERAGE
 const PI: f32 = 3.14159265358979;
-const KIND_DIRECTIONAL: u32 = 0u;
-const KIND_POINT: u32 = 1u;
-const KIND_SPOT: u32 = 2u;
 const WRAP_REPEAT_U: u32 = 1u;
 const WRAP_REPEAT_V: u32 = 2u;
 const FLAG_LINEAR: u32 = 1u;
@@ -25,19 +25,6 @@ struct Globals {
     normal_offset: f32,
     // FLAG_LINEAR | FLAG_NO_EMISSION (render/src/gpu_types.rs).
     flags: u32,
-    pad1: u32,
-}
-
-struct GpuLight {
-    position: vec3<f32>,
-    kind: u32,
-    axis: vec3<f32>,
-    inv_range: f32,
-    radiant: vec3<f32>,
-    angle_scale: f32,
-    angle_offset: f32,
-    first_view: u32,
-    pad0: u32,
     pad1: u32,
 }
 
@@ -157,34 +144,6 @@ fn shadow(light: GpuLight, p: vec3<f32>, n: vec3<f32>) -> f32 {
     return textureSampleCompareLevel(shadow_maps, shadow_sampler, uv, view, ndc.z);
 }
 
-// What one light delivers to `p` with unit normal `n` if unshadowed: bounce_core::direct's
-// light_sample (glTF KHR_lights_punctual units and falloff).
-fn light_irradiance(light: GpuLight, p: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
-    var dir = -light.axis;
-    var scale = 1.0;
-    if light.kind != KIND_DIRECTIONAL {
-        let to = light.position - p;
-        let d2 = dot(to, to);
-        let d = sqrt(d2);
-        if d <= 0.0 {
-            return vec3<f32>(0.0);
-        }
-        dir = to / d;
-        let x = d * light.inv_range;
-        let win = clamp(1.0 - x * x * x * x, 0.0, 1.0);
-        scale = win * win / d2;
-        if light.kind == KIND_SPOT {
-            let a = clamp(dot(light.axis, -dir) * light.angle_scale + light.angle_offset, 0.0, 1.0);
-            scale *= a * a;
-        }
-    }
-    let c = dot(n, dir);
-    if c <= 0.0 || scale <= 0.0 {
-        return vec3<f32>(0.0);
-    }
-    return light.radiant * (c * scale);
-}
-
 struct VertexIn {
     @location(0) position: vec3<f32>,
     @location(1) normal: vec3<f32>,
@@ -241,9 +200,9 @@ fn fs_main(frag: VertexOut, @builtin(front_facing) front: bool) -> @location(0) 
     var e = vec3<f32>(0.0);
     for (var i = 0u; i < g.light_count; i++) {
         let light = lights[i];
-        let lit = light_irradiance(light, frag.world, n);
-        if any(lit > vec3<f32>(0.0)) {
-            e += lit * shadow(light, frag.world, n);
+        let s = light_sample(light, frag.world, n);
+        if s.lit {
+            e += s.irradiance * shadow(light, frag.world, n);
         }
     }
     if g.indirect != 0u {

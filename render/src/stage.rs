@@ -7,10 +7,10 @@
 use bounce_client::{Face, Volume};
 use bounce_core::light::LightSet;
 use bounce_core::scene::Scene;
+use bounce_engine::gpu::GpuLight;
 use glam::{Mat4, UVec3, Vec3};
 use wgpu::util::DeviceExt;
 
-use crate::gpu_types::GpuLight;
 use crate::lights::prepare_lights;
 use crate::mesh::{AlbedoMaps, mesh};
 use crate::renderer::{DEPTH_FORMAT, MAX_SHADOW_VIEWS, RenderError, Renderer, SHADOW_SIZE};

@@ -19,13 +19,14 @@
 //! may fuse multiply-adds, so values agree to a few ulps and a shadow ray that grazes a voxel edge
 //! may flip (`engine/tests/gpu_direct.rs` bounds both).
 
-use bounce_core::direct::{LightKind, PreparedLight, samples_side};
+use bounce_core::direct::{PreparedLight, samples_side};
 use bounce_core::light::LightSet;
 use bounce_core::patch::PatchLayout;
 use bytemuck::{Pod, Zeroable};
 use wgpu::util::DeviceExt;
 
 use super::kernel::{check_binding, pipeline, read_rgb, storage};
+use super::light::{self, GpuLight};
 use super::{GpuContext, GpuError};
 
 /// Threads per workgroup (mirrors `WG` in `direct.wgsl`).
@@ -57,45 +58,8 @@ pub struct GpuPatch {
     pub cell: [i32; 3],
 }
 
-/// One prepared light (`GpuLight` in `direct.wgsl`).
-#[repr(C)]
-#[derive(Debug, Clone, Copy, Default, PartialEq, Pod, Zeroable)]
-pub struct GpuLight {
-    pub position: [f32; 3],
-    /// 0 directional, 1 point, 2 spot.
-    pub kind: u32,
-    pub axis: [f32; 3],
-    pub inv_range: f32,
-    pub radiant: [f32; 3],
-    pub angle_scale: f32,
-    pub angle_offset: f32,
-    pub pad: [u32; 3],
-}
-
-impl From<&PreparedLight> for GpuLight {
-    fn from(l: &PreparedLight) -> GpuLight {
-        GpuLight {
-            position: l.position.to_array(),
-            kind: match l.kind {
-                LightKind::Directional => 0,
-                LightKind::Point => 1,
-                LightKind::Spot => 2,
-            },
-            axis: l.axis.to_array(),
-            inv_range: l.inv_range,
-            radiant: l.radiant.to_array(),
-            angle_scale: l.angle_scale,
-            angle_offset: l.angle_offset,
-            pad: [0; 3],
-        }
-    }
-}
-
-/// What the direct-light kernels share: the prepared light and `light_sample`.
-pub(super) const LIGHT: &str = include_str!("shaders/light.wgsl");
-
 pub fn direct_source() -> String {
-    [LIGHT, include_str!("shaders/direct.wgsl")].concat()
+    [light::WGSL, include_str!("shaders/direct.wgsl")].concat()
 }
 
 /// The start voxel of a shadow walk from `patch`, from the CPU walk's own function.

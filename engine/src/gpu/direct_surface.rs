@@ -43,8 +43,8 @@ use bounce_core::trimesh::MeshNode;
 use bytemuck::{Pod, Zeroable};
 use wgpu::util::DeviceExt;
 
-use super::direct::{GpuLight, LIGHT};
 use super::kernel::{check_binding, pipeline, read_rgb, storage};
+use super::light::{self, GpuLight};
 use super::{GpuContext, GpuError};
 
 /// Threads per workgroup (mirrors `WG` in `direct_surface.wgsl`).
@@ -88,7 +88,7 @@ pub struct GpuSample {
 }
 
 pub fn direct_surface_source() -> String {
-    [LIGHT, include_str!("shaders/direct_surface.wgsl")].concat()
+    [light::WGSL, include_str!("shaders/direct_surface.wgsl")].concat()
 }
 
 /// The depth of the tree (nodes on its longest root-to-leaf path), which bounds the traversal

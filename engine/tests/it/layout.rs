@@ -124,9 +124,44 @@ fn named(list: &[(&str, usize)]) -> Vec<(String, usize)> {
     list.iter().map(|(n, o)| (n.to_string(), *o)).collect()
 }
 
+/// The one guard of the one `GpuLight`: the direct-light kernels and bounce-render's shading
+/// all prepend `light::WGSL`, so its struct is the only WGSL `GpuLight` there is.
+#[test]
+fn gpu_light_matches_wgsl() {
+    use bounce_engine::gpu::light::{GpuLight, KIND_DIRECTIONAL, KIND_POINT, KIND_SPOT, WGSL};
+    use std::mem::{offset_of, size_of};
+
+    let (size, members) = wgsl_struct("light", WGSL, "GpuLight");
+    assert_eq!(
+        size,
+        size_of::<GpuLight>(),
+        "GpuLight size (the array stride)"
+    );
+    assert_eq!(
+        members,
+        named(&[
+            ("position", offset_of!(GpuLight, position)),
+            ("kind", offset_of!(GpuLight, kind)),
+            ("axis", offset_of!(GpuLight, axis)),
+            ("inv_range", offset_of!(GpuLight, inv_range)),
+            ("radiant", offset_of!(GpuLight, radiant)),
+            ("angle_scale", offset_of!(GpuLight, angle_scale)),
+            ("angle_offset", offset_of!(GpuLight, angle_offset)),
+            ("first_view", offset_of!(GpuLight, first_view)),
+            ("pad0", offset_of!(GpuLight, pad)),
+            ("pad1", offset_of!(GpuLight, pad) + 4),
+        ])
+    );
+
+    let module = parse("light", WGSL);
+    assert_eq!(constant(&module, "KIND_DIRECTIONAL"), KIND_DIRECTIONAL);
+    assert_eq!(constant(&module, "KIND_POINT"), KIND_POINT);
+    assert_eq!(constant(&module, "KIND_SPOT"), KIND_SPOT);
+}
+
 #[test]
 fn direct_structs_match_wgsl() {
-    use bounce_engine::gpu::{DIRECT_WG, DirectParams, GpuLight, GpuPatch};
+    use bounce_engine::gpu::{DIRECT_WG, DirectParams, GpuPatch};
     use std::mem::{offset_of, size_of};
     let source = sources::direct_source();
 
@@ -167,35 +202,13 @@ fn direct_structs_match_wgsl() {
         ])
     );
 
-    let (size, members) = wgsl_struct("direct", &source, "GpuLight");
-    assert_eq!(
-        size,
-        size_of::<GpuLight>(),
-        "GpuLight size (the array stride)"
-    );
-    assert_eq!(
-        members,
-        named(&[
-            ("position", offset_of!(GpuLight, position)),
-            ("kind", offset_of!(GpuLight, kind)),
-            ("axis", offset_of!(GpuLight, axis)),
-            ("inv_range", offset_of!(GpuLight, inv_range)),
-            ("radiant", offset_of!(GpuLight, radiant)),
-            ("angle_scale", offset_of!(GpuLight, angle_scale)),
-            ("angle_offset", offset_of!(GpuLight, angle_offset)),
-            ("pad0", offset_of!(GpuLight, pad)),
-            ("pad1", offset_of!(GpuLight, pad) + 4),
-            ("pad2", offset_of!(GpuLight, pad) + 8),
-        ])
-    );
-
     assert_eq!(constant(&parse("direct", &source), "WG"), DIRECT_WG);
 }
 
 #[test]
 fn direct_surface_structs_match_wgsl() {
     use bounce_core::trimesh::{MeshNode, MeshTri};
-    use bounce_engine::gpu::{GpuLight, GpuSample, SURFACE_STACK, SURFACE_WG, SurfaceParams};
+    use bounce_engine::gpu::{GpuSample, SURFACE_STACK, SURFACE_WG, SurfaceParams};
     use std::mem::{offset_of, size_of};
     let source = sources::direct_surface_source();
 
@@ -255,14 +268,6 @@ fn direct_surface_structs_match_wgsl() {
             ("normal", offset_of!(GpuSample, normal)),
             ("pad1", offset_of!(GpuSample, pad1)),
         ])
-    );
-
-    // The light is the shared prelude's, as `GpuDirect` uploads it.
-    let (size, members) = wgsl_struct("direct_surface", &source, "GpuLight");
-    assert_eq!(size, size_of::<GpuLight>(), "GpuLight size");
-    assert_eq!(
-        members,
-        wgsl_struct("direct", &sources::direct_source(), "GpuLight").1
     );
 
     let module = parse("direct_surface", &source);

@@ -1,20 +1,28 @@
-// What the direct-light kernels share (`direct.wgsl`, `direct_surface.wgsl`): the prepared light
-// and `bounce_core::direct::light_sample`, what one light delivers to one surface point before
-// visibility. Prepended to each kernel's own file.
+// The light model on the GPU, written once: prepended to the engine's direct-light kernels
+// (`direct.wgsl`, `direct_surface.wgsl`) and to bounce-render's `shade.wgsl`, so the kernels that
+// light patches and the renderer that lights pixels cannot drift apart. `light_sample` is the twin
+// of `bounce_core::direct::light_sample`. The Rust side is `bounce_engine::gpu::GpuLight`
+// (engine/src/gpu/light.rs); a naga test checks that the layouts agree.
+
+// `GpuLight::kind`, from `bounce_core::direct::LightKind`.
+const KIND_DIRECTIONAL: u32 = 0u;
+const KIND_POINT: u32 = 1u;
+const KIND_SPOT: u32 = 2u;
 
 // `bounce_core::direct::PreparedLight`.
 struct GpuLight {
     position: vec3<f32>,
-    // 0 directional, 1 point, 2 spot.
     kind: u32,
     axis: vec3<f32>,
     inv_range: f32,
     radiant: vec3<f32>,
     angle_scale: f32,
     angle_offset: f32,
+    // The renderer's first shadow view (an index into its `views`); the engine's kernels ignore
+    // it. A field of its own rather than padding, so both read the same layout.
+    first_view: u32,
     pad0: u32,
     pad1: u32,
-    pad2: u32,
 }
 
 // Stands for the CPU's infinity: WGSL has no infinite literal, and drivers may assume none occur.
@@ -42,7 +50,7 @@ fn light_sample(l: GpuLight, p: vec3<f32>, n: vec3<f32>) -> Sample {
     var s: Sample;
     s.lit = false;
     var scale = 1.0;
-    if l.kind == 0u {
+    if l.kind == KIND_DIRECTIONAL {
         s.dir = -l.axis;
         s.distance = BIG;
     } else {
@@ -55,7 +63,7 @@ fn light_sample(l: GpuLight, p: vec3<f32>, n: vec3<f32>) -> Sample {
         s.dir = to / d;
         s.distance = d;
         scale = range_window(d, l.inv_range) / d2;
-        if l.kind == 2u {
+        if l.kind == KIND_SPOT {
             scale *= spot_attenuation(dot(l.axis, -s.dir), l.angle_scale, l.angle_offset);
         }
     }
