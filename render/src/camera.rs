@@ -2,8 +2,8 @@
 
 use glam::{Mat4, Vec3};
 
+use crate::error::RenderError;
 use crate::math::{look_at_rh, perspective_rh};
-use crate::renderer::RenderError;
 
 /// A pinhole camera.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -17,6 +17,7 @@
 //! input and file formats (the CLI's viewer and `render` command).
 
 mod camera;
+mod error;
 mod gpu_types;
 mod lights;
 mod math;

@@ -9,10 +9,10 @@ use bounce_core::patch::PatchLayout;
 use bounce_core::scene::Scene;
 use bounce_engine::gpu::{GpuContext, light};
 use glam::Vec3;
-use thiserror::Error;
 use wgpu::util::DeviceExt;
 
 use crate::camera::Camera;
+pub use crate::error::{MAX_SIDE, RenderError};
 use crate::gpu_types::{FLAG_LINEAR, FLAG_NO_EMISSION, Globals, Vertex};
 use crate::stage::{Stage, VolumeGpu};
 
@@ -32,33 +32,6 @@ pub(crate) const SHADOW_SIZE: u32 = 1024;
 /// Most shadow-map layers one image may use (a directional or spot light takes one, a point
 /// light six): 4 MiB each.
 pub const MAX_SHADOW_VIEWS: usize = 64;
-/// Largest image side: wgpu's default `max_texture_dimension_2d`.
-pub const MAX_SIDE: u32 = 8192;
-
-#[derive(Debug, Error)]
-pub enum RenderError {
-    #[error("the scene has no triangles")]
-    EmptyScene,
-    #[error("image size {width}×{height} is not within 1..={MAX_SIDE} a side")]
-    Size { width: u32, height: u32 },
-    #[error(
-        "the lights need {views} shadow maps, more than the {max} one image may use (a point \
-         light takes 6, a spot or directional light 1)"
-    )]
-    TooManyShadows { views: usize, max: usize },
-    #[error("camera: {0}")]
-    Camera(String),
-    #[error("shader: {0}")]
-    Shader(String),
-    #[error("no pipeline for colour format {0:?}: create the renderer with it")]
-    Format(wgpu::TextureFormat),
-    #[error("albedo maps: {0}")]
-    Textures(String),
-    #[error("irradiance volume: {0}")]
-    Volume(String),
-    #[error("reading the image back: {0}")]
-    Readback(String),
-}
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RenderOptions {
