@@ -1,7 +1,9 @@
 //! `bounce`: the command line of the bounce lighting service.
 //!
-//! This binary owns argument parsing, terminal output and exit codes; the work itself lives in
-//! `bounce-core` and `bounce-engine`. Errors reach the user through `anyhow` with the library's message on top.
+//! This binary is glue: it owns argument parsing, terminal output and exit codes; the work itself
+//! lives in the libraries (`bounce-core` bakes, `bounce-engine` relights, `bounce-server` serves
+//! through `bounce_server::run`, `bounce-render` draws, `bounce-reference` measures). One module a
+//! command, and a folder where a command has parts: `bake/` and `bench/`. Errors reach the user through `anyhow` with the library's message on top.
 
 mod bake;
 mod bench;

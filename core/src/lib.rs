@@ -1,8 +1,10 @@
 //! bounce-core: the CPU side of bounce's precomputed radiosity.
 //!
 //! It owns scene import (glTF), voxel simplification into patches, form factors with visibility,
-//! the multi-bounce transport matrix, the baked file format and the bake pipeline that ties them
-//! together, and the CPU side of relighting: shadowed direct irradiance. It does not own any GPU
+//! the multi-bounce transport matrix, the baked file format ([`format`], which reads and writes
+//! files and shard files without knowing the pipeline) and the bake pipeline that ties them
+//! together, whole or sharded ([`bake`]), and the CPU side of relighting: shadowed direct
+//! irradiance. It does not own any GPU
 //! code, networking or command-line handling: those live in the crates that depend on this one.
 //! Lights and patch faces are `bounce-types`' (re-exported as [`light`], [`patch::Face`] and
 //! [`voxel::dominant_face`]), so a thin client can name them without building the bake.
