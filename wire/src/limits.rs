@@ -1,5 +1,7 @@
-//! How large a message may be, in each direction. Both ends read these, so a client can refuse
-//! before sending what the server would refuse after reading.
+//! How large a message may be, in each direction: the server refuses a request over
+//! [`MAX_REQUEST_BYTES`] and a client a message over [`MAX_MESSAGE_BYTES`]. A valid light set
+//! always fits a request (checked below when this compiles), so a client that validates its
+//! lights never has one refused for its size.
 
 /// Largest request the server accepts (a gRPC message, an HTTP body, a WebSocket message): 256
 /// lights take a few tens of kilobytes, so 1 MiB is generous and still refuses a client that
