@@ -10,7 +10,8 @@
 //! `x / (1 + x)` per channel, then sRGB encoding, or none of that for
 //! [`Renderer::render_linear`]'s float images of radiance itself. A [`Stage`] holds one scene on
 //! the GPU; [`Renderer::draw`] records it into any target (a window's surface texture or an
-//! offscreen image), so the window and `bounce render` run the same code.
+//! offscreen image), so the window and `bounce render` run the same code. A stage is built from
+//! the renderer's [`Resources`] (device, layouts, samplers), not from the code that draws it.
 //! [`Overlay`] draws the viewer's text on top.
 //!
 //! Not here: relighting (`bounce_engine`), the volume's contents (`bounce_client`), windows,
@@ -24,6 +25,7 @@ mod math;
 mod mesh;
 mod overlay;
 mod renderer;
+mod resources;
 mod stage;
 
 pub use camera::Camera;
@@ -31,7 +33,7 @@ pub use gpu_types::{FLAG_LINEAR, FLAG_NO_EMISSION, Globals, Vertex};
 pub use overlay::{OVERLAY_SHADER, Overlay, OverlayParams};
 pub use renderer::{
     IMAGE_FORMAT, Image, LINEAR_FORMAT, LinearImage, MAX_SHADOW_VIEWS, MAX_SIDE, RenderError,
-    RenderOptions, Renderer, Target, Terms, layout_from_baked, read_buffer, shade_source,
-    volume_from_baked,
+    RenderOptions, Renderer, Resources, Target, Terms, layout_from_baked, read_buffer,
+    shade_source, volume_from_baked,
 };
 pub use stage::Stage;

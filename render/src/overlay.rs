@@ -5,7 +5,9 @@
 use bytemuck::{Pod, Zeroable};
 use wgpu::util::DeviceExt;
 
-use crate::renderer::{RenderError, Target, bind_group, compiling};
+use crate::error::RenderError;
+use crate::renderer::{Target, compiling};
+use crate::resources::bind_group;
 
 /// The overlay's shader module.
 pub const OVERLAY_SHADER: &str = include_str!("overlay.wgsl");

@@ -14,6 +14,8 @@ use wgpu::util::DeviceExt;
 use crate::camera::Camera;
 pub use crate::error::{MAX_SIDE, RenderError};
 use crate::gpu_types::{FLAG_LINEAR, FLAG_NO_EMISSION, Globals, Vertex};
+use crate::resources::{DEPTH_FORMAT, bind_group};
+pub use crate::resources::{MAX_SHADOW_VIEWS, Resources};
 use crate::stage::{Stage, VolumeGpu};
 
 /// The shading module (see the crate doc): the engine's light model (`bounce_engine::gpu::light`),
@@ -27,11 +29,6 @@ pub const IMAGE_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8UnormSrg
 /// The format of offscreen images of linear radiance ([`Renderer::render_linear`]): drawn with
 /// neither exposure nor tonemap.
 pub const LINEAR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Float;
-pub(crate) const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
-pub(crate) const SHADOW_SIZE: u32 = 1024;
-/// Most shadow-map layers one image may use (a directional or spot light takes one, a point
-/// light six): 4 MiB each.
-pub const MAX_SHADOW_VIEWS: usize = 64;
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RenderOptions {
@@ -94,13 +91,19 @@ pub struct Target<'t> {
 
 /// Pipelines and samplers on one device.
 pub struct Renderer<'a> {
-    pub(crate) ctx: &'a GpuContext,
+    /// What stages are built with; the renderer derefs to it, so a stage takes `&renderer`.
+    resources: Resources<'a>,
     module: wgpu::ShaderModule,
-    pub(crate) main_layout: wgpu::BindGroupLayout,
     mains: Vec<(wgpu::TextureFormat, wgpu::RenderPipeline)>,
-    pub(crate) shadow: wgpu::RenderPipeline,
-    pub(crate) shadow_sampler: wgpu::Sampler,
-    pub(crate) albedo_sampler: wgpu::Sampler,
+    shadow: wgpu::RenderPipeline,
+}
+
+impl<'a> std::ops::Deref for Renderer<'a> {
+    type Target = Resources<'a>;
+
+    fn deref(&self) -> &Resources<'a> {
+        &self.resources
+    }
 }
 
 impl<'a> Renderer<'a> {
@@ -222,13 +225,16 @@ impl<'a> Renderer<'a> {
             ..Default::default()
         });
         Ok(Renderer {
-            ctx,
+            resources: Resources {
+                ctx,
+                main_layout,
+                shadow_layout: shadow.get_bind_group_layout(0),
+                shadow_sampler,
+                albedo_sampler,
+            },
             module,
-            main_layout,
             mains,
             shadow,
-            shadow_sampler,
-            albedo_sampler,
         })
     }
 
@@ -738,22 +744,6 @@ pub(crate) fn compiling() -> MutexGuard<'static, ()> {
     COMPILING
         .lock()
         .unwrap_or_else(|poisoned| poisoned.into_inner())
-}
-
-pub(crate) fn bind_group(
-    device: &wgpu::Device,
-    layout: &wgpu::BindGroupLayout,
-    entries: Vec<(u32, wgpu::BindingResource<'_>)>,
-) -> wgpu::BindGroup {
-    let entries: Vec<wgpu::BindGroupEntry> = entries
-        .into_iter()
-        .map(|(binding, resource)| wgpu::BindGroupEntry { binding, resource })
-        .collect();
-    device.create_bind_group(&wgpu::BindGroupDescriptor {
-        label: None,
-        layout,
-        entries: &entries,
-    })
 }
 
 fn depth_attachment(view: &wgpu::TextureView) -> wgpu::RenderPassDepthStencilAttachment<'_> {

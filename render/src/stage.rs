@@ -11,9 +11,10 @@ use bounce_engine::gpu::GpuLight;
 use glam::{Mat4, UVec3, Vec3};
 use wgpu::util::DeviceExt;
 
+use crate::error::RenderError;
 use crate::lights::prepare_lights;
 use crate::mesh::{AlbedoMaps, mesh};
-use crate::renderer::{DEPTH_FORMAT, MAX_SHADOW_VIEWS, RenderError, Renderer, SHADOW_SIZE};
+use crate::resources::{DEPTH_FORMAT, MAX_SHADOW_VIEWS, Resources, SHADOW_SIZE, bind_group};
 
 /// A scene's GPU resources: see the module doc.
 pub struct Stage {
@@ -53,7 +54,7 @@ pub(crate) struct VolumeGpu {
 impl Stage {
     /// Uploads `scene` with no lights and `volume`'s current contents.
     pub fn new(
-        renderer: &Renderer<'_>,
+        renderer: &Resources<'_>,
         scene: &Scene,
         volume: &Volume,
     ) -> Result<Stage, RenderError> {
@@ -97,7 +98,7 @@ impl Stage {
     /// Replaces the lights; their shadow maps are drawn with the next image.
     pub fn set_lights(
         &mut self,
-        renderer: &Renderer<'_>,
+        renderer: &Resources<'_>,
         lights: &LightSet,
     ) -> Result<(), RenderError> {
         let (gpu_lights, views) = prepare_lights(lights, self.bounds);
@@ -116,7 +117,7 @@ impl Stage {
     }
 
     /// Copies `volume`'s texels in; a volume of another grid replaces the textures.
-    pub fn set_volume(&mut self, renderer: &Renderer<'_>, volume: &Volume) {
+    pub fn set_volume(&mut self, renderer: &Resources<'_>, volume: &Volume) {
         let v = &self.volume;
         if v.dims == volume.dims()
             && v.origin == volume.origin()
@@ -129,7 +130,7 @@ impl Stage {
         }
     }
 
-    fn rebind(&mut self, renderer: &Renderer<'_>) {
+    fn rebind(&mut self, renderer: &Resources<'_>) {
         (self.main_group, self.shadow_group) = groups(
             renderer,
             &self.globals,
@@ -141,7 +142,7 @@ impl Stage {
 }
 
 impl LightsGpu {
-    fn new(renderer: &Renderer<'_>, lights: &[GpuLight], views: &[Mat4]) -> LightsGpu {
+    fn new(renderer: &Resources<'_>, lights: &[GpuLight], views: &[Mat4]) -> LightsGpu {
         let device = renderer.ctx.device();
         // wgpu binds no empty buffer: no lights still get one (unread) entry.
         let padded: Vec<GpuLight> = if lights.is_empty() {
@@ -202,7 +203,7 @@ impl LightsGpu {
 }
 
 impl VolumeGpu {
-    pub(crate) fn new(renderer: &Renderer<'_>, volume: &Volume) -> VolumeGpu {
+    pub(crate) fn new(renderer: &Resources<'_>, volume: &Volume) -> VolumeGpu {
         let device = renderer.ctx.device();
         let dims = volume.dims();
         let textures: Vec<wgpu::Texture> = Face::ALL
@@ -248,7 +249,7 @@ impl VolumeGpu {
         gpu
     }
 
-    fn write(&self, renderer: &Renderer<'_>, volume: &Volume) {
+    fn write(&self, renderer: &Resources<'_>, volume: &Volume) {
         for (texture, &face) in self.textures.iter().zip(Face::ALL.iter()) {
             renderer.ctx.queue().write_texture(
                 texture.as_image_copy(),
@@ -293,7 +294,7 @@ fn extent(dims: UVec3) -> wgpu::Extent3d {
 }
 
 fn upload_maps(
-    renderer: &Renderer<'_>,
+    renderer: &Resources<'_>,
     maps: &AlbedoMaps,
 ) -> Result<wgpu::TextureView, RenderError> {
     let device = renderer.ctx.device();
@@ -354,7 +355,7 @@ fn upload_maps(
 }
 
 fn groups(
-    renderer: &Renderer<'_>,
+    renderer: &Resources<'_>,
     globals: &wgpu::Buffer,
     albedo: &wgpu::TextureView,
     lights: &LightsGpu,
@@ -377,10 +378,10 @@ fn groups(
         14,
         wgpu::BindingResource::TextureView(&volume.separators_view),
     ));
-    let main = crate::renderer::bind_group(device, &renderer.main_layout, entries);
-    let shadow = crate::renderer::bind_group(
+    let main = bind_group(device, &renderer.main_layout, entries);
+    let shadow = bind_group(
         device,
-        &renderer.shadow.get_bind_group_layout(0),
+        &renderer.shadow_layout,
         vec![(2, lights.views.as_entire_binding())],
     );
     (main, shadow)
