@@ -29,7 +29,7 @@ mod resources;
 mod stage;
 
 pub use camera::Camera;
-pub use gpu_types::{FLAG_LINEAR, FLAG_NO_EMISSION, Globals, Vertex};
+pub use gpu_types::{FLAG_LINEAR, FLAG_NO_EMISSION, Globals, Vertex, WRAP_REPEAT_U, WRAP_REPEAT_V};
 pub use overlay::{OVERLAY_SHADER, Overlay, OverlayParams};
 pub use renderer::{
     IMAGE_FORMAT, Image, LINEAR_FORMAT, LinearImage, MAX_SHADOW_VIEWS, MAX_SIDE, RenderError,

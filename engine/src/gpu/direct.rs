@@ -17,7 +17,7 @@
 //!
 //! It is a twin, not a copy: f32 division and `sqrt` may round differently on a GPU and drivers
 //! may fuse multiply-adds, so values agree to a few ulps and a shadow ray that grazes a voxel edge
-//! may flip (`engine/tests/gpu_direct.rs` bounds both).
+//! may flip (`engine/tests/it/gpu_direct.rs` bounds both).
 
 use bounce_core::direct::{PreparedLight, samples_side};
 use bounce_core::light::LightSet;

@@ -1,5 +1,6 @@
 //! The Rust mirror of the shaders' shared declarations matches what naga reads from the WGSL:
-//! `Params`'s size and member offsets, and the work split constants.
+//! `Params`'s size and member offsets, the work split constants, and the one `GpuLight` the
+//! direct-light kernels and the renderer share (with its kind constants).
 
 use bounce_engine::gpu::{CHUNK, CHUNKS, Params, ROWS, sources};
 use naga::{Expression, Literal, Module, TypeInner};
