@@ -78,6 +78,19 @@ pub const MAX_LIGHTS: usize = 256;
 /// session and every reply carries it, so a client cannot grow them without bound.
 pub const MAX_NAME_BYTES: usize = 256;
 
+/// Refuses a configuration of more than [`MAX_LIGHTS`] lights. Every reader (the JSON form, the
+/// proto messages) calls it before converting a single light, so a huge list costs no more than
+/// its parse.
+pub fn check_count(count: usize) -> Result<(), LightError> {
+    if count > MAX_LIGHTS {
+        return Err(LightError::TooMany {
+            count,
+            max: MAX_LIGHTS,
+        });
+    }
+    Ok(())
+}
+
 /// Why a light configuration was refused. Messages name the offending field by its JSON path
 /// (`lights[2].intensity`), so a server can hand them to the client as they are.
 #[derive(Debug, Clone, PartialEq, Error)]
@@ -134,12 +147,7 @@ impl LightSet {
             return Err(LightError::invalid("lights", "must be an array"));
         };
         // Before deserialising any light, so a huge array costs no more work than its parse.
-        if items.len() > MAX_LIGHTS {
-            return Err(LightError::TooMany {
-                count: items.len(),
-                max: MAX_LIGHTS,
-            });
-        }
+        check_count(items.len())?;
         let lights = items
             .into_iter()
             .enumerate()

@@ -6,19 +6,13 @@
 //! the type's name, vector lengths, required and unused fields. Values are checked by
 //! [`LightSet::validate`], the one place that knows what a light engine accepts.
 
-use bounce_types::light::{Light, LightError, LightSet, MAX_LIGHTS};
+use bounce_types::light::{Light, LightError, LightSet, check_count};
 
 use crate::proto;
 
 /// Converts and validates a light configuration.
 pub fn light_set(lights: &[proto::Light]) -> Result<LightSet, LightError> {
-    // Before converting any light, so a huge list costs no more than its decode.
-    if lights.len() > MAX_LIGHTS {
-        return Err(LightError::TooMany {
-            count: lights.len(),
-            max: MAX_LIGHTS,
-        });
-    }
+    check_count(lights.len())?;
     let lights = lights
         .iter()
         .enumerate()
@@ -173,6 +167,7 @@ fn light_to_proto(l: &Light) -> proto::Light {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use bounce_types::light::MAX_LIGHTS;
 
     fn point() -> proto::Light {
         proto::Light {
