@@ -477,8 +477,10 @@ pub fn direct_irradiance(
 pub const SHADOW_END: f32 = 1.0 - 1e-5;
 
 /// One surface patch's mean over its sample points, each shadow ray traced against the
-/// triangles from the stored (already offset) point. Sums in sample order, then light order,
-/// as the GPU twin (`direct_surface.wgsl`) does.
+/// triangles from the stored (already offset) point: each sample's lights summed in light order,
+/// then the samples' sums in sample order, as the GPU twin (`direct_surface.wgsl`) does. The
+/// mean is the mean of [`sample_irradiance`]'s values, so the near-field correction
+/// ([`crate::nearfield`]) sees each element's samples sum to their mean.
 pub fn surface_irradiance(
     mesh: &TriMesh,
     samples: &[SamplePoint],
@@ -489,18 +491,98 @@ pub fn surface_irradiance(
     }
     let mut sum = Vec3::ZERO;
     for s in samples {
-        let (p, n) = (Vec3::from(s.position), Vec3::from(s.normal));
-        for light in lights {
-            if let Some(l) = light_sample(light, p, n)
-                && !mesh.occluded(p, l.dir, l.distance * SHADOW_END)
-            {
-                sum += l.irradiance;
-            }
+        sum += Vec3::from(point_irradiance(mesh, s, lights));
+    }
+    mean_of(sum, samples.len())
+}
+
+/// Direct irradiance at each of `samples` (the values [`surface_irradiance`] averages).
+pub fn sample_irradiance(
+    mesh: &TriMesh,
+    samples: &[SamplePoint],
+    lights: &[PreparedLight],
+) -> Vec<[f32; 3]> {
+    samples
+        .iter()
+        .map(|s| point_irradiance(mesh, s, lights))
+        .collect()
+}
+
+/// The mean of per-sample irradiance summed in sample order, kept finite for the encoders.
+fn mean_of(sum: Vec3, count: usize) -> [f32; 3] {
+    (sum / count as f32).min(Vec3::splat(f32::MAX)).to_array()
+}
+
+/// One sample point's irradiance: its lights summed in light order, kept finite.
+fn point_irradiance(mesh: &TriMesh, s: &SamplePoint, lights: &[PreparedLight]) -> [f32; 3] {
+    let (p, n) = (Vec3::from(s.position), Vec3::from(s.normal));
+    let mut e = Vec3::ZERO;
+    for light in lights {
+        if let Some(l) = light_sample(light, p, n)
+            && !mesh.occluded(p, l.dir, l.distance * SHADOW_END)
+        {
+            e += l.irradiance;
         }
     }
-    (sum / samples.len() as f32)
-        .min(Vec3::splat(f32::MAX))
-        .to_array()
+    e.min(Vec3::splat(f32::MAX)).to_array()
+}
+
+/// Direct light of a surface scene on every transport row of `layout` and at every one of its
+/// first `samples` sample points (clamped to what the file stores), for the near-field
+/// correction: per row the mean (as [`direct_irradiance`] gives it) and per row its samples'
+/// values (`count` a row). `None` for a voxel-face scene, which has no sample points.
+pub fn direct_with_samples(
+    scene: &ShadowScene,
+    layout: &PatchLayout,
+    lights: &LightSet,
+    samples: u32,
+) -> Option<SampledDirect> {
+    let Shadows::Surface { mesh, surface } = &scene.inner else {
+        return None;
+    };
+    assert_eq!(
+        surface.points.len() / surface.per_patch.max(1) as usize,
+        layout.len(),
+        "shadow scene and layout disagree on the row count"
+    );
+    let prepared: Vec<PreparedLight> = lights
+        .lights
+        .iter()
+        .filter_map(PreparedLight::new)
+        .collect();
+    let count = samples.clamp(1, surface.per_patch) as usize;
+    let rows: Vec<([f32; 3], Vec<[f32; 3]>)> = (0..layout.len())
+        .into_par_iter()
+        .map(|i| {
+            if prepared.is_empty() {
+                return ([0.0; 3], vec![[0.0; 3]; count]);
+            }
+            let values = sample_irradiance(mesh, &surface.samples(i)[..count], &prepared);
+            let sum = values.iter().fold(Vec3::ZERO, |a, &v| a + Vec3::from(v));
+            (mean_of(sum, count), values)
+        })
+        .collect();
+    let mut out = SampledDirect {
+        count: count as u32,
+        mean: Vec::with_capacity(rows.len()),
+        samples: Vec::with_capacity(rows.len() * count),
+    };
+    for (mean, values) in rows {
+        out.mean.push(mean);
+        out.samples.extend(values);
+    }
+    Some(out)
+}
+
+/// Direct light per transport row and at each of its sample points ([`direct_with_samples`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct SampledDirect {
+    /// Sample points used a row.
+    pub count: u32,
+    /// Per row, the mean of its samples: `E_direct`.
+    pub mean: Vec<[f32; 3]>,
+    /// Per row, `count` values in sample order.
+    pub samples: Vec<[f32; 3]>,
 }
 
 /// One patch's mean over its samples.

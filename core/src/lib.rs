@@ -24,6 +24,7 @@ pub mod import;
 pub use bounce_types::light;
 pub mod matrix;
 pub mod meta;
+pub mod nearfield;
 pub mod openness;
 pub mod patch;
 pub mod pointwise;

@@ -245,6 +245,34 @@ impl SurfaceScene {
         })
     }
 
+    /// Transport rows this scene traces from.
+    pub fn row_count(&self) -> usize {
+        self.pieces.patch_count()
+    }
+
+    /// Where form-factor ray `k` of `row` (the ray [`RowTracer::trace_row`] traces with this
+    /// seed) lands, if it lands within `radius` of its origin on surface that a row owns: the
+    /// hit point and that row. Only the first `radius` of the ray is traced.
+    pub(crate) fn near_landing(
+        &self,
+        row: usize,
+        k: u32,
+        seed: u64,
+        radius: f32,
+    ) -> Option<(Vec3, usize)> {
+        if self.pieces.of(row).is_empty() {
+            return None;
+        }
+        let (origin, dir) = self.ray(row, k, 0, row_seed(seed, row));
+        let hit = self.mesh.closest(origin, dir, radius)?;
+        if !self.sides[hit.triangle as usize][usize::from(!hit.front)] {
+            return None;
+        }
+        let point = origin + dir * hit.t;
+        let j = self.owners.row_at(point, hit.triangle, !hit.front)?;
+        Some((point, j as usize))
+    }
+
     /// Ray `k` of row `row` in Sobol dimension set `set`: its origin (off the surface) and
     /// direction.
     #[inline]

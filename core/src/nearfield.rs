@@ -1,0 +1,345 @@
+//! The near-field first bounce: light gathered from a source element where it is, not as the
+//! element's mean (docs/design.md §4).
+//!
+//! The transport treats a source element's exitance `B0` as uniform over it. Under a point light
+//! near the walls, or across a sharp sun shadow, it is not, and what a receiver gathers from its
+//! close neighbours depends on which part of them it faces. Far away the difference averages out
+//! over many rays; near, it does not (`bounce verify`'s first-bounce split measured almost all of
+//! it within half a voxel). So the bake records, per transport row `i`, where its form-factor rays
+//! that land within `radius` of their origin land: on which direct-light sample point of the
+//! element they met (the nearest one to the hit). That is a sparse matrix `C` (rows: transport
+//! rows; columns: sample points, `j · per_row + k` for sample `k` of row `j`; value: the share of
+//! row `i`'s rays), and a relight adds
+//!
+//! ```text
+//! ΔE_i = Σ_q C_iq · ρ_j(q) ⊙ (E_q − Ē_j(q))
+//! ```
+//!
+//! to `E_ind = T · B0`, where `E_q` is the direct irradiance the relight already evaluates at
+//! sample `q` and `Ē_j` the mean it takes of them. The correction is zero-sum over each source
+//! element's samples in expectation and exactly zero when direct light is uniform over every
+//! element; it is first order (the later bounces keep the element means).
+//!
+//! [`NearField::correction`] is the CPU twin of the GPU engine's `near_field.wgsl`.
+
+use std::ops::Range;
+
+use glam::Vec3;
+use rayon::prelude::*;
+
+use crate::formfactor::{FormFactorError, MAX_RAYS};
+use crate::surface::{SurfaceData, SurfaceScene};
+
+/// How far from its origin a form-factor ray may land and still count as near, in voxels,
+/// unless a bake asks otherwise.
+pub const DEFAULT_NEAR_RADIUS: f32 = 0.5;
+/// The largest radius a bake accepts, in voxels: beyond it the matrix grows towards `F`'s size
+/// and the correction stops being near.
+pub const MAX_NEAR_RADIUS: f32 = 4.0;
+
+/// The sparse near-field matrix `C` in CSR form.
+#[derive(Debug, Clone, PartialEq)]
+pub struct NearField {
+    /// Sample points per transport row the columns count in (column `j · per_row + k`).
+    pub per_row: u32,
+    /// `rows + 1` offsets into `cols` and `values`, from 0, non-decreasing.
+    pub row_ptr: Vec<u32>,
+    /// Per entry, the sample point: strictly ascending within a row.
+    pub cols: Vec<u32>,
+    /// Per entry, the share of the row's rays that landed nearest that sample point.
+    pub values: Vec<f32>,
+}
+
+impl NearField {
+    /// An empty matrix over no rows.
+    pub fn empty(per_row: u32) -> NearField {
+        NearField {
+            per_row,
+            row_ptr: vec![0],
+            cols: Vec::new(),
+            values: Vec::new(),
+        }
+    }
+
+    pub fn rows(&self) -> usize {
+        self.row_ptr.len().saturating_sub(1)
+    }
+
+    pub fn nnz(&self) -> usize {
+        self.cols.len()
+    }
+
+    /// Row `i`'s columns and values.
+    pub fn row(&self, i: usize) -> (&[u32], &[f32]) {
+        let r = self.row_ptr[i] as usize..self.row_ptr[i + 1] as usize;
+        (&self.cols[r.clone()], &self.values[r])
+    }
+
+    /// Why this matrix does not fit `rows` transport rows with `per_row` stored sample points
+    /// each, if it does not: offsets in order and in range, columns ascending within a row and
+    /// inside the samples, values finite and positive, each row's sum at most 1 (its rays).
+    pub fn check(&self, rows: usize, per_row: u32) -> Result<(), String> {
+        if self.per_row != per_row {
+            return Err(format!(
+                "{} samples per row, but the file stores {per_row}",
+                self.per_row
+            ));
+        }
+        if self.rows() != rows {
+            return Err(format!(
+                "{} rows, but the transport has {rows}",
+                self.rows()
+            ));
+        }
+        if self.row_ptr.first() != Some(&0) {
+            return Err("row offsets do not start at 0".into());
+        }
+        if self.cols.len() != self.values.len()
+            || self.row_ptr.last().copied() != Some(self.cols.len() as u32)
+        {
+            return Err(format!(
+                "the row offsets end at {:?}, with {} columns and {} values",
+                self.row_ptr.last(),
+                self.cols.len(),
+                self.values.len()
+            ));
+        }
+        if let Some(i) = self.row_ptr.windows(2).position(|w| w[0] > w[1]) {
+            return Err(format!("row {i}'s offsets decrease"));
+        }
+        let samples = rows as u64 * u64::from(per_row);
+        for i in 0..rows {
+            let (cols, values) = self.row(i);
+            if let Some(w) = cols.windows(2).find(|w| w[0] >= w[1]) {
+                return Err(format!(
+                    "row {i}'s columns are not strictly ascending ({} then {})",
+                    w[0], w[1]
+                ));
+            }
+            if let Some(&c) = cols.iter().find(|&&c| u64::from(c) >= samples) {
+                return Err(format!(
+                    "row {i} names sample {c}, past the {samples} stored"
+                ));
+            }
+            if let Some(v) = values.iter().find(|v| !(v.is_finite() && **v > 0.0)) {
+                return Err(format!("row {i} holds {v}, not a positive share"));
+            }
+            // Shares of one row's rays: a little over 1 is f32 rounding of many terms.
+            let sum: f64 = values.iter().map(|&v| f64::from(v)).sum();
+            if sum > 1.0 + 1e-4 {
+                return Err(format!("row {i}'s shares sum to {sum}, over 1"));
+            }
+        }
+        Ok(())
+    }
+
+    /// The rows of `parts` one after the other (shards of one bake, in row order).
+    pub fn concat(per_row: u32, parts: impl IntoIterator<Item = NearField>) -> NearField {
+        let mut out = NearField::empty(per_row);
+        for p in parts {
+            let base = out.cols.len() as u32;
+            out.row_ptr
+                .extend(p.row_ptr.iter().skip(1).map(|&o| base + o));
+            out.cols.extend(p.cols);
+            out.values.extend(p.values);
+        }
+        out
+    }
+
+    /// `ΔE` of one light set, per row, from the direct irradiance at every sample point
+    /// (`per_sample[j · per_row + k]`), each row's mean of its samples (`mean[j]`, as the relight
+    /// computes it) and the rows' albedo. Summed per row in entry order, in f32: the GPU twin
+    /// sums in the same order.
+    ///
+    /// # Panics
+    /// If the slices do not have one entry per row (`albedo`, `mean`) and per sample
+    /// (`per_sample`): a caller's bug.
+    pub fn correction(
+        &self,
+        albedo: &[[f32; 3]],
+        mean: &[[f32; 3]],
+        per_sample: &[[f32; 3]],
+    ) -> Vec<[f32; 3]> {
+        let (n, k) = (self.rows(), self.per_row as usize);
+        assert_eq!(albedo.len(), n, "one albedo per row");
+        assert_eq!(mean.len(), n, "one mean per row");
+        assert_eq!(per_sample.len(), n * k, "one value per sample point");
+        (0..n)
+            .into_par_iter()
+            .map(|i| {
+                let (cols, values) = self.row(i);
+                let mut sum = Vec3::ZERO;
+                for (&q, &c) in cols.iter().zip(values) {
+                    let j = q as usize / k;
+                    let d = Vec3::from(albedo[j])
+                        * (Vec3::from(per_sample[q as usize]) - Vec3::from(mean[j]));
+                    sum += c * d;
+                }
+                sum.to_array()
+            })
+            .collect()
+    }
+}
+
+/// Rows `rows` of the near-field matrix of `tracer`'s transport rows: form-factor rays (the
+/// bake's, by `rays` and `seed`) that land within `radius` (scene units) of their origin, each
+/// credited to the sample point of `surface` (its `per_patch` a row) nearest to where it landed.
+pub fn near_field_rows(
+    tracer: &SurfaceScene,
+    surface: &SurfaceData,
+    rows: Range<usize>,
+    rays: u32,
+    seed: u64,
+    radius: f32,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<NearField, FormFactorError> {
+    let n = tracer.row_count();
+    if rays == 0 {
+        return Err(FormFactorError::NoRays);
+    }
+    if rays > MAX_RAYS {
+        return Err(FormFactorError::TooManyRays(rays));
+    }
+    if rows.start > rows.end || rows.end > n {
+        return Err(FormFactorError::RowRange {
+            start: rows.start,
+            end: rows.end,
+            n,
+        });
+    }
+    let (samples, per_row) = (&surface.points, surface.per_patch);
+    let k = per_row as usize;
+    assert!(
+        k > 0 && samples.len() >= n * k,
+        "sample points for every row"
+    );
+    let inv = 1.0 / rays as f32;
+    let per: Vec<Vec<(u32, f32)>> = rows
+        .into_par_iter()
+        .map_init(Vec::new, |hits: &mut Vec<u32>, i| {
+            hits.clear();
+            for r in 0..rays {
+                let Some((point, j)) = tracer.near_landing(i, r, seed, radius) else {
+                    continue;
+                };
+                let own = &samples[j * k..(j + 1) * k];
+                let nearest = own
+                    .iter()
+                    .enumerate()
+                    .map(|(s, p)| (s, Vec3::from(p.position).distance_squared(point)))
+                    .fold(
+                        (0, f32::INFINITY),
+                        |best, c| if c.1 < best.1 { c } else { best },
+                    )
+                    .0;
+                hits.push((j * k + nearest) as u32);
+            }
+            hits.sort_unstable();
+            let mut row: Vec<(u32, f32)> = Vec::new();
+            for &q in hits.iter() {
+                match row.last_mut() {
+                    Some((c, v)) if *c == q => *v += 1.0,
+                    _ => row.push((q, 1.0)),
+                }
+            }
+            for e in &mut row {
+                e.1 *= inv;
+            }
+            progress(1);
+            row
+        })
+        .collect();
+    let mut out = NearField::empty(per_row);
+    for row in per {
+        for (c, v) in row {
+            out.cols.push(c);
+            out.values.push(v);
+        }
+        out.row_ptr.push(out.cols.len() as u32);
+    }
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn field() -> NearField {
+        // Two rows, two samples a row: row 0 sees samples 2 and 3 (row 1's), row 1 sample 0.
+        NearField {
+            per_row: 2,
+            row_ptr: vec![0, 2, 3],
+            cols: vec![2, 3, 0],
+            values: vec![0.25, 0.125, 0.5],
+        }
+    }
+
+    #[test]
+    fn a_uniform_source_changes_nothing() {
+        let f = field();
+        let albedo = [[0.5; 3], [0.8; 3]];
+        let per_sample = [[2.0; 3], [2.0; 3], [7.0; 3], [7.0; 3]];
+        let mean = [[2.0; 3], [7.0; 3]];
+        assert_eq!(f.correction(&albedo, &mean, &per_sample), vec![[0.0; 3]; 2]);
+    }
+
+    #[test]
+    fn the_correction_follows_the_samples_each_row_met() {
+        let f = field();
+        let albedo = [[0.5, 0.5, 0.5], [0.8, 0.4, 0.2]];
+        // Row 1's samples: 10 and 2, mean 6; row 0's: 4 and 0, mean 2.
+        let per_sample = [[4.0; 3], [0.0; 3], [10.0; 3], [2.0; 3]];
+        let mean = [[2.0; 3], [6.0; 3]];
+        let d = f.correction(&albedo, &mean, &per_sample);
+        // Row 0: 0.25 · ρ1 · (10 − 6) + 0.125 · ρ1 · (2 − 6) = ρ1 · 0.5.
+        let want0 = [0.4, 0.2, 0.1];
+        // Row 1: 0.5 · ρ0 · (4 − 2) = 0.5.
+        for c in 0..3 {
+            assert!((d[0][c] - want0[c]).abs() < 1e-6, "{d:?}");
+            assert!((d[1][c] - 0.5).abs() < 1e-6, "{d:?}");
+        }
+    }
+
+    #[test]
+    fn check_refuses_what_a_reader_must_not_trust() {
+        let f = field();
+        assert_eq!(f.check(2, 2), Ok(()));
+        assert!(f.check(3, 2).is_err());
+        assert!(f.check(2, 4).is_err());
+        let mut bad = f.clone();
+        bad.cols[1] = 2;
+        assert!(bad.check(2, 2).unwrap_err().contains("ascending"));
+        let mut bad = f.clone();
+        bad.cols[2] = 4;
+        assert!(bad.check(2, 2).unwrap_err().contains("past"));
+        let mut bad = f.clone();
+        bad.values[0] = f32::NAN;
+        assert!(bad.check(2, 2).is_err());
+        let mut bad = f.clone();
+        bad.values[0] = 0.9;
+        assert!(bad.check(2, 2).unwrap_err().contains("over 1"));
+        let mut bad = f;
+        bad.row_ptr[1] = 4;
+        assert!(bad.check(2, 2).is_err());
+    }
+
+    #[test]
+    fn concat_keeps_the_rows_in_order() {
+        let f = field();
+        let parts = [
+            NearField {
+                per_row: 2,
+                row_ptr: vec![0, 2],
+                cols: vec![2, 3],
+                values: vec![0.25, 0.125],
+            },
+            NearField {
+                per_row: 2,
+                row_ptr: vec![0, 1],
+                cols: vec![0],
+                values: vec![0.5],
+            },
+        ];
+        assert_eq!(NearField::concat(2, parts), f);
+    }
+}
