@@ -14,7 +14,7 @@ use bounce_core::light::LightSet;
 use bounce_core::matrix::DENSE_F32;
 use bounce_core::pointwise;
 use bounce_engine::{Engine, EngineChoice};
-use bounce_reference::compare::{Meta, Report, compare};
+use bounce_reference::compare::{Meta, Report, Variants, compare};
 use bounce_reference::{Options, Reference};
 use clap::Args;
 
@@ -72,15 +72,25 @@ pub fn run(args: &VerifyArgs) -> Result<()> {
     let (exact, exact_from) = exact_transport(&baked, &scene, &args.scene, args.quiet)?;
 
     let engine = Engine::new(args.engine.parse::<EngineChoice>()?)?;
-    let relight = |b: &Baked| -> Result<Vec<[f32; 3]>> {
-        let loaded = engine.load(b)?;
-        let mut lit = engine.relight(&loaded, std::slice::from_ref(&lights))?;
+    let relight = |scene: &bounce_engine::Scene| -> Result<Vec<[f32; 3]>> {
+        let mut lit = engine.relight(scene, std::slice::from_ref(&lights))?;
         Ok(lit.remove(0).indirect)
     };
-    let compressed = relight(&baked)?;
-    let exact_e = match &exact {
-        Some(exact) => relight(exact)?,
-        None => compressed.clone(),
+    let mut exact_scene = engine.load(exact.as_ref().unwrap_or(&baked))?;
+    let exact_e = relight(&exact_scene)?;
+    let compressed = match &exact {
+        Some(_) => relight(&engine.load(&baked)?)?,
+        None => exact_e.clone(),
+    };
+    if let Err(why) = engine.near_field(&exact_scene) {
+        eprintln!("verify: the file's near field is not applied: {why}");
+    }
+    // The near field's gain, and the base the pointwise split starts from.
+    let without_near = if engine.near_field(&exact_scene) == Ok(true) {
+        exact_scene.disable_near_field();
+        Some(relight(&exact_scene)?)
+    } else {
+        None
     };
 
     let reference = Reference::new(&scene)?;
@@ -164,13 +174,24 @@ pub fn run(args: &VerifyArgs) -> Result<()> {
         }
     };
 
-    let pointwise = pointwise_source(&baked, &scene, &engine, &lights, &exact_e, args.quiet)?;
+    let pointwise = pointwise_source(
+        &baked,
+        &scene,
+        &engine,
+        &exact_scene,
+        &lights,
+        without_near.as_deref().unwrap_or(&exact_e),
+        args.quiet,
+    )?;
     let report = compare(
         &compressed,
         &exact_e,
         &surface_lit,
         &reference_e,
-        pointwise.as_deref(),
+        Variants {
+            pointwise_source: pointwise.as_deref(),
+            without_near_field: without_near.as_deref(),
+        },
         traced.rel_stderr(),
         Meta {
             geometry: baked.meta.settings.geometry.to_string(),
@@ -214,14 +235,16 @@ pub fn run(args: &VerifyArgs) -> Result<()> {
     Ok(())
 }
 
-/// A surface bake's exact `E_ind` with its first bounce gathered with `B0` where each
-/// form-factor ray lands (`bounce_core::pointwise`), restricted to the patches as a relight is:
-/// `E_ind + restrict(pointwise − F · B0)`. The rays are the bake's (its seed and count, its
-/// elements found again from its recorded settings). `None` for voxel faces.
+/// A surface bake's exact `E_ind` (without the near field, `exact_e`) with its first bounce
+/// gathered with `B0` where each form-factor ray lands (`bounce_core::pointwise`), restricted to
+/// the patches as a relight is: `E_ind + restrict(pointwise − F · B0)`. The rays are the bake's
+/// (its seed and count, its elements found again from its recorded settings). `None` for voxel
+/// faces.
 fn pointwise_source(
     baked: &Baked,
     scene: &bounce_core::scene::Scene,
     engine: &Engine,
+    loaded: &bounce_engine::Scene,
     lights: &LightSet,
     exact_e: &[[f32; 3]],
     quiet: bool,
@@ -248,9 +271,8 @@ fn pointwise_source(
         );
         return Ok(None);
     }
-    let loaded = engine.load(baked)?;
     let direct = engine
-        .direct_on_rows(&loaded, std::slice::from_ref(lights))?
+        .direct_on_rows(loaded, std::slice::from_ref(lights))?
         .remove(0);
     let b0 = exitance_b0(rows, &direct);
     let first = pointwise::first_bounce(scene, rows, pieces, lights, &b0, s.rays_per_patch, s.seed);
@@ -341,6 +363,12 @@ fn print_table(r: &Report) {
         "| method: exact T vs reference | {} |",
         pct(r.method_rel_l2)
     );
+    if let Some(plain) = r.method_without_near_field_rel_l2 {
+        println!(
+            "| · the same without the near-field first bounce | {} |",
+            pct(plain)
+        );
+    }
     match (r.source_rel_l2, r.method_pointwise_source_rel_l2) {
         (Some(source), Some(rest)) => {
             println!(

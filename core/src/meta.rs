@@ -100,6 +100,10 @@ pub struct BakeSettings {
     /// albedos differed, which is 0.
     #[serde(default)]
     pub max_grey_error: f64,
+    /// The near-field radius in voxels ([`crate::nearfield`]); 0 in files without a near field,
+    /// and in files from before it.
+    #[serde(default)]
+    pub near_radius: f32,
 }
 
 fn default_patch_order() -> crate::voxel::PatchOrder {

@@ -75,10 +75,11 @@ impl NearField {
         (&self.cols[r.clone()], &self.values[r])
     }
 
-    /// Why this matrix does not fit `rows` transport rows with `per_row` stored sample points
-    /// each, if it does not: offsets in order and in range, columns ascending within a row and
-    /// inside the samples, values finite and positive, each row's sum at most 1 (its rays).
-    pub fn check(&self, rows: usize, per_row: u32) -> Result<(), String> {
+    /// Why this matrix does not fit `rows` rows of a transport of `total_rows` rows with
+    /// `per_row` stored sample points each, if it does not: offsets in order and in range,
+    /// columns ascending within a row and inside the samples, values finite and positive, each
+    /// row's sum at most 1 (its rays). A shard holds some rows; a baked file all of them.
+    pub fn check(&self, rows: usize, total_rows: usize, per_row: u32) -> Result<(), String> {
         if self.per_row != per_row {
             return Err(format!(
                 "{} samples per row, but the file stores {per_row}",
@@ -107,7 +108,7 @@ impl NearField {
         if let Some(i) = self.row_ptr.windows(2).position(|w| w[0] > w[1]) {
             return Err(format!("row {i}'s offsets decrease"));
         }
-        let samples = rows as u64 * u64::from(per_row);
+        let samples = total_rows as u64 * u64::from(per_row);
         for i in 0..rows {
             let (cols, values) = self.row(i);
             if let Some(w) = cols.windows(2).find(|w| w[0] >= w[1]) {
@@ -303,24 +304,34 @@ mod tests {
     #[test]
     fn check_refuses_what_a_reader_must_not_trust() {
         let f = field();
-        assert_eq!(f.check(2, 2), Ok(()));
-        assert!(f.check(3, 2).is_err());
-        assert!(f.check(2, 4).is_err());
+        assert_eq!(f.check(2, 2, 2), Ok(()));
+        assert!(f.check(3, 3, 2).is_err());
+        assert!(f.check(2, 2, 4).is_err());
+        // One row of a shard, columns over the whole transport.
+        let (first, _) = f.row(0);
+        let shard = NearField {
+            per_row: 2,
+            row_ptr: vec![0, 2],
+            cols: first.to_vec(),
+            values: vec![0.25, 0.125],
+        };
+        assert_eq!(shard.check(1, 2, 2), Ok(()));
+        assert!(shard.check(1, 1, 2).unwrap_err().contains("past"));
         let mut bad = f.clone();
         bad.cols[1] = 2;
-        assert!(bad.check(2, 2).unwrap_err().contains("ascending"));
+        assert!(bad.check(2, 2, 2).unwrap_err().contains("ascending"));
         let mut bad = f.clone();
         bad.cols[2] = 4;
-        assert!(bad.check(2, 2).unwrap_err().contains("past"));
+        assert!(bad.check(2, 2, 2).unwrap_err().contains("past"));
         let mut bad = f.clone();
         bad.values[0] = f32::NAN;
-        assert!(bad.check(2, 2).is_err());
+        assert!(bad.check(2, 2, 2).is_err());
         let mut bad = f.clone();
         bad.values[0] = 0.9;
-        assert!(bad.check(2, 2).unwrap_err().contains("over 1"));
+        assert!(bad.check(2, 2, 2).unwrap_err().contains("over 1"));
         let mut bad = f;
         bad.row_ptr[1] = 4;
-        assert!(bad.check(2, 2).is_err());
+        assert!(bad.check(2, 2, 2).is_err());
     }
 
     #[test]

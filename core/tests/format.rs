@@ -104,6 +104,7 @@ fn sample_meta() -> BakeMeta {
             geometry: bounce_core::voxel::Geometry::VoxelFaces,
             direct_samples: 0,
             max_grey_error: 0.02,
+            near_radius: 0.0,
         },
         stats: BakeStats {
             patches: 5,
@@ -192,6 +193,7 @@ fn sample(channels: usize, with_form_factors: bool) -> Baked {
         occupancy: Some(SAMPLE_OCCUPANCY.to_vec()),
         surface: None,
         elements: None,
+        near_field: None,
         model: None,
     }
 }
@@ -657,7 +659,7 @@ fn future_version() {
     );
     assert_eq!(
         err.to_string(),
-        "unsupported format version 7 (this build reads versions 1 to 3); bake the scene again \
+        "unsupported format version 7 (this build reads versions 1 to 4); bake the scene again \
          with this bounce"
     );
 }
@@ -787,6 +789,48 @@ fn surface_geometry_round_trips_and_is_checked() {
     assert!(matches!(tilted.to_bytes(), Err(FormatError::Surface(_))));
     // Every truncation of the file is refused without a panic.
     for cut in (0..bytes.len()).step_by(97) {
+        assert!(Baked::from_bytes(&bytes[..cut]).is_err());
+    }
+}
+
+#[test]
+fn a_near_field_round_trips_and_is_checked() {
+    let mut b = element_sample();
+    b.meta.settings.near_radius = 0.5;
+    // Seven rows of two samples: row 0 met samples of rows 2 and 6, row 4 one of row 0's.
+    let mut row_ptr = vec![0u32, 2, 2, 2, 2, 3, 3, 3];
+    let near = bounce_core::nearfield::NearField {
+        per_row: 2,
+        row_ptr: row_ptr.clone(),
+        cols: vec![4, 13, 1],
+        values: vec![0.25, 0.125, 0.5],
+    };
+    b.near_field = Some(near.clone());
+    let bytes = b.to_bytes().expect("a near-field sample encodes");
+    assert_eq!(Baked::from_bytes(&bytes).unwrap(), b);
+    // A version-3 file cannot hold a near field.
+    let mut old = bytes.clone();
+    put_u32(&mut old, 8, 3);
+    reseal(&mut old);
+    assert!(matches!(refuse(&old), FormatError::NearField(_)));
+    // A near field sized for other rows, naming a sample past the stored ones, or in a file
+    // without sample points is refused by the writer, as the reader would.
+    let refuse = |edit: &dyn Fn(&mut Baked)| {
+        let mut bad = b.clone();
+        edit(&mut bad);
+        assert!(bad.to_bytes().is_err());
+    };
+    row_ptr.push(3);
+    refuse(&|b| b.near_field.as_mut().unwrap().row_ptr = row_ptr.clone());
+    refuse(&|b| b.near_field.as_mut().unwrap().cols[1] = 14);
+    refuse(&|b| b.near_field.as_mut().unwrap().per_row = 1);
+    refuse(&|b| {
+        b.meta.settings.geometry = bounce_core::voxel::Geometry::VoxelFaces;
+        b.surface = None;
+        b.elements = None;
+    });
+    // Every truncation is refused without a panic.
+    for cut in (0..bytes.len()).step_by(61) {
         assert!(Baked::from_bytes(&bytes[..cut]).is_err());
     }
 }
@@ -1531,6 +1575,7 @@ fn arb_baked() -> impl Strategy<Value = Baked> {
                 occupancy,
                 surface: None,
                 elements: None,
+                near_field: None,
                 model: None,
             })
     })

@@ -21,11 +21,12 @@ use std::time::Instant;
 
 use bounce_core::codec::{self, MatrixOp};
 use bounce_core::direct::{
-    DEFAULT_SAMPLES, ShadowScene, ShadowSource, direct_irradiance, exitance_b0,
+    DEFAULT_SAMPLES, ShadowScene, ShadowSource, direct_irradiance, direct_with_samples, exitance_b0,
 };
 use bounce_core::element::Elements;
 use bounce_core::format::Baked;
 use bounce_core::light::LightSet;
+use bounce_core::nearfield::NearField;
 use bounce_core::patch::PatchLayout;
 
 use crate::EngineError;
@@ -201,9 +202,19 @@ impl Engine {
             },
             None => (Transport::Cpu(codec::decode(&baked.transport)?), None),
         };
+        let near = baked.near_field.clone().map(|field| NearRows {
+            albedo: baked
+                .transport_layout()
+                .patches
+                .iter()
+                .map(|p| p.albedo)
+                .collect(),
+            field,
+        });
         Ok(Scene {
             layout: baked.layout.clone(),
             rows: baked.transport_layout().clone(),
+            near,
             elements: baked.elements.clone(),
             direct,
             shadow_source,
@@ -235,7 +246,7 @@ impl Engine {
         }
         let n = scene.rows.len();
         let start = Instant::now();
-        let direct = self.direct_on_rows(scene, lights)?;
+        let (direct, near) = self.direct_and_near(scene, lights)?;
         let b0: Vec<[f32; 3]> = direct
             .iter()
             .flat_map(|e| exitance_b0(&scene.rows, e))
@@ -245,6 +256,11 @@ impl Engine {
         let mut indirect = vec![[0.0f32; 3]; b0.len()];
         if !b0.is_empty() {
             scene.transport.apply(&b0, &mut indirect)?;
+            for (v, d) in indirect.iter_mut().zip(near.iter().flatten().flatten()) {
+                // The near rays' element-mean share is part of `T · B0`, so the exact sum stays
+                // at or above zero; a lossy codec's product may fall a little short of it.
+                *v = std::array::from_fn(|c| (v[c] + d[c]).max(0.0));
+            }
             // Direct light is clamped to f32::MAX, but `T · B0` sums many such terms and can
             // overflow: keep E_ind finite too (a frame then clamps it to its format's largest
             // and flags it). NaN is left alone: it would be a bug to see, not light to clamp.
@@ -287,14 +303,70 @@ impl Engine {
         scene: &Scene,
         lights: &[LightSet],
     ) -> Result<Vec<Vec<[f32; 3]>>, EngineError> {
-        Ok(match &scene.direct {
+        Ok(self.direct_and_near(scene, lights)?.0)
+    }
+
+    /// [`Engine::direct_on_rows`] and, for a scene with a near field that this engine's sample
+    /// count can use ([`Scene::near_field`]), the near-field first bounce per light set and row
+    /// (`bounce_core::nearfield`).
+    #[allow(clippy::type_complexity)]
+    pub fn direct_and_near(
+        &self,
+        scene: &Scene,
+        lights: &[LightSet],
+    ) -> Result<(Vec<Vec<[f32; 3]>>, Option<Vec<Vec<[f32; 3]>>>), EngineError> {
+        if let (Some(near), DirectLight::Cpu(shadow, _)) = (self.near_in_use(scene), &scene.direct)
+        {
+            let mut direct = Vec::with_capacity(lights.len());
+            let mut corrections = Vec::with_capacity(lights.len());
+            for set in lights {
+                let Some(sampled) = direct_with_samples(shadow, &scene.rows, set, self.samples)
+                else {
+                    break;
+                };
+                corrections.push(near.field.correction(
+                    &near.albedo,
+                    &sampled.mean,
+                    &sampled.samples,
+                ));
+                direct.push(sampled.mean);
+            }
+            if direct.len() == lights.len() {
+                return Ok((direct, Some(corrections)));
+            }
+        }
+        let direct = match &scene.direct {
             DirectLight::Gpu(gpu) => gpu.irradiance(lights, self.samples)?,
             DirectLight::GpuSurface(gpu) => gpu.irradiance(lights, self.samples)?,
             DirectLight::Cpu(shadow, _) => lights
                 .iter()
                 .map(|set| direct_irradiance(shadow, &scene.rows, set, self.samples))
                 .collect(),
-        })
+        };
+        Ok((direct, None))
+    }
+
+    /// The scene's near field when this engine's direct light evaluates the sample points its
+    /// columns name (the first `per_row` of each row).
+    fn near_in_use<'a>(&self, scene: &'a Scene) -> Option<&'a NearRows> {
+        scene
+            .near
+            .as_ref()
+            .filter(|n| self.samples == n.field.per_row)
+    }
+
+    /// Whether relights of `scene` on this engine add the near-field first bounce, and if not
+    /// why: `Ok(false)` for a file without one, `Err(reason)` where it has one this engine does
+    /// not apply.
+    pub fn near_field(&self, scene: &Scene) -> Result<bool, String> {
+        match &scene.near {
+            None => Ok(false),
+            Some(n) if self.samples != n.field.per_row => Err(format!(
+                "the near field names {} samples a row, direct light uses {}",
+                n.field.per_row, self.samples
+            )),
+            Some(_) => Ok(true),
+        }
     }
 
     /// Which engine computes `scene`'s direct light: this one's kind, but the CPU for a scene
@@ -338,6 +410,8 @@ pub struct Scene {
     pub layout: PatchLayout,
     /// The transport's rows: the elements of a surface bake that has them, else the patches.
     rows: PatchLayout,
+    /// The near-field first bounce, when the file has one.
+    near: Option<NearRows>,
     elements: Option<Elements>,
     direct: DirectLight,
     shadow_source: ShadowSource,
@@ -351,6 +425,12 @@ impl Scene {
     /// The transport's rows (and columns): what [`Engine::indirect`] takes and gives.
     pub fn rows(&self) -> &PatchLayout {
         &self.rows
+    }
+
+    /// Relight without the near-field first bounce from now on: how `bounce verify` shows what
+    /// it gains.
+    pub fn disable_near_field(&mut self) {
+        self.near = None;
     }
 
     /// The transport's codec.
@@ -416,6 +496,13 @@ impl Scene {
             Transport::Cpu(_) => usize::from(sets > 0),
         }
     }
+}
+
+/// A scene's near-field matrix with what its correction multiplies by.
+struct NearRows {
+    field: NearField,
+    /// Per transport row.
+    albedo: Vec<[f32; 3]>,
 }
 
 /// Where a scene's direct light is computed.

@@ -46,6 +46,9 @@ pub struct Report {
     /// Surface bakes: the method error with that first bounce: what is left is the transport's
     /// geometry, the later bounces' constant sources and the form factors' noise.
     pub method_pointwise_source_rel_l2: Option<f64>,
+    /// Bakes with a near-field first bounce (`bounce_core::nearfield`): the method error
+    /// without it, so what it gains shows beside `method_rel_l2`.
+    pub method_without_near_field_rel_l2: Option<f64>,
     /// `method_rel_l2` with the reference's noise taken out in quadrature.
     pub method_rel_l2_without_noise: f64,
     /// `‖stderr‖ / ‖reference‖`.
@@ -106,17 +109,31 @@ pub fn widen(v: &[[f32; 3]]) -> Vec<[f64; 3]> {
     v.iter().map(|c| c.map(f64::from)).collect()
 }
 
+/// Other versions of the exact pipeline's `E_ind` the report splits the method error with, where
+/// the bake has them.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Variants<'a> {
+    /// The first bounce with `B0` where each form-factor ray lands, without the near field.
+    pub pointwise_source: Option<&'a [[f32; 3]]>,
+    /// Without the near-field first bounce.
+    pub without_near_field: Option<&'a [[f32; 3]]>,
+}
+
 pub fn compare(
     compressed: &[[f32; 3]],
     exact: &[[f32; 3]],
     surface_lit: &[[f32; 3]],
     reference: &[[f64; 3]],
-    pointwise_source: Option<&[[f32; 3]]>,
+    variants: Variants<'_>,
     reference_rel_stderr: f64,
     meta: Meta,
 ) -> Report {
     let (compressed, exact, surface_lit) = (widen(compressed), widen(exact), widen(surface_lit));
-    let pointwise_source = pointwise_source.map(widen);
+    let pointwise_source = variants.pointwise_source.map(widen);
+    // The pointwise split is of the pipeline without its near field: the near field is part of
+    // what the pointwise first bounce replaces.
+    let plain = variants.without_near_field.map(widen);
+    let base = plain.as_ref().unwrap_or(&exact);
     let method = rel_l2(&exact, reference);
     let norm = |c: &[f64; 3]| (c[0] * c[0] + c[1] * c[1] + c[2] * c[2]).sqrt();
     let rms = (reference.iter().map(|r| norm(r).powi(2)).sum::<f64>()
@@ -162,8 +179,9 @@ pub fn compare(
         total_rel_l2: rel_l2(&compressed, reference),
         source_rel_l2: pointwise_source
             .as_ref()
-            .map(|p| rel_l2(&exact, p) * norm_ratio(p, reference)),
+            .map(|p| rel_l2(base, p) * norm_ratio(p, reference)),
         method_pointwise_source_rel_l2: pointwise_source.as_ref().map(|p| rel_l2(p, reference)),
+        method_without_near_field_rel_l2: plain.as_ref().map(|p| rel_l2(p, reference)),
         method_rel_l2_without_noise: (method * method
             - reference_rel_stderr * reference_rel_stderr)
             .max(0.0)
@@ -222,7 +240,15 @@ mod tests {
         let reference = [[1.0, 1.0, 1.0], [2.0, 2.0, 2.0], [0.0, 0.0, 0.0]];
         let exact = [[1.1, 1.1, 1.1], [2.0, 2.0, 2.0], [0.0, 0.0, 0.0]];
         let compressed = [[1.1, 1.1, 1.1], [2.0, 2.0, 2.0], [0.01, 0.01, 0.01]];
-        let r = compare(&compressed, &exact, &exact, &reference, None, 0.0, meta());
+        let r = compare(
+            &compressed,
+            &exact,
+            &exact,
+            &reference,
+            Variants::default(),
+            0.0,
+            meta(),
+        );
         // ‖(0.1,0.1,0.1)‖ / ‖ref‖ = √0.03 / √15.
         assert!((r.method_rel_l2 - (0.03f64 / 15.0).sqrt()).abs() < 1e-6);
         assert!((r.codec_rel_l2 - (0.0003f64 / (3.0 * 1.21 + 12.0)).sqrt()).abs() < 1e-6);
@@ -239,7 +265,15 @@ mod tests {
         let leak = leak_share(&widen(&compressed), &reference);
         assert!((leak - 0.03 / 9.33).abs() < 1e-9, "{leak}");
         // Noise removal never goes below zero.
-        let noisy = compare(&compressed, &exact, &exact, &reference, None, 1.0, meta());
+        let noisy = compare(
+            &compressed,
+            &exact,
+            &exact,
+            &reference,
+            Variants::default(),
+            1.0,
+            meta(),
+        );
         assert_eq!(noisy.method_rel_l2_without_noise, 0.0);
     }
 
@@ -265,7 +299,10 @@ mod tests {
             &exact,
             &exact,
             &reference,
-            Some(&pointwise),
+            Variants {
+                pointwise_source: Some(&pointwise),
+                without_near_field: None,
+            },
             0.0,
             meta(),
         );
@@ -283,6 +320,40 @@ mod tests {
         assert!(r.patch_rel_p50 <= r.patch_rel_p90 && r.patch_rel_p90 <= r.patch_rel_p99);
         assert!(r.patch_rel_p99 <= r.worst_patch_rel);
         assert_eq!(r.worst_patch, 0);
+    }
+
+    #[test]
+    fn the_near_field_shows_beside_the_method_error_and_the_split_starts_without_it() {
+        let reference = [[1.0; 3], [2.0; 3]];
+        let plain = [[1.2f32; 3], [2.0; 3]];
+        let with_near = [[1.1f32; 3], [2.0; 3]];
+        let pointwise = [[1.0f32; 3], [2.0; 3]];
+        let r = compare(
+            &with_near,
+            &with_near,
+            &with_near,
+            &reference,
+            Variants {
+                pointwise_source: Some(&pointwise),
+                without_near_field: Some(&plain),
+            },
+            0.0,
+            meta(),
+        );
+        let norm_ref = (3.0f64 + 12.0).sqrt();
+        let tenth = (3.0f64 * 0.01).sqrt();
+        let within = |x: f64, y: f64| (x - y).abs() < 1e-6;
+        assert!(within(r.method_rel_l2, tenth / norm_ref), "{r:?}");
+        assert!(within(
+            r.method_without_near_field_rel_l2.unwrap(),
+            2.0 * tenth / norm_ref
+        ));
+        // The source's share is measured from the pipeline without the near field.
+        assert!(
+            within(r.source_rel_l2.unwrap(), 2.0 * tenth / norm_ref),
+            "{r:?}"
+        );
+        assert!(within(r.method_pointwise_source_rel_l2.unwrap(), 0.0));
     }
 
     #[test]

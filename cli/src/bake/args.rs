@@ -6,6 +6,7 @@ use anyhow::{Result, bail};
 use bounce_core::bake::{BakeOptions, CodecRequest};
 use bounce_core::formfactor::MAX_RAYS;
 use bounce_core::meta::Bounces;
+use bounce_core::nearfield::{DEFAULT_NEAR_RADIUS, MAX_NEAR_RADIUS};
 use bounce_core::rays::Tracer;
 use bounce_core::surface::{DEFAULT_SURFACE_SAMPLES, MAX_SURFACE_SAMPLES};
 use bounce_core::voxel::{Geometry, PatchOrder, Resolution};
@@ -84,6 +85,12 @@ pub struct BakeArgs {
     /// evaluates each light, with shadow rays against the triangles.
     #[arg(long, value_name = "N", default_value_t = DEFAULT_SURFACE_SAMPLES)]
     pub direct_samples: u32,
+    /// Near-field first bounce (surface geometry): form-factor rays that land within R voxels
+    /// of where they start also record the direct-light sample point they land nearest, and a
+    /// relight gathers the light there rather than the element's mean (docs/design.md §4).
+    /// 0 stores none.
+    #[arg(long, value_name = "R", default_value_t = DEFAULT_NEAR_RADIUS)]
+    pub near_field: f32,
     /// Ray tracer for voxel-face form factors: `grid` walks the voxel grid (exact for voxel
     /// patches), `bvh` uses an obvhs BVH over the patch quads. `bounce bench rays` compares
     /// them. Surface geometry always traces a BVH over the triangles.
@@ -142,6 +149,12 @@ impl BakeArgs {
                 self.direct_samples
             );
         }
+        if !(0.0..=MAX_NEAR_RADIUS).contains(&self.near_field) {
+            bail!(
+                "--near-field must be from 0 to {MAX_NEAR_RADIUS} voxels, got {}",
+                self.near_field
+            );
+        }
         if !(0.0..=1.0).contains(&self.max_grey_error) {
             bail!(
                 "--max-grey-error must be from 0 to 1, got {}",
@@ -164,6 +177,7 @@ impl BakeArgs {
             geometry: self.geometry,
             direct_samples: self.direct_samples,
             max_grey_error: self.max_grey_error,
+            near_radius: self.near_field,
         })
     }
 }

@@ -34,6 +34,16 @@ pub fn print_summary(baked: &Baked, out: &Path, file_bytes: u64, total_s: f64) {
             100.0 * s.unassigned_area / s.surface_area.max(f64::MIN_POSITIVE),
             m.settings.direct_samples
         );
+        match &baked.near_field {
+            Some(near) => println!(
+                "  near field    rays landing within {} voxel(s): {} entries ({:.1} a row), {}",
+                m.settings.near_radius,
+                near.nnz(),
+                near.nnz() as f64 / near.rows().max(1) as f64,
+                human_bytes(8 * near.nnz() as u64 + 4 * near.row_ptr.len() as u64)
+            ),
+            None => println!("  near field    none (--near-field 0)"),
+        }
     } else {
         println!(
             "  surface       {} geometry (the thesis' baseline)",

@@ -19,6 +19,7 @@ use crate::import::{self, ImportError};
 use crate::matrix::{DENSE_F32, DenseMatrix, EncodedMatrix};
 pub use crate::meta::SourceInfo;
 use crate::meta::{BakeMeta, BakeSettings, BakeStats, Bounces, StageTiming};
+use crate::nearfield::{self, NearField};
 use crate::patch::PatchLayout;
 use crate::rays::Tracer;
 use crate::scene::Scene;
@@ -55,6 +56,9 @@ pub struct BakeOptions {
     /// How much one grey transport channel may change `E_ind` before the bake keeps three
     /// ([`transport::choose_channels`]).
     pub max_grey_error: f64,
+    /// How far from its origin a form-factor ray may land and count for the near-field first
+    /// bounce ([`crate::nearfield`]), in voxels; 0 stores no near field (surface geometry only).
+    pub near_radius: f32,
 }
 
 /// Which codec stores the transport.
@@ -84,6 +88,7 @@ impl Default for BakeOptions {
             geometry: voxel::Geometry::Surface,
             direct_samples: crate::surface::DEFAULT_SURFACE_SAMPLES,
             max_grey_error: transport::DEFAULT_MAX_GREY_ERROR,
+            near_radius: crate::nearfield::DEFAULT_NEAR_RADIUS,
         }
     }
 }
@@ -96,6 +101,8 @@ pub enum Stage {
     /// Building what rays are traced against (the voxel grid or a BVH).
     RayScene,
     FormFactors,
+    /// The near-field matrix: the form-factor rays that land close by, traced again that far.
+    NearField,
     Transport,
     Encode,
     /// A sharded bake's step reading (and checking) the shards it continues from.
@@ -109,6 +116,7 @@ impl Stage {
             Stage::Voxelize => "voxelize",
             Stage::RayScene => "ray scene",
             Stage::FormFactors => "form factors",
+            Stage::NearField => "near field",
             Stage::Transport => "transport",
             Stage::Encode => "encode",
             Stage::ReadShards => "read shards",
@@ -326,7 +334,7 @@ fn encode_transport(
 /// deterministic, so every shard of a sharded bake redoes this and gets the same bits.
 pub(crate) struct Prepared {
     pub vox: voxel::Voxelization,
-    pub rays: Box<dyn RowTracer>,
+    pub rays: Rows,
     /// What direct light needs at run time (surface geometry).
     pub surface: Option<SurfaceData>,
     /// The tracer recorded in the settings: the BVH over triangles for surface geometry.
@@ -357,7 +365,7 @@ pub(crate) fn prepare(
             let rays = SurfaceScene::new(scene, mesh, vox.transport_layout(), pieces);
             Ok(Prepared {
                 vox,
-                rays: Box::new(rays),
+                rays: Rows::Surface(Box::new(rays)),
                 surface: Some(surface),
                 tracer: Tracer::Bvh,
             })
@@ -369,11 +377,53 @@ pub(crate) fn prepare(
             let tracer = rays.tracer();
             Ok(Prepared {
                 vox,
-                rays: Box::new(rays),
+                rays: Rows::Voxels(Box::new(rays)),
                 surface: None,
                 tracer,
             })
         }
+    }
+}
+
+/// What the transport's rows are traced through.
+pub(crate) enum Rows {
+    Surface(Box<SurfaceScene>),
+    Voxels(Box<RayScene>),
+}
+
+impl Rows {
+    pub fn tracer(&self) -> &dyn RowTracer {
+        match self {
+            Rows::Surface(s) => s.as_ref(),
+            Rows::Voxels(v) => v.as_ref(),
+        }
+    }
+
+    /// Rows `rows` of the near-field matrix, as the bake's `options` ask: `None` for voxel faces
+    /// and when the radius is 0.
+    pub fn near_field(
+        &self,
+        surface: Option<&SurfaceData>,
+        voxel_size: f32,
+        rows: std::ops::Range<usize>,
+        options: &BakeOptions,
+        progress: &(dyn Fn(u64) + Sync),
+    ) -> Result<Option<NearField>, BakeError> {
+        let (Rows::Surface(scene), Some(surface)) = (self, surface) else {
+            return Ok(None);
+        };
+        if options.near_radius <= 0.0 {
+            return Ok(None);
+        }
+        Ok(Some(nearfield::near_field_rows(
+            scene,
+            surface,
+            rows,
+            options.rays,
+            options.seed,
+            options.near_radius * voxel_size,
+            progress,
+        )?))
     }
 }
 
@@ -448,6 +498,10 @@ pub(crate) fn settings(options: &BakeOptions, tracer: Tracer) -> BakeSettings {
             Geometry::VoxelFaces => 0,
         },
         max_grey_error: options.max_grey_error,
+        near_radius: match options.geometry {
+            Geometry::Surface => options.near_radius,
+            Geometry::VoxelFaces => 0.0,
+        },
         max_error: match options.codec {
             CodecRequest::Auto { max_error } => Some(max_error),
             CodecRequest::Named(_) => None,
@@ -478,6 +532,7 @@ pub fn options_of(settings: &BakeSettings, keep_form_factors: bool) -> BakeOptio
         geometry: settings.geometry,
         direct_samples: settings.direct_samples,
         max_grey_error: settings.max_grey_error,
+        near_radius: settings.near_radius,
     }
 }
 
@@ -552,7 +607,10 @@ fn bake_with(
     let rows = vox.transport_layout();
     let n = rows.len();
     let (f, tally) = timer.run(Stage::FormFactors, n as u64, || {
-        formfactor::form_factors(rays.as_ref(), options.rays, options.seed, &advance)
+        formfactor::form_factors(rays.tracer(), options.rays, options.seed, &advance)
+    })?;
+    let near_field = timer.run(Stage::NearField, n as u64, || {
+        rays.near_field(surface.as_ref(), rows.voxel_size, 0..n, options, &advance)
     })?;
     drop(rays);
     let ff = check_form_factors(&f, rows, options.geometry)?;
@@ -599,6 +657,7 @@ fn bake_with(
         // the triangles (surface geometry) or the voxels (voxel faces).
         occupancy: surface.is_none().then_some(vox.occupied),
         surface,
+        near_field,
         // The caller decides whether the file keeps the scene ([`crate::import::pack_glb`]).
         model: None,
     })

@@ -29,6 +29,7 @@ use crate::format::{Baked, FormatError, ShardFile, ShardHeader};
 use crate::formfactor;
 use crate::matrix::{DenseMatrix, EncodedMatrix};
 use crate::meta::StageTiming;
+use crate::nearfield::NearField;
 use crate::rays::RayTally;
 use crate::transport;
 
@@ -163,7 +164,7 @@ pub fn form_factor_shard(
     let rows = shard_rows(n, spec.index, spec.count);
     let traced = timer.run(Stage::FormFactors, rows.len() as u64, || {
         formfactor::form_factor_rows_tallied(
-            rays.as_ref(),
+            rays.tracer(),
             rows.clone(),
             options.rays,
             options.seed,
@@ -171,6 +172,13 @@ pub fn form_factor_shard(
         )
     });
     let (f_rows, tally) = traced.map_err(BakeError::from)?;
+    let voxel_size = vox.layout.voxel_size;
+    let near_rows = timer.run(Stage::NearField, rows.len() as u64, || {
+        rays.near_field(surface.as_ref(), voxel_size, rows.clone(), options, &|k| {
+            progress.advance(k)
+        })
+    })?;
+    drop(rays);
     let meta = ShardMeta {
         phase: Phase::FormFactors,
         index: spec.index,
@@ -203,6 +211,7 @@ pub fn form_factor_shard(
         },
         rows: f_rows,
         form_factor_rows: None,
+        near_rows,
         // The caller packs the model when the bake keeps it ([`crate::import::pack_glb`]).
         model: None,
     })
@@ -219,7 +228,7 @@ pub fn transport_shard(
     let mut timer = Timer::new(progress);
     let first = members[0].header.clone();
     let n = first.meta.patches;
-    let (f, _) = timer.run(Stage::ReadShards, n as u64, || {
+    let Assembled { rows: f, near, .. } = timer.run(Stage::ReadShards, n as u64, || {
         assemble(&members, 1, false, progress)
     })?;
     let options = bake::options_of(&first.meta.settings, first.meta.keep_form_factors);
@@ -283,6 +292,7 @@ pub fn transport_shard(
         },
         rows: t_rows,
         form_factor_rows,
+        near_rows: near.map(|all| slice_rows(&all, rows.clone())),
         model,
     })
 }
@@ -298,9 +308,13 @@ pub fn merge(inputs: &[PathBuf], progress: &dyn Progress) -> Result<Baked, Shard
     let n = m0.patches;
     let options = bake::options_of(&m0.settings, m0.keep_form_factors);
     bake::check_codec_options(&options)?;
-    let (t, f, stats, rays, mut timings, grey_rel_l2) = match m0.phase {
+    let (t, f, near_field, stats, rays, mut timings, grey_rel_l2) = match m0.phase {
         Phase::Transport => {
-            let (t, f) = timer.run(Stage::ReadShards, n as u64, || {
+            let Assembled {
+                rows: t,
+                form_factors: f,
+                near,
+            } = timer.run(Stage::ReadShards, n as u64, || {
                 assemble(&members, m0.channels, m0.keep_form_factors, progress)
             })?;
             // gather checked that every shard has the same summary.
@@ -310,10 +324,10 @@ pub fn merge(inputs: &[PathBuf], progress: &dyn Progress) -> Result<Baked, Shard
             })?;
             let mut timings = m0.inherited_timings.clone();
             timings.extend(sum_timings(members.iter().map(|m| &m.header.meta.timings)));
-            (t, f, stats, m0.rays, timings, m0.grey_rel_l2)
+            (t, f, near, stats, m0.rays, timings, m0.grey_rel_l2)
         }
         Phase::FormFactors => {
-            let (f, _) = timer.run(Stage::ReadShards, n as u64, || {
+            let Assembled { rows: f, near, .. } = timer.run(Stage::ReadShards, n as u64, || {
                 assemble(&members, 1, false, progress)
             })?;
             let rows = first.transport_layout();
@@ -334,6 +348,7 @@ pub fn merge(inputs: &[PathBuf], progress: &dyn Progress) -> Result<Baked, Shard
             (
                 t,
                 m0.keep_form_factors.then_some(f),
+                near,
                 stats,
                 rays,
                 timings,
@@ -370,11 +385,26 @@ pub fn merge(inputs: &[PathBuf], progress: &dyn Progress) -> Result<Baked, Shard
         layout: first.layout,
         transport,
         form_factors,
+        near_field,
         occupancy: first.surface.is_none().then_some(first.occupancy),
         surface: first.surface,
         elements: first.elements,
         model,
     })
+}
+
+/// Rows `rows` of a whole near-field matrix.
+fn slice_rows(all: &NearField, rows: Range<usize>) -> NearField {
+    let (lo, hi) = (all.row_ptr[rows.start], all.row_ptr[rows.end]);
+    NearField {
+        per_row: all.per_row,
+        row_ptr: all.row_ptr[rows.start..=rows.end]
+            .iter()
+            .map(|&p| p - lo)
+            .collect(),
+        cols: all.cols[lo as usize..hi as usize].to_vec(),
+        values: all.values[lo as usize..hi as usize].to_vec(),
+    }
 }
 
 /// The model the shards carry, from the first: every shard of one bake packed the same scene
@@ -543,10 +573,12 @@ fn assemble(
     channels: usize,
     form_factors: bool,
     progress: &dyn Progress,
-) -> Result<(DenseMatrix, Option<DenseMatrix>), ShardError> {
+) -> Result<Assembled, ShardError> {
     let n = members.first().map_or(0, |m| m.header.meta.patches);
     let mut out = DenseMatrix::zeros(n, channels);
     let mut ff = form_factors.then(|| DenseMatrix::zeros(n, 1));
+    // The reader requires NROW exactly when the bake has a near field: all or none have it.
+    let mut near: Option<Vec<NearField>> = Some(Vec::with_capacity(members.len()));
     for m in members {
         let read_err = |error| ShardError::Read {
             path: m.path.clone(),
@@ -568,9 +600,35 @@ fn assemble(
             })?;
             copy_rows(ff, f_rows, &rows);
         }
+        near = near.zip(file.near_rows).map(|(mut parts, rows)| {
+            parts.push(rows);
+            parts
+        });
         progress.advance(rows.len() as u64);
     }
-    Ok((out, ff))
+    let near = match (
+        near,
+        &members.first().and_then(|m| m.header.surface.as_ref()),
+    ) {
+        (Some(parts), Some(surface)) if !members.is_empty() => {
+            Some(NearField::concat(surface.per_patch, parts))
+        }
+        _ => None,
+    };
+    Ok(Assembled {
+        rows: out,
+        form_factors: ff,
+        near,
+    })
+}
+
+/// Every shard's rows put together.
+struct Assembled {
+    rows: DenseMatrix,
+    /// `F`, when asked for.
+    form_factors: Option<DenseMatrix>,
+    /// The whole near-field matrix, when the bake has one.
+    near: Option<NearField>,
 }
 
 /// Rows `rows` of every channel of `m` from `src` (channel-major, as a shard stores them). The

@@ -36,6 +36,9 @@
 //! its own voxel and face. With the section, the transport, the form factors and the `SURF`
 //! sample points are per element; without it, per patch.
 //!
+//! `NEAR` (version 4, surface geometry only, optional there): the near-field first bounce's
+//! matrix over the transport's rows and the `SURF` sample points; `super::near` has its layout.
+//!
 //! `MODL` (flagged [`SECTION_OPTIONAL`]): the scene the file was baked from, packed into one
 //! self-contained GLB 2.0 file ([`crate::import::pack_glb`]): every buffer and image inside its
 //! BIN chunk, the glTF JSON otherwise as the source had it. The section is exactly the GLB's
@@ -48,6 +51,7 @@ use std::path::Path;
 use crate::element::Elements;
 use crate::matrix::EncodedMatrix;
 use crate::meta::BakeMeta;
+use crate::nearfield::NearField;
 use crate::patch::{Face, Patch, PatchLayout};
 use crate::surface::{MAX_SURFACE_SAMPLES, SamplePoint, SurfaceData};
 use crate::voxel::Geometry;
@@ -57,6 +61,7 @@ use super::container::{
     self, Assembled, Container, FieldReader, FileBytes, FileSummary, SECTION_ALIGN,
     SECTION_OPTIONAL, Section, SectionKind,
 };
+use super::near::{decode_near, encode_near};
 
 /// Bytes of the `LAYT` fields before the patch records.
 pub const LAYOUT_HEADER_LEN: u64 = 32;
@@ -96,6 +101,8 @@ pub struct Baked {
     /// the transport, form factors and sample points are then per element, and what a patch
     /// streams is its elements' irradiance restricted to it ([`Elements::restrict`]).
     pub elements: Option<Elements>,
+    /// The near-field first bounce (the `NEAR` section; surface geometry baked with a radius).
+    pub near_field: Option<NearField>,
     /// The scene baked, as one self-contained GLB (the `MODL` section): what a viewer draws.
     /// Absent in files baked without it (`bounce bake --no-model`, or an older bounce).
     pub model: Option<Vec<u8>>,
@@ -149,6 +156,17 @@ impl Baked {
         if let Some(surface) = &self.surface {
             sections.push(owned(SectionKind::SURF, encode_surface(surface, rows)?));
         }
+        if let Some(near) = &self.near_field {
+            let Some(surface) = &self.surface else {
+                return Err(FormatError::NearField(
+                    "a near field needs the surface's sample points".to_string(),
+                ));
+            };
+            sections.push(owned(
+                SectionKind::NEAR,
+                encode_near(SectionKind::NEAR, near, n, surface.per_patch)?,
+            ));
+        }
         if let Some(model) = &self.model {
             sections.push(model_section(model)?);
         }
@@ -169,6 +187,7 @@ impl Baked {
                 SectionKind::MODL,
                 SectionKind::SURF,
                 SectionKind::ELEM,
+                SectionKind::NEAR,
             ]
             .contains(&e.kind);
             if !known && !e.is_optional() {
@@ -219,6 +238,27 @@ impl Baked {
             None => None,
         };
         check_geometry(&meta, surface.is_some(), elements.is_some())?;
+        let near_field = match (c.entry(SectionKind::NEAR), &surface) {
+            (None, _) => None,
+            (Some(_), _) if c.header.format_version < 4 => {
+                return Err(FormatError::NearField(format!(
+                    "a version-{} file cannot hold a near field",
+                    c.header.format_version
+                )));
+            }
+            (Some(_), None) => {
+                return Err(FormatError::NearField(
+                    "a near field needs the surface's sample points (SURF)".to_string(),
+                ));
+            }
+            (Some(e), Some(s)) => Some(decode_near(
+                SectionKind::NEAR,
+                c.section(e)?,
+                n,
+                n,
+                s.per_patch,
+            )?),
+        };
         let model = match c.entry(SectionKind::MODL) {
             Some(e) => {
                 let bytes = c.section(e)?;
@@ -235,6 +275,7 @@ impl Baked {
             occupancy,
             surface,
             elements,
+            near_field,
             model,
         })
     }

@@ -96,6 +96,7 @@ impl SectionKind {
     pub const MODL: SectionKind = SectionKind(*b"MODL");
     pub const SURF: SectionKind = SectionKind(*b"SURF");
     pub const ELEM: SectionKind = SectionKind(*b"ELEM");
+    pub const NEAR: SectionKind = SectionKind(*b"NEAR");
 }
 
 impl fmt::Display for SectionKind {

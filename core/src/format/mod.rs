@@ -24,6 +24,7 @@
 
 mod baked;
 mod container;
+mod near;
 mod shard;
 mod shard_meta;
 
@@ -46,14 +47,16 @@ pub use shard_meta::{FormFactorSummary, Phase, SHARD_EXTENSION, ShardMeta, Shard
 /// The version this build writes. Version 2 added surface patches: the `SURF` section and the
 /// `geometry` setting in `META`. Version 3 added transport elements (the `ELEM` section), so a
 /// version-2 reader refuses such a file by its version rather than by a section it does not know.
-pub const FORMAT_VERSION: u32 = 3;
+/// Version 4 added the near-field first bounce (the `NEAR` section), which changes what a relight
+/// computes, so an older reader must refuse the file rather than skip the section.
+pub const FORMAT_VERSION: u32 = 4;
 /// The oldest version this build reads: a version-1 file is a voxel-face bake and is relit as
 /// one.
 pub const OLDEST_FORMAT_VERSION: u32 = 1;
 /// The bake-shard version this build writes, and the only one it reads. Shards are
 /// intermediate files of one bake, written and read by the same release, so there is no reason
 /// to read older ones.
-pub const SHARD_FORMAT_VERSION: u32 = 3;
+pub const SHARD_FORMAT_VERSION: u32 = 4;
 
 /// Everything that can go wrong reading or writing a baked file.
 ///
@@ -97,6 +100,9 @@ pub enum FormatError {
     Surface(String),
     #[error("section 'ELEM': {0}")]
     Elements(String),
+    /// The near-field matrix (`NEAR`, or a shard's `NROW`); the message names the section.
+    #[error("{0}")]
+    NearField(String),
     #[error("file truncated: {what} ends at byte {end} but the file has {len} bytes")]
     Truncated { what: String, end: u64, len: u64 },
     #[error("file truncated: its header says it has {declared} bytes but it has {actual}")]

@@ -17,6 +17,10 @@
 //!   Form-factor rows in phase 1, transport rows in phase 2.
 //! - `FROW` (phase 2, only when the bake keeps its form factors): the same rows of `F`, same
 //!   encoding, one channel.
+//! - `NROW` (surface geometry baked with a near-field radius): the shard's rows of the
+//!   near-field matrix, laid out as a baked file's `NEAR` over the shard's rows (columns over
+//!   the whole transport). Phase 1 traces them, phase 2 carries its own rows, the merge joins
+//!   them.
 //! - `MODL` (flagged optional, when the bake keeps the model): the scene as one GLB, as in a
 //!   baked file. Phase 1 packs it, phase 2 passes it on, the merge puts it in the baked file.
 //!
@@ -39,7 +43,9 @@ use super::container::{
     self, Assembled, Container, FieldReader, FileBytes, Flavour, SECTION_ALIGN, SECTION_OPTIONAL,
     Section, SectionKind,
 };
+use super::near::{decode_near, encode_near};
 use super::shard_meta::{Phase, ShardMeta, shard_rows};
+use crate::nearfield::NearField;
 use crate::surface::SurfaceData;
 use crate::voxel::Geometry;
 
@@ -49,6 +55,7 @@ pub const ROWS_HEADER_LEN: u64 = 16;
 const SHRD: SectionKind = SectionKind(*b"SHRD");
 const ROWS: SectionKind = SectionKind(*b"ROWS");
 const FROW: SectionKind = SectionKind(*b"FROW");
+const NROW: SectionKind = SectionKind(*b"NROW");
 
 /// What a shard says about itself, without its rows: enough to check a set of shards before
 /// any row is read.
@@ -78,6 +85,8 @@ pub struct ShardFile {
     pub rows: Vec<f32>,
     /// Phase 2 of a bake that keeps its form factors: the same rows of `F`.
     pub form_factor_rows: Option<Vec<f32>>,
+    /// The same rows of the near-field matrix, when the bake has one.
+    pub near_rows: Option<NearField>,
     /// The scene as one self-contained GLB, for the baked file's `MODL` section.
     pub model: Option<Vec<u8>>,
 }
@@ -134,6 +143,25 @@ impl ShardFile {
                 encode_surface(surface, h.transport_layout())?,
             ));
         }
+        match (&self.near_rows, &h.surface, wants_near_rows(&h.meta)) {
+            (Some(near), Some(surface), true) => sections.push(owned(
+                NROW,
+                encode_near(NROW, near, h.meta.patches, surface.per_patch)?,
+            )),
+            (None, _, false) => {}
+            (Some(_), _, _) => return Err(bad("near-field rows in a shard that has none")),
+            (None, _, true) => return Err(bad("a shard of a near-field bake lacks its rows")),
+        }
+        if let Some(near) = &self.near_rows
+            && near.rows() != h.meta.end_row - h.meta.first_row
+        {
+            return Err(bad(format!(
+                "{} near-field rows for rows {}..{}",
+                near.rows(),
+                h.meta.first_row,
+                h.meta.end_row
+            )));
+        }
         // Before the rows, which stay last as they are the bulk of the file.
         if let Some(model) = &self.model {
             sections.push(model_section(model)?);
@@ -168,11 +196,24 @@ impl ShardFile {
             (Some(_), false) => return Err(bad("form-factor rows in a shard that has none")),
             (None, true) => return Err(FormatError::MissingSection { kind: FROW }),
         };
+        let near_rows = match (c.entry(NROW), &header.surface, wants_near_rows(m)) {
+            (Some(e), Some(surface), true) => Some(decode_near(
+                NROW,
+                c.section(e)?,
+                m.end_row - m.first_row,
+                m.patches,
+                surface.per_patch,
+            )?),
+            (None, _, false) => None,
+            (Some(_), _, _) => return Err(bad("near-field rows in a shard that has none")),
+            (None, _, true) => return Err(FormatError::MissingSection { kind: NROW }),
+        };
         let model = model_of(&c)?;
         Ok(ShardFile {
             header,
             rows,
             form_factor_rows,
+            near_rows,
             model,
         })
     }
@@ -255,6 +296,7 @@ fn header_from(c: &Container<'_>) -> Result<ShardHeader, FormatError> {
             SectionKind::ELEM,
             ROWS,
             FROW,
+            NROW,
         ]
         .contains(&e.kind);
         if e.kind == SectionKind::MODL {
@@ -311,6 +353,11 @@ fn header_from(c: &Container<'_>) -> Result<ShardHeader, FormatError> {
 
 fn decode_meta(bytes: &[u8]) -> Result<ShardMeta, FormatError> {
     serde_json::from_slice(bytes).map_err(|error| FormatError::Json { kind: SHRD, error })
+}
+
+/// A surface bake with a near-field radius carries its rows of the matrix in every shard.
+fn wants_near_rows(m: &ShardMeta) -> bool {
+    m.settings.geometry == Geometry::Surface && m.settings.near_radius > 0.0
 }
 
 fn wants_form_factor_rows(m: &ShardMeta) -> bool {

@@ -10,6 +10,7 @@ mod direct;
 mod formfactor;
 mod furnace;
 mod import;
+mod nearfield;
 mod pack;
 mod shard;
 mod stress;

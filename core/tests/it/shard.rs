@@ -79,6 +79,7 @@ fn assert_same_bake(one: &Baked, merged: &Baked, what: &str) {
         "{what}: the merged file keeps the model"
     );
     assert_eq!(one.model, merged.model, "{what}: model");
+    assert_eq!(one.near_field, merged.near_field, "{what}: near field");
     let stages =
         |b: &Baked| -> Vec<String> { b.meta.timings.iter().map(|t| t.stage.clone()).collect() };
     assert!(

@@ -1,0 +1,138 @@
+//! The `NEAR` section (version 4, surface geometry only, optional there): the near-field matrix
+//! ([`crate::nearfield::NearField`]) over the transport's rows and the `SURF` sample points.
+//!
+//! Samples per row u32, row count u32, entry count u32, reserved u32 (0) (16 bytes), then
+//! `rows + 1` row offsets u32, `entries` sample indices u32 and `entries` shares f32. A shard's
+//! `NROW` section is laid out the same over its own rows, with columns over the whole transport.
+
+use crate::nearfield::NearField;
+
+use super::FormatError;
+use super::container::{FieldReader, SectionKind};
+
+/// Bytes before the offsets.
+pub const NEAR_HEADER_LEN: u64 = 16;
+
+/// The section's bytes; `total_rows` and `per_row` are the transport's, which the matrix is
+/// checked against as a reader will check it.
+pub(crate) fn encode_near(
+    kind: SectionKind,
+    near: &NearField,
+    total_rows: usize,
+    per_row: u32,
+) -> Result<Vec<u8>, FormatError> {
+    near.check(near.rows(), total_rows, per_row)
+        .map_err(|m| FormatError::NearField(format!("section '{kind}': {m}")))?;
+    let too_large = |what, value: usize| FormatError::TooLarge {
+        what,
+        value: value as u64,
+        max: u64::from(u32::MAX),
+    };
+    let rows = u32::try_from(near.rows()).map_err(|_| too_large("near-field rows", near.rows()))?;
+    let nnz = u32::try_from(near.nnz()).map_err(|_| too_large("near-field entries", near.nnz()))?;
+    let mut out =
+        Vec::with_capacity(NEAR_HEADER_LEN as usize + 4 * (near.row_ptr.len() + 2 * near.nnz()));
+    for v in [near.per_row, rows, nnz, 0] {
+        out.extend_from_slice(&v.to_le_bytes());
+    }
+    for v in near.row_ptr.iter().chain(&near.cols) {
+        out.extend_from_slice(&v.to_le_bytes());
+    }
+    for v in &near.values {
+        out.extend_from_slice(&v.to_le_bytes());
+    }
+    Ok(out)
+}
+
+/// The matrix of a `NEAR` (or `NROW`) section holding `rows` rows of a transport of
+/// `total_rows` rows with `per_row` sample points each.
+pub(crate) fn decode_near(
+    kind: SectionKind,
+    bytes: &[u8],
+    rows: usize,
+    total_rows: usize,
+    per_row: u32,
+) -> Result<NearField, FormatError> {
+    let bad = |m: String| FormatError::NearField(format!("section '{kind}': {m}"));
+    let mut r = FieldReader::new(bytes, Some(kind));
+    let stored_per_row = r.u32("samples per row")?;
+    let stored_rows = r.u32("row count")?;
+    let nnz = r.u32("entry count")?;
+    if r.u32("reserved")? != 0 {
+        return Err(FormatError::Reserved {
+            what: format!("section '{kind}'"),
+        });
+    }
+    if stored_rows as usize != rows {
+        return Err(bad(format!("{stored_rows} rows, expected {rows}")));
+    }
+    let rest = r.remaining();
+    // Only counts the section's length accounts for may size an allocation.
+    let want = 4 * (u64::from(stored_rows) + 1 + 2 * u64::from(nnz));
+    if want != rest.len() as u64 {
+        return Err(bad(format!(
+            "{stored_rows} rows and {nnz} entries need {want} bytes, the section holds {}",
+            rest.len()
+        )));
+    }
+    let words: Vec<[u8; 4]> = rest
+        .chunks_exact(4)
+        .map(|c| [c[0], c[1], c[2], c[3]])
+        .collect();
+    let (ptr, tail) = words.split_at(rows + 1);
+    let (cols, values) = tail.split_at(nnz as usize);
+    let near = NearField {
+        per_row: stored_per_row,
+        row_ptr: ptr.iter().map(|&w| u32::from_le_bytes(w)).collect(),
+        cols: cols.iter().map(|&w| u32::from_le_bytes(w)).collect(),
+        values: values.iter().map(|&w| f32::from_le_bytes(w)).collect(),
+    };
+    near.check(rows, total_rows, per_row).map_err(bad)?;
+    Ok(near)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn field() -> NearField {
+        NearField {
+            per_row: 2,
+            row_ptr: vec![0, 2, 3],
+            cols: vec![2, 3, 0],
+            values: vec![0.25, 0.125, 0.5],
+        }
+    }
+
+    #[test]
+    fn a_near_field_reads_back() {
+        let kind = SectionKind(*b"NEAR");
+        let bytes = encode_near(kind, &field(), 2, 2).unwrap();
+        assert_eq!(decode_near(kind, &bytes, 2, 2, 2).unwrap(), field());
+    }
+
+    #[test]
+    fn damaged_sections_are_refused_with_a_reason() {
+        let kind = SectionKind(*b"NEAR");
+        let bytes = encode_near(kind, &field(), 2, 2).unwrap();
+        // Every truncation, and every count changed, is refused, never a panic.
+        for len in 0..bytes.len() {
+            assert!(decode_near(kind, &bytes[..len], 2, 2, 2).is_err(), "{len}");
+        }
+        for at in [0, 4, 8, 12] {
+            let mut b = bytes.clone();
+            b[at] ^= 0x40;
+            assert!(decode_near(kind, &b, 2, 2, 2).is_err(), "byte {at}");
+        }
+        // A column past the samples, found by the check.
+        let mut b = bytes.clone();
+        let col = NEAR_HEADER_LEN as usize + 3 * 4;
+        b[col..col + 4].copy_from_slice(&9u32.to_le_bytes());
+        let e = decode_near(kind, &b, 2, 2, 2).unwrap_err().to_string();
+        assert!(e.contains("past"), "{e}");
+        // A writer refuses what the reader would.
+        let mut bad = field();
+        bad.values[2] = -1.0;
+        assert!(encode_near(kind, &bad, 2, 2).is_err());
+    }
+}
