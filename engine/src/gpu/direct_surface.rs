@@ -11,8 +11,9 @@
 //!    traced through the BVH (iterative, a fixed stack in private memory, near child first, any
 //!    hit ends it), recorded as one bit, whether the light reaches the sample;
 //! 2. `gather`, one thread per (patch, light set): the patch's samples in order and, per sample,
-//!    the set's lights in order, adding the irradiance of every ray whose bit is set, then
-//!    dividing by the sample count.
+//!    the set's lights in order, adding the irradiance of every ray whose bit is set into the
+//!    sample's value (kept finite), the samples' values into the patch's sum, then dividing by
+//!    the sample count.
 //!
 //! So the rays, which are the work, get `patches × samples × lights` threads even for a single
 //! light set (a 2,000-patch scene at 16 samples and one light is 32,000 rays), while each patch
