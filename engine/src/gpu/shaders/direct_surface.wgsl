@@ -16,7 +16,8 @@
 //   the sample's value (kept finite), and the samples' values into the patch's sum. So a patch
 //   sums in the CPU's order, and its value differs from the CPU's only by f32 rounding
 //   (division, sqrt, fused multiply-adds the driver may form), which can also flip a shadow ray
-//   that grazes a triangle's edge.
+//   that grazes a triangle's edge. `gather_samples` is `gather` that also keeps every sample's
+//   value (`per_sample`) for the near-field pass (`near_field.wgsl`).
 
 struct SurfaceParams {
     // Patches in the scene (the stride of one light set's output).
@@ -323,6 +324,41 @@ fn gather(
         for (var k = 0u; k < params.count; k++) {
             sum += sample_value(sid, i, pid, k);
         }
+    }
+    write_mean(sid, pid, sum);
+}
+
+// Packed RGB per sample for the near-field pass: light set s, patch i, sample k at
+// ((s * n + i) * count + k) * 3. Only `gather_samples` binds it.
+@group(0) @binding(8) var<storage, read_write> per_sample: array<f32>;
+
+// `gather`, also keeping each sample's value for `near_field.wgsl`: the same function sums the
+// same terms, so the means are `gather`'s.
+@compute @workgroup_size(WG)
+fn gather_samples(
+    @builtin(workgroup_id) wg: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+    @builtin(local_invocation_index) lid: u32,
+) {
+    let at = gather_id(wg, groups, lid);
+    if at.x == 0xffffffffu {
+        return;
+    }
+    let sid = at.x;
+    let i = at.y;
+    let pid = params.first + i;
+    let lit = lit_set(sid);
+    var sum = vec3<f32>(0.0);
+    for (var k = 0u; k < params.count; k++) {
+        var e = vec3<f32>(0.0);
+        if lit {
+            e = sample_value(sid, i, pid, k);
+        }
+        sum += e;
+        let o = ((sid * params.n + pid) * params.count + k) * 3u;
+        per_sample[o] = e.x;
+        per_sample[o + 1u] = e.y;
+        per_sample[o + 2u] = e.z;
     }
     write_mean(sid, pid, sum);
 }
