@@ -4,7 +4,8 @@
 //! (`dense-f32`, `dense-f16`, `bc1`, `bc1-resid`, `bc4`, `log8`) and multiplies batches against it, blocking until the
 //! result is read back. [`GpuDirect`] computes direct light with voxel-grid shadows and
 //! [`GpuSurfaceDirect`] with shadows against the triangles of a surface-geometry bake, both twins
-//! of `bounce_core::direct::direct_irradiance`. Kernels live in `gpu/shaders/*.wgsl`. [`light`]
+//! of `bounce_core::direct::direct_irradiance`; the latter also computes the near-field
+//! correction (`bounce_core::nearfield`) from its per-sample values without leaving the device. Kernels live in `gpu/shaders/*.wgsl`. [`light`]
 //! is the light model both direct-light kernels and bounce-render's shading are compiled with:
 //! one [`GpuLight`] and one WGSL module, prepended to each shader.
 
@@ -18,6 +19,7 @@ mod kernel;
 pub mod light;
 mod logblock;
 mod matrix;
+mod near_field;
 mod sparse;
 
 pub use context::{AdapterSummary, GpuContext};
@@ -29,6 +31,7 @@ pub use error::GpuError;
 pub use kernel::{CHUNK, CHUNKS, Params, ROWS, Split, variant_for};
 pub use light::GpuLight;
 pub use matrix::GpuMatrix;
+pub use near_field::{NEAR_WG, NearParams};
 
 /// WGSL sources as compiled (the shared prelude plus the kernel's file), for tools and the naga
 /// layout tests.
@@ -36,6 +39,7 @@ pub mod sources {
     pub use super::direct::direct_source;
     pub use super::direct_surface::direct_surface_source;
     pub use super::kernel::{dense_source, logblock_source, sparse_source, with_chunk};
+    pub use super::near_field::near_field_source;
 
     /// The bandwidth probe's kernel.
     pub fn bandwidth_source() -> &'static str {

@@ -11,8 +11,9 @@
 //!    traced through the BVH (iterative, a fixed stack in private memory, near child first, any
 //!    hit ends it), recorded as one bit, whether the light reaches the sample;
 //! 2. `gather`, one thread per (patch, light set): the patch's samples in order and, per sample,
-//!    the set's lights in order, adding the irradiance of every ray whose bit is set, then
-//!    dividing by the sample count.
+//!    the set's lights in order, adding the irradiance of every ray whose bit is set into the
+//!    sample's value (kept finite), the samples' values into the patch's sum, then dividing by
+//!    the sample count.
 //!
 //! So the rays, which are the work, get `patches × samples × lights` threads even for a single
 //! light set (a 2,000-patch scene at 16 samples and one light is 32,000 rays), while each patch
@@ -35,9 +36,18 @@
 //! Large batches go in slices (each light set's output within a storage binding, thread indices
 //! within u32), and within a slice the patches go in pieces of at most [`RAYS_PER_PIECE`] rays,
 //! so the visibility bits stay small whatever the batch.
+//!
+//! With a near-field matrix attached ([`GpuSurfaceDirect::with_near_field`],
+//! `bounce_core::nearfield`), [`GpuSurfaceDirect::irradiance_near`] runs `gather_samples`
+//! instead of `gather`: the same sums, which also keep every sample's value in a device buffer
+//! (a slice's `sets × patches × count` values, within a binding: the slices are cut smaller for
+//! it). After the slice's last piece, the pass of `shaders/near_field.wgsl` (`super::near_field`)
+//! turns those values and the means into `ΔE` per (light set, row), read back with the means;
+//! the per-sample values never leave the device.
 
 use bounce_core::direct::{PreparedLight, SHADOW_END};
 use bounce_core::light::LightSet;
+use bounce_core::nearfield::NearField;
 use bounce_core::surface::SurfaceData;
 use bounce_core::trimesh::MeshNode;
 use bytemuck::{Pod, Zeroable};
@@ -45,6 +55,7 @@ use wgpu::util::DeviceExt;
 
 use super::kernel::{check_binding, pipeline, read_rgb, storage};
 use super::light::{self, GpuLight};
+use super::near_field::{NEAR_WG, NearBuffers, NearParams};
 use super::{GpuContext, GpuError};
 
 /// Threads per workgroup (mirrors `WG` in `direct_surface.wgsl`).
@@ -86,6 +97,10 @@ pub struct GpuSample {
     pub normal: [f32; 3],
     pub pad1: u32,
 }
+
+/// The overrides every pipeline of `direct_surface.wgsl` is compiled with: the host sets
+/// `SHADOW_END` so the two sides cannot round it apart.
+const CONSTANTS: [(&str, f64); 1] = [("SHADOW_END", SHADOW_END as f64)];
 
 pub fn direct_surface_source() -> String {
     [light::WGSL, include_str!("shaders/direct_surface.wgsl")].concat()
@@ -169,6 +184,11 @@ pub struct GpuSurfaceDirect {
     node_count: u32,
     /// The most rays one `shadow` pass covers.
     rays_per_piece: u64,
+    /// The most bytes a slice's output or per-sample values may take, below the device's
+    /// binding limit only in tests.
+    binding_cap: u64,
+    /// The near-field matrix, when one is attached, with `gather_samples`.
+    near: Option<(NearBuffers, wgpu::ComputePipeline)>,
 }
 
 impl GpuSurfaceDirect {
@@ -221,7 +241,7 @@ impl GpuSurfaceDirect {
                 pad1: 0,
             })
             .collect();
-        let constants = [("SHADOW_END", f64::from(SHADOW_END))];
+        let constants = CONSTANTS;
         let source = direct_surface_source();
         Ok(GpuSurfaceDirect {
             shadow: pipeline(
@@ -247,7 +267,33 @@ impl GpuSurfaceDirect {
             per_patch,
             node_count,
             rays_per_piece: RAYS_PER_PIECE,
+            binding_cap: u64::MAX,
+            near: None,
         })
+    }
+
+    /// Attach the near-field matrix `near` (rows: these patches; columns: their sample points)
+    /// and each row's `albedo`, so [`GpuSurfaceDirect::irradiance_near`] also returns the
+    /// correction `ΔE`. A matrix whose `per_row` is not this scene's samples per patch, whose
+    /// rows are not its patches or that fails [`NearField::check`], or an albedo not one a row,
+    /// is refused with [`GpuError::NearField`]; an array over a storage binding with
+    /// [`GpuError::TooLarge`].
+    pub fn with_near_field(
+        mut self,
+        near: &NearField,
+        albedo: &[[f32; 3]],
+    ) -> Result<GpuSurfaceDirect, GpuError> {
+        let buffers =
+            NearBuffers::upload(&self.device, near, albedo, self.n as usize, self.per_patch)?;
+        let gather = pipeline(
+            &self.device,
+            "direct_surface gather_samples",
+            &direct_surface_source(),
+            "gather_samples",
+            &CONSTANTS,
+        )?;
+        self.near = Some((buffers, gather));
+        Ok(self)
     }
 
     /// At most `rays` shadow rays per `shadow` pass instead of [`RAYS_PER_PIECE`] (at least one
@@ -256,6 +302,14 @@ impl GpuSurfaceDirect {
     #[doc(hidden)]
     pub fn with_rays_per_piece(mut self, rays: u64) -> GpuSurfaceDirect {
         self.rays_per_piece = rays.max(1);
+        self
+    }
+
+    /// At most `bytes` for one slice's output and for its per-sample values, instead of the
+    /// device's binding limit: the same result from more slices. For tests of that slicing.
+    #[doc(hidden)]
+    pub fn with_binding_limit(mut self, bytes: u64) -> GpuSurfaceDirect {
+        self.binding_cap = bytes.max(1);
         self
     }
 
@@ -272,11 +326,39 @@ impl GpuSurfaceDirect {
         sets: &[LightSet],
         samples: u32,
     ) -> Result<Vec<Vec<[f32; 3]>>, GpuError> {
+        Ok(self.batch(sets, samples, false)?.0)
+    }
+
+    /// [`GpuSurfaceDirect::irradiance`], and with it the near-field correction `ΔE` per light set
+    /// and row (`NearField::correction` of that set's per-sample values and means, which stay on
+    /// the device) when a matrix is attached ([`GpuSurfaceDirect::with_near_field`]) and the
+    /// samples used, `samples.clamp(1, per_patch)`, are all its columns per row; else `None`.
+    #[allow(clippy::type_complexity)]
+    pub fn irradiance_near(
+        &self,
+        sets: &[LightSet],
+        samples: u32,
+    ) -> Result<(Vec<Vec<[f32; 3]>>, Option<Vec<Vec<[f32; 3]>>>), GpuError> {
+        self.batch(sets, samples, true)
+    }
+
+    #[allow(clippy::type_complexity)]
+    fn batch(
+        &self,
+        sets: &[LightSet],
+        samples: u32,
+        want_near: bool,
+    ) -> Result<(Vec<Vec<[f32; 3]>>, Option<Vec<Vec<[f32; 3]>>>), GpuError> {
         let n = self.n as usize;
-        if n == 0 || sets.is_empty() {
-            return Ok(vec![vec![[0.0; 3]; n]; sets.len()]);
-        }
         let count = samples.max(1).min(self.per_patch);
+        let near = self
+            .near
+            .as_ref()
+            .filter(|(b, _)| want_near && b.per_row == count);
+        if n == 0 || sets.is_empty() {
+            let zeros = vec![vec![[0.0; 3]; n]; sets.len()];
+            return Ok((zeros.clone(), near.map(|_| zeros)));
+        }
         let prepared: Vec<Vec<GpuLight>> = sets
             .iter()
             .map(|set| {
@@ -287,25 +369,34 @@ impl GpuSurfaceDirect {
                     .collect()
             })
             .collect();
-        // Slices of the batch: each one's output within a binding, its gather thread indices
-        // within u32, and one patch's rays within a piece.
+        // Slices of the batch: each one's output (and per-sample values) within a binding, its
+        // gather thread indices within u32, and one patch's rays within a piece.
         let limits = self.device.limits();
         let binding = limits
             .max_storage_buffer_binding_size
-            .min(limits.max_buffer_size);
+            .min(limits.max_buffer_size)
+            .min(self.binding_cap);
         let set_bytes = n as u64 * 12;
-        let by_binding = binding / set_bytes;
+        let (what, per_set) = match near {
+            Some(_) => (
+                "one light set's direct irradiance per sample point",
+                set_bytes * u64::from(count).max(1),
+            ),
+            None => ("one light set's direct irradiance", set_bytes),
+        };
+        let by_binding = binding / per_set;
         let by_index = u64::from(u32::MAX / 2) / n as u64;
         let max_sets = by_binding.min(by_index);
         if max_sets == 0 {
             return Err(GpuError::TooLarge {
-                what: "one light set's direct irradiance",
-                needed: set_bytes,
+                what,
+                needed: per_set,
                 limit: binding,
             });
         }
         let ray_cap = self.rays_per_piece.min(binding.saturating_mul(8));
         let mut out = Vec::with_capacity(sets.len());
+        let mut deltas = near.map(|_| Vec::with_capacity(sets.len()));
         let mut start = 0;
         while start < sets.len() {
             let (mut end, mut lights) = (start, 0u64);
@@ -324,21 +415,27 @@ impl GpuSurfaceDirect {
                     limit: ray_cap,
                 });
             }
-            let flat = self.run(&prepared[start..end], count, ray_cap)?;
+            let (flat, delta) = self.run(&prepared[start..end], count, ray_cap, near)?;
             out.extend(flat.chunks(n).map(<[[f32; 3]]>::to_vec));
+            if let (Some(all), Some(delta)) = (deltas.as_mut(), delta) {
+                all.extend(delta.chunks(n).map(<[[f32; 3]]>::to_vec));
+            }
             start = end;
         }
-        Ok(out)
+        Ok((out, deltas))
     }
 
     /// One slice of the batch: `count × lights` rays per patch fit in `ray_cap`, and the sets'
-    /// output in a binding.
+    /// output (and per-sample values, with `near`) in a binding. With `near`, the slice's `ΔE`
+    /// too.
+    #[allow(clippy::type_complexity)]
     fn run(
         &self,
         sets: &[Vec<GpuLight>],
         count: u32,
         ray_cap: u64,
-    ) -> Result<Vec<[f32; 3]>, GpuError> {
+        near: Option<&(NearBuffers, wgpu::ComputePipeline)>,
+    ) -> Result<(Vec<[f32; 3]>, Option<Vec<[f32; 3]>>), GpuError> {
         let mut lights: Vec<GpuLight> = Vec::new();
         let mut offsets: Vec<u32> = vec![0];
         for set in sets {
@@ -382,6 +479,21 @@ impl GpuSurfaceDirect {
             usage: U::MAP_READ | U::COPY_DST,
             mapped_at_creation: false,
         });
+        let per_sample = match near {
+            Some(_) => {
+                // Within the binding the slice was cut to.
+                let size = (bytes * u64::from(count)).max(4);
+                check_binding(device, "direct irradiance per sample point", size)?;
+                Some(device.create_buffer(&wgpu::BufferDescriptor {
+                    label: Some("surface direct per sample point"),
+                    size,
+                    usage: U::STORAGE,
+                    mapped_at_creation: false,
+                }))
+            }
+            None => None,
+        };
+        let gather = near.map_or(&self.gather, |(_, g)| g);
         let bind = |pipeline: &wgpu::ComputePipeline, entries: &[(u32, &wgpu::Buffer)]| {
             let entries: Vec<wgpu::BindGroupEntry> = entries
                 .iter()
@@ -438,31 +550,87 @@ impl GpuSurfaceDirect {
                 pass.set_bind_group(0, &group, &[]);
                 pass.dispatch_workgroups(gx, gy, 1);
             }
-            let group = bind(
-                &self.gather,
-                &[
-                    (0, &params_buf),
-                    (3, &self.points),
-                    (4, &lights_buf),
-                    (5, &offsets_buf),
-                    (6, &bits),
-                    (7, &out),
-                ],
-            );
+            let mut entries = vec![
+                (0, &params_buf),
+                (3, &self.points),
+                (4, &lights_buf),
+                (5, &offsets_buf),
+                (6, &bits),
+                (7, &out),
+            ];
+            if let Some(per_sample) = &per_sample {
+                entries.push((8, per_sample));
+            }
+            let group = bind(gather, &entries);
             let (gx, gy) = grid(
                 device,
                 (patches * u64::from(sets_n)).div_ceil(u64::from(SURFACE_WG)),
             )?;
             {
                 let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
-                pass.set_pipeline(&self.gather);
+                pass.set_pipeline(gather);
                 pass.set_bind_group(0, &group, &[]);
                 pass.dispatch_workgroups(gx, gy, 1);
             }
             first += patches;
         }
         encoder.copy_buffer_to_buffer(&out, 0, &readback, 0, bytes);
+        // After the last piece: a row's correction reads samples of any row.
+        let mut delta_readback = None;
+        if let (Some((near, _)), Some(per_sample)) = (near, &per_sample) {
+            let delta = device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("near-field correction"),
+                size: bytes,
+                usage: U::STORAGE | U::COPY_SRC,
+                mapped_at_creation: false,
+            });
+            let readback = device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("near-field readback"),
+                size: bytes,
+                usage: U::MAP_READ | U::COPY_DST,
+                mapped_at_creation: false,
+            });
+            let params = NearParams {
+                n: self.n,
+                sets: sets_n,
+                per_row: count,
+                pad: 0,
+            };
+            let params_buf = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("near_field params"),
+                contents: bytemuck::bytes_of(&params),
+                usage: U::UNIFORM,
+            });
+            let group = bind(
+                &near.pass,
+                &[
+                    (0, &params_buf),
+                    (1, &near.row_ptr),
+                    (2, &near.cols),
+                    (3, &near.values),
+                    (4, &near.albedo),
+                    (5, &out),
+                    (6, per_sample),
+                    (7, &delta),
+                ],
+            );
+            let (gx, gy) = grid(device, (n * u64::from(sets_n)).div_ceil(u64::from(NEAR_WG)))?;
+            {
+                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
+                pass.set_pipeline(&near.pass);
+                pass.set_bind_group(0, &group, &[]);
+                pass.dispatch_workgroups(gx, gy, 1);
+            }
+            encoder.copy_buffer_to_buffer(&delta, 0, &readback, 0, bytes);
+            delta_readback = Some(readback);
+        }
         self.queue.submit([encoder.finish()]);
-        read_rgb(device, &readback, (n * u64::from(sets_n)) as usize)
+        let rows = (n * u64::from(sets_n)) as usize;
+        let means = read_rgb(device, &readback, rows)?;
+        let delta = match delta_readback {
+            Some(b) => Some(read_rgb(device, &b, rows)?),
+            None => None,
+        };
+        Ok((means, delta))
     }
 }

@@ -38,6 +38,8 @@ pub enum GpuError {
         kernel: &'static str,
         message: String,
     },
+    #[error("the near-field matrix does not fit the surface direct light: {0}")]
+    NearField(String),
     #[error("GPU readback failed: {0}")]
     Readback(String),
 }

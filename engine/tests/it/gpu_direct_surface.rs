@@ -36,7 +36,7 @@ use crate::gpu_direct::{
 };
 
 /// Sample points stored per patch.
-const PER_PATCH: u32 = 16;
+pub(crate) const PER_PATCH: u32 = 16;
 
 /// A scene clustered into surface patches, with its sample points, and the CPU's shadow scenes:
 /// against the triangles, and against nothing (the unshadowed values the tolerance scales with).
@@ -224,7 +224,7 @@ fn pillar_room_with_several_lights_matches_the_cpu() {
 }
 
 /// `count` light sets of one to three lights each, all over the pillar room.
-fn many_sets(count: usize) -> Vec<LightSet> {
+pub(crate) fn many_sets(count: usize) -> Vec<LightSet> {
     (0..count)
         .map(|k| {
             let f = |a: usize, b: usize| 0.3 + 3.4 * ((k * a + b) % 17) as f32 / 16.0;
@@ -464,7 +464,7 @@ fn gpu_engine_lights_a_surface_bake_on_the_gpu() {
 }
 
 /// Median seconds of `f` over `runs` runs (after one warm-up).
-fn median(runs: usize, mut f: impl FnMut()) -> f64 {
+pub(crate) fn median(runs: usize, mut f: impl FnMut()) -> f64 {
     f();
     let mut t: Vec<f64> = (0..runs)
         .map(|_| {

@@ -1,6 +1,7 @@
 //! The Rust mirror of the shaders' shared declarations matches what naga reads from the WGSL:
 //! `Params`'s size and member offsets, the work split constants, and the one `GpuLight` the
-//! direct-light kernels and the renderer share (with its kind constants).
+//! direct-light kernels and the renderer share (with its kind constants), the direct-light
+//! kernels' own structs, and the near-field pass's `NearParams`.
 
 use bounce_engine::gpu::{CHUNK, CHUNKS, Params, ROWS, sources};
 use naga::{Expression, Literal, Module, TypeInner};
@@ -303,4 +304,24 @@ fn bandwidth_probe_layout_matches_wgsl() {
         ("groups".to_string(), std::mem::offset_of!(Probe, groups)),
     ];
     assert_eq!(wgsl, rust);
+}
+
+#[test]
+fn near_field_params_match_wgsl() {
+    use bounce_engine::gpu::{NEAR_WG, NearParams};
+    use std::mem::{offset_of, size_of};
+    let source = sources::near_field_source();
+
+    let (size, members) = wgsl_struct("near_field", source, "NearParams");
+    assert_eq!(size, size_of::<NearParams>(), "NearParams size");
+    assert_eq!(
+        members,
+        named(&[
+            ("n", offset_of!(NearParams, n)),
+            ("sets", offset_of!(NearParams, sets)),
+            ("per_row", offset_of!(NearParams, per_row)),
+            ("pad", offset_of!(NearParams, pad)),
+        ])
+    );
+    assert_eq!(constant(&parse("near_field", source), "NEAR_WG"), NEAR_WG);
 }

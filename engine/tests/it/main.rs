@@ -4,6 +4,7 @@ mod common;
 mod gpu;
 mod gpu_direct;
 mod gpu_direct_surface;
+mod gpu_near_field;
 mod layout;
 mod relight;
 mod stress;

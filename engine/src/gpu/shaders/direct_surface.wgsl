@@ -12,10 +12,12 @@
 //   walk the same nodes. A workgroup's 64 bits meet in workgroup memory and leave as two words,
 //   with no atomics.
 // - `gather`: one thread per (light set, patch) walks the patch's samples in order and, per
-//   sample, the set's lights in order, adding the irradiance of every ray whose bit is set. So a
-//   patch sums in the CPU's order, and its value differs from the CPU's only by f32 rounding
+//   sample, the set's lights in order, adding the irradiance of every ray whose bit is set into
+//   the sample's value (kept finite), and the samples' values into the patch's sum. So a patch
+//   sums in the CPU's order, and its value differs from the CPU's only by f32 rounding
 //   (division, sqrt, fused multiply-adds the driver may form), which can also flip a shadow ray
-//   that grazes a triangle's edge.
+//   that grazes a triangle's edge. `gather_samples` is `gather` that also keeps every sample's
+//   value (`per_sample`) for the near-field pass (`near_field.wgsl`).
 
 struct SurfaceParams {
     // Patches in the scene (the stride of one light set's output).
@@ -258,43 +260,105 @@ fn shadow(
     }
 }
 
+// Light set `sid`'s irradiance at sample `k` of the piece's patch `i` (the scene's patch `pid`):
+// its lights in order, kept finite as the CPU keeps each sample's value.
+fn sample_value(sid: u32, i: u32, pid: u32, k: u32) -> vec3<f32> {
+    let pt = points[pid * params.per_patch + k];
+    let column = i * params.count + k;
+    let stride = params.patches * params.count;
+    let last = offsets[sid + 1u];
+    var e = vec3<f32>(0.0);
+    for (var l = offsets[sid]; l < last; l++) {
+        let b = l * stride + column;
+        if ((bits[b >> 5u] >> (b & 31u)) & 1u) == 1u {
+            let s = light_sample(lights[l], pt.position, pt.normal);
+            if s.lit {
+                e += s.irradiance;
+            }
+        }
+    }
+    return min(e, vec3<f32>(BIG));
+}
+
+// The (light set, patch) of a `gather` thread, or none past the end: `vec2(sid, i)`.
+fn gather_id(wg: vec3<u32>, groups: vec3<u32>, lid: u32) -> vec2<u32> {
+    let id = (wg.y * groups.x + wg.x) * WG + lid;
+    if id >= params.patches * params.sets {
+        return vec2<u32>(0xffffffffu);
+    }
+    return vec2<u32>(id / params.patches, id % params.patches);
+}
+
+// A set with no light leaves its patches dark without reading a bit (its pieces may have had no
+// rays to trace).
+fn lit_set(sid: u32) -> bool {
+    return offsets[sid] != offsets[sid + 1u] && params.count > 0u;
+}
+
+fn write_mean(sid: u32, pid: u32, sum: vec3<f32>) {
+    var e = vec3<f32>(0.0);
+    if params.count > 0u {
+        e = min(sum / f32(params.count), vec3<f32>(BIG));
+    }
+    let o = (sid * params.n + pid) * 3u;
+    out[o] = e.x;
+    out[o + 1u] = e.y;
+    out[o + 2u] = e.z;
+}
+
 @compute @workgroup_size(WG)
 fn gather(
     @builtin(workgroup_id) wg: vec3<u32>,
     @builtin(num_workgroups) groups: vec3<u32>,
     @builtin(local_invocation_index) lid: u32,
 ) {
-    let id = (wg.y * groups.x + wg.x) * WG + lid;
-    if id >= params.patches * params.sets {
+    let at = gather_id(wg, groups, lid);
+    if at.x == 0xffffffffu {
         return;
     }
-    let sid = id / params.patches;
-    let i = id % params.patches;
+    let sid = at.x;
+    let i = at.y;
     let pid = params.first + i;
-    let first = offsets[sid];
-    let last = offsets[sid + 1u];
-    let count = params.count;
-    var e = vec3<f32>(0.0);
-    if first != last && count > 0u {
-        var sum = vec3<f32>(0.0);
-        for (var k = 0u; k < count; k++) {
-            let pt = points[pid * params.per_patch + k];
-            let column = i * count + k;
-            let stride = params.patches * count;
-            for (var l = first; l < last; l++) {
-                let b = l * stride + column;
-                if ((bits[b >> 5u] >> (b & 31u)) & 1u) == 1u {
-                    let s = light_sample(lights[l], pt.position, pt.normal);
-                    if s.lit {
-                        sum += s.irradiance;
-                    }
-                }
-            }
+    var sum = vec3<f32>(0.0);
+    if lit_set(sid) {
+        for (var k = 0u; k < params.count; k++) {
+            sum += sample_value(sid, i, pid, k);
         }
-        e = min(sum / f32(count), vec3<f32>(BIG));
     }
-    let o = (sid * params.n + pid) * 3u;
-    out[o] = e.x;
-    out[o + 1u] = e.y;
-    out[o + 2u] = e.z;
+    write_mean(sid, pid, sum);
+}
+
+// Packed RGB per sample for the near-field pass: light set s, patch i, sample k at
+// ((s * n + i) * count + k) * 3. Only `gather_samples` binds it.
+@group(0) @binding(8) var<storage, read_write> per_sample: array<f32>;
+
+// `gather`, also keeping each sample's value for `near_field.wgsl`: the same function sums the
+// same terms, so the means are `gather`'s.
+@compute @workgroup_size(WG)
+fn gather_samples(
+    @builtin(workgroup_id) wg: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+    @builtin(local_invocation_index) lid: u32,
+) {
+    let at = gather_id(wg, groups, lid);
+    if at.x == 0xffffffffu {
+        return;
+    }
+    let sid = at.x;
+    let i = at.y;
+    let pid = params.first + i;
+    let lit = lit_set(sid);
+    var sum = vec3<f32>(0.0);
+    for (var k = 0u; k < params.count; k++) {
+        var e = vec3<f32>(0.0);
+        if lit {
+            e = sample_value(sid, i, pid, k);
+        }
+        sum += e;
+        let o = ((sid * params.n + pid) * params.count + k) * 3u;
+        per_sample[o] = e.x;
+        per_sample[o + 1u] = e.y;
+        per_sample[o + 2u] = e.z;
+    }
+    write_mean(sid, pid, sum);
 }

@@ -1,0 +1,72 @@
+// The near-field correction `ΔE = C · ρ ⊙ (E_q − Ē_j)`: the twin of
+// `bounce_core::nearfield::NearField::correction` (read it and `bounce_core::nearfield` for the
+// model). One thread per (light set, row) walks the row's CSR entries in order and sums as the
+// CPU does, in f32: `sum += c * (ρ_j * (E_q − Ē_j))`. It reads what `gather_samples`
+// (`direct_surface.wgsl`) wrote for the same slice of light sets: every row's mean and every
+// sample's value, so it runs after the slice's last piece.
+
+struct NearParams {
+    // Rows (patches) in the scene: the stride of one light set's means and corrections.
+    n: u32,
+    // Light sets in this dispatch.
+    sets: u32,
+    // Sample points per row, both the matrix's columns per row and the values `gather_samples`
+    // kept per row (the host runs this pass only when the two agree).
+    per_row: u32,
+    pad: u32,
+}
+
+const NEAR_WG: u32 = 64u;
+
+// Seven storage buffers: within the eight a stage may bind on WebGPU's default limits, so the
+// pass runs wherever the direct light does.
+@group(0) @binding(0) var<uniform> params: NearParams;
+// `NearField::row_ptr`, `cols`, `values`: row i's entries are row_ptr[i]..row_ptr[i + 1].
+@group(0) @binding(1) var<storage, read> row_ptr: array<u32>;
+@group(0) @binding(2) var<storage, read> cols: array<u32>;
+@group(0) @binding(3) var<storage, read> values: array<f32>;
+// Packed RGB albedo per row.
+@group(0) @binding(4) var<storage, read> albedo: array<f32>;
+// Packed RGB, light set s, row j at (s * n + j) * 3: `gather_samples`' means.
+@group(0) @binding(5) var<storage, read> mean: array<f32>;
+// Packed RGB, light set s, sample q (= j * per_row + k) at (s * n * per_row + q) * 3.
+@group(0) @binding(6) var<storage, read> per_sample: array<f32>;
+// Packed RGB, light set s, row i at (s * n + i) * 3.
+@group(0) @binding(7) var<storage, read_write> delta: array<f32>;
+
+fn albedo_of(j: u32) -> vec3<f32> {
+    let o = j * 3u;
+    return vec3<f32>(albedo[o], albedo[o + 1u], albedo[o + 2u]);
+}
+
+@compute @workgroup_size(NEAR_WG)
+fn near_field(
+    @builtin(workgroup_id) wg: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+    @builtin(local_invocation_index) lid: u32,
+) {
+    let id = (wg.y * groups.x + wg.x) * NEAR_WG + lid;
+    if id >= params.n * params.sets {
+        return;
+    }
+    let sid = id / params.n;
+    let i = id % params.n;
+    let samples = sid * params.n * params.per_row;
+    let means = sid * params.n;
+    var sum = vec3<f32>(0.0);
+    let end = row_ptr[i + 1u];
+    for (var e = row_ptr[i]; e < end; e++) {
+        let q = cols[e];
+        let j = q / params.per_row;
+        let so = (samples + q) * 3u;
+        let mo = (means + j) * 3u;
+        let eq = vec3<f32>(per_sample[so], per_sample[so + 1u], per_sample[so + 2u]);
+        let ej = vec3<f32>(mean[mo], mean[mo + 1u], mean[mo + 2u]);
+        let d = albedo_of(j) * (eq - ej);
+        sum += values[e] * d;
+    }
+    let o = id * 3u;
+    delta[o] = sum.x;
+    delta[o + 1u] = sum.y;
+    delta[o + 2u] = sum.z;
+}
