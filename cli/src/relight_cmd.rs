@@ -21,9 +21,12 @@ pub struct RelightArgs {
     /// `auto` takes the GPU when an adapter exists, else the CPU, and says which.
     #[arg(long, value_name = "auto|gpu|cpu", default_value = "auto")]
     pub engine: String,
-    /// Direct-light samples per patch (rounded down to a square, at most 256).
-    #[arg(long, default_value_t = bounce_core::direct::DEFAULT_SAMPLES)]
-    pub samples: u32,
+    /// Direct-light samples per patch [default: every sample point a surface bake stores, which
+    /// its near-field first bounce needs; 16 for voxel faces]. Voxel faces round it down to a
+    /// square, at most 256; a surface bake uses at most what it stores, and fewer leave its near
+    /// field out.
+    #[arg(long, value_name = "N")]
+    pub samples: Option<u32>,
     /// Write direct and indirect irradiance per patch here: `.json` or `.csv`.
     #[arg(long, value_name = "OUT.json|OUT.csv")]
     pub out: Option<PathBuf>,
@@ -31,7 +34,7 @@ pub struct RelightArgs {
 
 pub fn run(args: &RelightArgs) -> Result<()> {
     let choice: EngineChoice = args.engine.parse()?;
-    if args.samples == 0 {
+    if args.samples == Some(0) {
         bail!("--samples must be at least 1");
     }
     let format = match &args.out {

@@ -76,8 +76,10 @@ pub struct Engine {
     description: String,
     /// Why `auto` fell back to the CPU, when it did.
     fallback: Option<String>,
-    /// Direct-light samples per patch.
-    pub samples: u32,
+    /// Direct-light samples per patch: `None` takes every sample point a surface bake stores
+    /// (what its near field is built on) and [`DEFAULT_SAMPLES`] for voxel faces; a count here
+    /// is clamped to what a surface bake stores.
+    pub samples: Option<u32>,
 }
 
 impl Engine {
@@ -90,7 +92,7 @@ impl Engine {
             gpu: None,
             description: format!("cpu ({} threads)", rayon::current_num_threads()),
             fallback,
-            samples: DEFAULT_SAMPLES,
+            samples: None,
         };
         match choice {
             EngineChoice::Cpu => Ok(cpu(None)),
@@ -116,7 +118,7 @@ impl Engine {
                         gpu: Some(ctx),
                         description,
                         fallback: None,
-                        samples: DEFAULT_SAMPLES,
+                        samples: None,
                     })
                 }
                 Err(e) if choice == EngineChoice::Auto => Ok(cpu(Some(e.to_string()))),
@@ -161,11 +163,20 @@ impl Engine {
         let cpu_direct =
             |why: Option<String>| DirectLight::Cpu(Box::new(ShadowScene::of_baked(baked)), why);
         let direct = match (&self.gpu, &baked.surface, baked.occupancy.as_deref()) {
-            (Some(ctx), Some(surface), _) => match GpuSurfaceDirect::upload(ctx, surface) {
-                Ok(d) => DirectLight::GpuSurface(Box::new(d)),
-                Err(e @ GpuError::TooLarge { .. }) => cpu_direct(Some(e.to_string())),
-                Err(e) => return Err(e.into()),
-            },
+            (Some(ctx), Some(surface), _) => {
+                let uploaded = GpuSurfaceDirect::upload(ctx, surface).and_then(|d| {
+                    match &baked.near_field {
+                        // The correction needs every sample's light, which stays on the device.
+                        Some(near) => d.with_near_field(near, &row_albedo(baked)),
+                        None => Ok(d),
+                    }
+                });
+                match uploaded {
+                    Ok(d) => DirectLight::GpuSurface(Box::new(d)),
+                    Err(e @ GpuError::TooLarge { .. }) => cpu_direct(Some(e.to_string())),
+                    Err(e) => return Err(e.into()),
+                }
+            }
             (Some(ctx), None, Some(occupied)) => {
                 match GpuDirect::upload(ctx, baked.transport_layout(), occupied) {
                     Ok(d) => DirectLight::Gpu(Box::new(d)),
@@ -203,18 +214,14 @@ impl Engine {
             None => (Transport::Cpu(codec::decode(&baked.transport)?), None),
         };
         let near = baked.near_field.clone().map(|field| NearRows {
-            albedo: baked
-                .transport_layout()
-                .patches
-                .iter()
-                .map(|p| p.albedo)
-                .collect(),
+            albedo: row_albedo(baked),
             field,
         });
         Ok(Scene {
             layout: baked.layout.clone(),
             rows: baked.transport_layout().clone(),
             near,
+            stored_samples: baked.surface.as_ref().map(|s| s.per_patch),
             elements: baked.elements.clone(),
             direct,
             shadow_source,
@@ -315,12 +322,16 @@ impl Engine {
         scene: &Scene,
         lights: &[LightSet],
     ) -> Result<(Vec<Vec<[f32; 3]>>, Option<Vec<Vec<[f32; 3]>>>), EngineError> {
+        if let (Some(_), DirectLight::GpuSurface(gpu)) = (self.near_in_use(scene), &scene.direct) {
+            return Ok(gpu.irradiance_near(lights, self.samples_for(scene))?);
+        }
         if let (Some(near), DirectLight::Cpu(shadow, _)) = (self.near_in_use(scene), &scene.direct)
         {
             let mut direct = Vec::with_capacity(lights.len());
             let mut corrections = Vec::with_capacity(lights.len());
             for set in lights {
-                let Some(sampled) = direct_with_samples(shadow, &scene.rows, set, self.samples)
+                let Some(sampled) =
+                    direct_with_samples(shadow, &scene.rows, set, self.samples_for(scene))
                 else {
                     break;
                 };
@@ -336,14 +347,24 @@ impl Engine {
             }
         }
         let direct = match &scene.direct {
-            DirectLight::Gpu(gpu) => gpu.irradiance(lights, self.samples)?,
-            DirectLight::GpuSurface(gpu) => gpu.irradiance(lights, self.samples)?,
+            DirectLight::Gpu(gpu) => gpu.irradiance(lights, self.samples_for(scene))?,
+            DirectLight::GpuSurface(gpu) => gpu.irradiance(lights, self.samples_for(scene))?,
             DirectLight::Cpu(shadow, _) => lights
                 .iter()
-                .map(|set| direct_irradiance(shadow, &scene.rows, set, self.samples))
+                .map(|set| direct_irradiance(shadow, &scene.rows, set, self.samples_for(scene)))
                 .collect(),
         };
         Ok((direct, None))
+    }
+
+    /// Direct-light samples a row of `scene` takes ([`Engine::samples`]).
+    pub fn samples_for(&self, scene: &Scene) -> u32 {
+        match (self.samples, scene.stored_samples) {
+            (Some(n), Some(stored)) => n.clamp(1, stored),
+            (Some(n), None) => n,
+            (None, Some(stored)) => stored,
+            (None, None) => DEFAULT_SAMPLES,
+        }
     }
 
     /// The scene's near field when this engine's direct light evaluates the sample points its
@@ -352,7 +373,7 @@ impl Engine {
         scene
             .near
             .as_ref()
-            .filter(|n| self.samples == n.field.per_row)
+            .filter(|n| self.samples_for(scene) == n.field.per_row)
     }
 
     /// Whether relights of `scene` on this engine add the near-field first bounce, and if not
@@ -361,9 +382,10 @@ impl Engine {
     pub fn near_field(&self, scene: &Scene) -> Result<bool, String> {
         match &scene.near {
             None => Ok(false),
-            Some(n) if self.samples != n.field.per_row => Err(format!(
+            Some(n) if self.samples_for(scene) != n.field.per_row => Err(format!(
                 "the near field names {} samples a row, direct light uses {}",
-                n.field.per_row, self.samples
+                n.field.per_row,
+                self.samples_for(scene)
             )),
             Some(_) => Ok(true),
         }
@@ -412,6 +434,8 @@ pub struct Scene {
     rows: PatchLayout,
     /// The near-field first bounce, when the file has one.
     near: Option<NearRows>,
+    /// Sample points a surface bake stores per row.
+    stored_samples: Option<u32>,
     elements: Option<Elements>,
     direct: DirectLight,
     shadow_source: ShadowSource,
@@ -496,6 +520,16 @@ impl Scene {
             Transport::Cpu(_) => usize::from(sets > 0),
         }
     }
+}
+
+/// Per transport row, its albedo: what the near-field correction multiplies by.
+fn row_albedo(baked: &Baked) -> Vec<[f32; 3]> {
+    baked
+        .transport_layout()
+        .patches
+        .iter()
+        .map(|p| p.albedo)
+        .collect()
 }
 
 /// A scene's near-field matrix with what its correction multiplies by.

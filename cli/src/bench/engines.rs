@@ -161,13 +161,13 @@ pub fn run(args: &BenchEnginesArgs) -> Result<()> {
     let bandwidth = memory_bandwidth();
     eprintln!(
         "bench engines: {} ({} patches, {n} transport rows, {} channel(s)); direct light {:.1} ms \
-         a light set (CPU, {} samples a patch; {:.0}% of B0 entries dark); CPU memory bandwidth \
+         a light set (CPU, {} samples a row; {:.0}% of B0 entries dark); CPU memory bandwidth \
          {:.1} GB/s",
         args.baked.display(),
         baked.layout.len(),
         exact.channels,
         direct_per_set * 1e3,
-        cpu.samples,
+        cpu.samples_for(&cpu_scene),
         dark * 100.0,
         bandwidth / 1e9
     );

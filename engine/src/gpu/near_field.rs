@@ -59,7 +59,8 @@ impl NearBuffers {
         rows: usize,
         per_row: u32,
     ) -> Result<NearBuffers, GpuError> {
-        near.check(rows, per_row).map_err(GpuError::NearField)?;
+        near.check(rows, rows, per_row)
+            .map_err(GpuError::NearField)?;
         if albedo.len() != rows {
             return Err(GpuError::NearField(format!(
                 "{} albedo values for {rows} rows",

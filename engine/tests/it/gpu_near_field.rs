@@ -55,7 +55,7 @@ fn near_case(scene: &Scene, voxel: f32) -> NearCase {
     let tracer = SurfaceScene::new(scene, mesh, rows, pieces);
     let near = near_field_rows(&tracer, &data, 0..n, 256, 11, voxel, &|_| {})
         .expect("the near field traces");
-    near.check(n, PER_PATCH).expect("a well-formed matrix");
+    near.check(n, n, PER_PATCH).expect("a well-formed matrix");
     // Different per row and per channel, so a row read in the wrong place shows.
     let albedo = (0..n)
         .map(|j| {

@@ -259,9 +259,18 @@ fn classic_radiosity_agrees_with_the_precomputed_transport() {
         panic!("the fixture bakes a fixed bounce count")
     };
     let cpu = Engine::new(EngineChoice::Cpu).unwrap();
-    let scene = cpu.load(baked).unwrap();
+    let mut scene = cpu.load(baked).unwrap();
     let sets = light_sets(3);
+    let with_near = cpu.relight(&scene, &sets).unwrap();
+    // Jacobi iterates `F` on element means: the near-field first bounce is not part of it.
+    assert_eq!(
+        cpu.near_field(&scene),
+        Ok(true),
+        "the fixture has a near field"
+    );
+    scene.disable_near_field();
     let lit = cpu.relight(&scene, &sets).unwrap();
+    assert_ne!(lit, with_near, "the near field changes the first bounce");
     // The iteration runs on the transport's rows (the elements), from their own direct light,
     // and is restricted to the patches as a relight is.
     let rows = baked.transport_layout();
@@ -269,7 +278,8 @@ fn classic_radiosity_agrees_with_the_precomputed_transport() {
     let b0: Vec<[f32; 3]> = sets
         .iter()
         .flat_map(|set| {
-            let e = bounce_core::direct::direct_irradiance(&shadow, rows, set, cpu.samples);
+            let e =
+                bounce_core::direct::direct_irradiance(&shadow, rows, set, cpu.samples_for(&scene));
             bounce_core::direct::exitance_b0(rows, &e)
         })
         .collect();

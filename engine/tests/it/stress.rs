@@ -185,7 +185,7 @@ fn a_thousand_random_light_configurations_stay_finite_and_non_negative() {
     for engine in &mut engines {
         // Fewer direct-light samples than the server's default: this counts NaNs, it does not
         // need smooth shadows, and lavapipe runs the kernel on these two cores.
-        engine.samples = 4;
+        engine.samples = Some(4);
         for b in &lossy {
             let scene = engine.load(b).unwrap();
             let mut lit = Vec::new();
