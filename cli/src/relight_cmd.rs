@@ -67,6 +67,14 @@ pub fn run(args: &RelightArgs) -> Result<()> {
         timing.direct_s * 1e3,
         timing.indirect_s * 1e3
     );
+    match engine.near_field(&scene) {
+        Ok(true) => eprintln!(
+            "  near-field first bounce applied ({} samples a row, in the direct time)",
+            engine.samples_for(&scene)
+        ),
+        Ok(false) => {}
+        Err(why) => eprintln!("  near-field first bounce left out: {why}"),
+    }
     for (name, l) in names.iter().zip(&lit) {
         let (d_mean, d_max) = stats(&l.direct);
         let (i_mean, i_max) = stats(&l.indirect);

@@ -32,7 +32,7 @@ use crate::surface::{SurfaceData, SurfaceScene};
 
 /// How far from its origin a form-factor ray may land and still count as near, in voxels,
 /// unless a bake asks otherwise.
-pub const DEFAULT_NEAR_RADIUS: f32 = 0.5;
+pub const DEFAULT_NEAR_RADIUS: f32 = 1.0;
 /// The largest radius a bake accepts, in voxels: beyond it the matrix grows towards `F`'s size
 /// and the correction stops being near.
 pub const MAX_NEAR_RADIUS: f32 = 4.0;

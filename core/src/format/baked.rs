@@ -164,7 +164,7 @@ impl Baked {
             };
             sections.push(owned(
                 SectionKind::NEAR,
-                encode_near(SectionKind::NEAR, near, n, surface.per_patch)?,
+                encode_near(SectionKind::NEAR, near, n, n, surface.per_patch)?,
             ));
         }
         if let Some(model) = &self.model {

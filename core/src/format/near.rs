@@ -13,15 +13,16 @@ use super::container::{FieldReader, SectionKind};
 /// Bytes before the offsets.
 pub const NEAR_HEADER_LEN: u64 = 16;
 
-/// The section's bytes; `total_rows` and `per_row` are the transport's, which the matrix is
-/// checked against as a reader will check it.
+/// The section's bytes for `rows` rows of a transport of `total_rows` rows with `per_row` sample
+/// points each, which the matrix is checked against as a reader will check it.
 pub(crate) fn encode_near(
     kind: SectionKind,
     near: &NearField,
+    rows: usize,
     total_rows: usize,
     per_row: u32,
 ) -> Result<Vec<u8>, FormatError> {
-    near.check(near.rows(), total_rows, per_row)
+    near.check(rows, total_rows, per_row)
         .map_err(|m| FormatError::NearField(format!("section '{kind}': {m}")))?;
     let too_large = |what, value: usize| FormatError::TooLarge {
         what,
@@ -107,14 +108,14 @@ mod tests {
     #[test]
     fn a_near_field_reads_back() {
         let kind = SectionKind(*b"NEAR");
-        let bytes = encode_near(kind, &field(), 2, 2).unwrap();
+        let bytes = encode_near(kind, &field(), 2, 2, 2).unwrap();
         assert_eq!(decode_near(kind, &bytes, 2, 2, 2).unwrap(), field());
     }
 
     #[test]
     fn damaged_sections_are_refused_with_a_reason() {
         let kind = SectionKind(*b"NEAR");
-        let bytes = encode_near(kind, &field(), 2, 2).unwrap();
+        let bytes = encode_near(kind, &field(), 2, 2, 2).unwrap();
         // Every truncation, and every count changed, is refused, never a panic.
         for len in 0..bytes.len() {
             assert!(decode_near(kind, &bytes[..len], 2, 2, 2).is_err(), "{len}");
@@ -124,15 +125,15 @@ mod tests {
             b[at] ^= 0x40;
             assert!(decode_near(kind, &b, 2, 2, 2).is_err(), "byte {at}");
         }
-        // A column past the samples, found by the check.
+        // Row 1's column past the samples, found by the check.
         let mut b = bytes.clone();
-        let col = NEAR_HEADER_LEN as usize + 3 * 4;
+        let col = NEAR_HEADER_LEN as usize + 3 * 4 + 2 * 4;
         b[col..col + 4].copy_from_slice(&9u32.to_le_bytes());
         let e = decode_near(kind, &b, 2, 2, 2).unwrap_err().to_string();
         assert!(e.contains("past"), "{e}");
         // A writer refuses what the reader would.
         let mut bad = field();
         bad.values[2] = -1.0;
-        assert!(encode_near(kind, &bad, 2, 2).is_err());
+        assert!(encode_near(kind, &bad, 2, 2, 2).is_err());
     }
 }

@@ -146,21 +146,17 @@ impl ShardFile {
         match (&self.near_rows, &h.surface, wants_near_rows(&h.meta)) {
             (Some(near), Some(surface), true) => sections.push(owned(
                 NROW,
-                encode_near(NROW, near, h.meta.patches, surface.per_patch)?,
+                encode_near(
+                    NROW,
+                    near,
+                    h.meta.end_row - h.meta.first_row,
+                    h.meta.patches,
+                    surface.per_patch,
+                )?,
             )),
             (None, _, false) => {}
             (Some(_), _, _) => return Err(bad("near-field rows in a shard that has none")),
             (None, _, true) => return Err(bad("a shard of a near-field bake lacks its rows")),
-        }
-        if let Some(near) = &self.near_rows
-            && near.rows() != h.meta.end_row - h.meta.first_row
-        {
-            return Err(bad(format!(
-                "{} near-field rows for rows {}..{}",
-                near.rows(),
-                h.meta.first_row,
-                h.meta.end_row
-            )));
         }
         // Before the rows, which stay last as they are the bulk of the file.
         if let Some(model) = &self.model {
