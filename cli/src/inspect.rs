@@ -68,6 +68,8 @@ pub fn run(args: &InspectArgs) -> Result<()> {
             "geometry": m.settings.geometry,
             "surface_samples": baked.surface.as_ref().map(|s| s.per_patch),
             "surface_triangles": baked.surface.as_ref().map(|s| s.triangles.len()),
+            "near_field_radius": baked.near_field.as_ref().map(|_| m.settings.near_radius),
+            "near_field_entries": baked.near_field.as_ref().map(|n| n.nnz()),
             "surface_area": m.stats.surface_area,
             "unassigned_area": m.stats.unassigned_area,
             "bounces": m.settings.bounces,
@@ -151,6 +153,14 @@ pub fn run(args: &InspectArgs) -> Result<()> {
             ""
         }
     );
+    if let Some(near) = &baked.near_field {
+        println!(
+            "  near field    rays landing within {} voxel(s): {} entries over {} samples a row",
+            m.settings.near_radius,
+            near.nnz(),
+            near.per_row
+        );
+    }
     match &baked.model {
         Some(m) => println!(
             "  model         {} GLB (the scene, for the browser page)",

@@ -38,7 +38,9 @@ fn bake_then_inspect_the_cornell_box() {
     assert!(summary.contains("patches"), "{summary}");
 
     let j = inspect_json(&file);
-    assert_eq!(j["format_version"], 3);
+    assert_eq!(j["format_version"], 4);
+    assert_eq!(j["near_field_radius"], 1.0, "a near field by default");
+    assert!(j["near_field_entries"].as_u64().unwrap() > 0);
     assert_eq!(j["geometry"], "surface", "surface patches are the default");
     assert_eq!(j["surface_samples"], 16);
     assert_eq!(j["bounces"], 3);
@@ -1281,6 +1283,8 @@ fn bench_tradeoff_puts_both_geometries_on_one_table() {
             "128",
             "--codecs",
             "dense-f32",
+            "--near-field",
+            "0,1",
         ])
         .args(["--spp", "64", "--repeat", "1", "--csv"])
         .arg(&csv)
@@ -1294,22 +1298,27 @@ fn bench_tradeoff_puts_both_geometries_on_one_table() {
     let rows: Vec<Vec<String>> = lines
         .map(|l| l.split(',').map(str::to_string).collect())
         .collect();
-    assert_eq!(rows.len(), 4, "{text}");
-    let method = |geometry: &str, i: usize| -> f64 {
+    // Two counts: surface with and without the near field, and voxel faces once (they have
+    // neither sample points nor a near field).
+    assert_eq!(rows.len(), 6, "{text}");
+    let method = |geometry: &str, near: &str, i: usize| -> f64 {
         rows.iter()
-            .filter(|r| r[col("geometry")] == geometry)
+            .filter(|r| r[col("geometry")] == geometry && r[col("near_field")] == near)
             .nth(i)
             .unwrap()[col("method_rel_l2")]
         .parse()
         .unwrap()
     };
     for i in 0..2 {
-        let (surface, voxels) = (method("surface", i), method("voxel-faces", i));
-        assert!(surface.is_finite() && surface > 0.0);
-        assert!(
-            surface < voxels,
-            "count {i}: surface {surface} against voxel faces {voxels}"
-        );
+        let voxels = method("voxel-faces", "0", i);
+        for near in ["0", "1"] {
+            let surface = method("surface", near, i);
+            assert!(surface.is_finite() && surface > 0.0);
+            assert!(
+                surface < voxels,
+                "count {i}, near field {near}: surface {surface} against voxel faces {voxels}"
+            );
+        }
     }
     assert!(std::fs::read_to_string(&plot).unwrap().contains("<svg"));
 }

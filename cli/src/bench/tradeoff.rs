@@ -8,13 +8,15 @@ use std::fmt::Write as _;
 use std::path::PathBuf;
 use std::time::Instant;
 
-use anyhow::{Context, Result};
+use anyhow::{Context, Result, bail};
 use bounce_core::bake::{BakeOptions, CodecRequest, NoProgress, bake_scene};
 use bounce_core::codec;
 use bounce_core::format::Baked;
 use bounce_core::import::import_path;
 use bounce_core::matrix::{DENSE_F32, EncodedMatrix};
 use bounce_core::meta::Bounces;
+use bounce_core::nearfield::MAX_NEAR_RADIUS;
+use bounce_core::surface::MAX_SURFACE_SAMPLES;
 use bounce_core::voxel::{Geometry, Resolution};
 use bounce_engine::{Engine, EngineChoice};
 use bounce_reference::{Options, Reference};
@@ -47,6 +49,13 @@ pub struct BenchTradeoffArgs {
     /// Patch geometries, comma separated: `surface` and/or `voxel-faces`.
     #[arg(long, value_delimiter = ',', default_value = "surface,voxel-faces")]
     pub geometries: Vec<Geometry>,
+    /// Near-field radii in voxels, comma separated (surface geometry; 0 bakes none).
+    #[arg(long, value_delimiter = ',', default_value = "1")]
+    pub near_field: Vec<f32>,
+    /// Direct-light sample points stored a row, comma separated (surface geometry; a relight
+    /// uses them all).
+    #[arg(long, value_delimiter = ',', default_value = "16")]
+    pub direct_samples: Vec<u32>,
     #[arg(long, default_value = "3")]
     pub bounces: Bounces,
     /// Reference sample paths per patch.
@@ -70,6 +79,9 @@ struct Row {
     geometry: Geometry,
     patches: usize,
     rays: u32,
+    /// Direct-light samples a row and near-field radius (surface geometry; 0 for voxel faces).
+    samples: u32,
+    near_field: f32,
     codec: String,
     bake_s: f64,
     encode_s: f64,
@@ -93,19 +105,52 @@ pub fn run(args: &BenchTradeoffArgs) -> Result<()> {
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default();
+    if let Some(r) = args
+        .near_field
+        .iter()
+        .find(|r| !(0.0..=MAX_NEAR_RADIUS).contains(*r))
+    {
+        bail!("--near-field {r}: radii are from 0 to {MAX_NEAR_RADIUS} voxels");
+    }
+    if let Some(n) = args
+        .direct_samples
+        .iter()
+        .find(|n| !(1..=MAX_SURFACE_SAMPLES).contains(*n))
+    {
+        bail!("--direct-samples {n}: from 1 to {MAX_SURFACE_SAMPLES}");
+    }
     let mut rows = Vec::new();
     for &geometry in &args.geometries {
+        // Sample points and the near field are surface geometry's; voxel faces bake once.
+        let lighting: Vec<(u32, f32)> = match geometry {
+            Geometry::Surface => args
+                .direct_samples
+                .iter()
+                .flat_map(|&s| args.near_field.iter().map(move |&r| (s, r)))
+                .collect(),
+            Geometry::VoxelFaces => vec![(0, 0.0)],
+        };
         for &target in &args.patches {
             // The layout does not depend on the ray count (isolated patches are found with a fixed
             // probe), so one reference serves every ray count of a patch count; checked below.
             let mut traced: Option<(bounce_core::patch::PatchLayout, Vec<[f64; 3]>, f64)> = None;
-            for &rays in &args.rays {
+            for (&rays, &(samples, near_field)) in args
+                .rays
+                .iter()
+                .flat_map(|r| lighting.iter().map(move |l| (r, l)))
+            {
                 let options = BakeOptions {
                     resolution: Resolution::TargetPatches(target),
                     rays,
                     bounces: args.bounces,
                     geometry,
                     codec: CodecRequest::Named(DENSE_F32.to_string()),
+                    direct_samples: if samples > 0 {
+                        samples
+                    } else {
+                        BakeOptions::default().direct_samples
+                    },
+                    near_radius: near_field,
                     ..BakeOptions::default()
                 };
                 let start = Instant::now();
@@ -154,6 +199,8 @@ pub fn run(args: &BenchTradeoffArgs) -> Result<()> {
                         geometry,
                         patches: exact.layout.len(),
                         rays,
+                        samples,
+                        near_field,
                         codec: name.clone(),
                         bake_s,
                         encode_s,
@@ -168,7 +215,7 @@ pub fn run(args: &BenchTradeoffArgs) -> Result<()> {
                         "{geometry}, {} patches, {} rays, {}: total error {:.2}%",
                         row.patches,
                         rays,
-                        name,
+                        series(&row),
                         row.total_rel_l2 * 100.0
                     );
                     rows.push(row);
@@ -186,7 +233,7 @@ pub fn run(args: &BenchTradeoffArgs) -> Result<()> {
             .iter()
             .map(|r| Point {
                 label: format!("{}p/{}r", r.patches, r.rays),
-                series: format!("{} {}", r.geometry, r.codec),
+                series: series(r),
                 x: [r.bake_s + r.encode_s, r.relight_ms],
                 rel_l2: r.total_rel_l2,
             })
@@ -203,6 +250,18 @@ pub fn run(args: &BenchTradeoffArgs) -> Result<()> {
         eprintln!("wrote {}", path.display());
     }
     Ok(())
+}
+
+/// What a plot series and the progress lines call a row's variant: its geometry, and for
+/// surface geometry its samples and near field, then its codec.
+fn series(r: &Row) -> String {
+    match r.geometry {
+        Geometry::Surface => format!(
+            "{} {}s near {} {}",
+            r.geometry, r.samples, r.near_field, r.codec
+        ),
+        Geometry::VoxelFaces => format!("{} {}", r.geometry, r.codec),
+    }
 }
 
 /// `E_ind` for `lights` and the median relight time over `repeat` runs.
@@ -224,10 +283,12 @@ fn relight(
     Ok((widen(&last), times[times.len() / 2]))
 }
 
-const HEADER: [&str; 12] = [
+const HEADER: [&str; 14] = [
     "geometry",
     "patches",
     "rays",
+    "samples",
+    "near_field",
     "codec",
     "bake_s",
     "encode_s",
@@ -239,11 +300,13 @@ const HEADER: [&str; 12] = [
     "reference_rel_stderr",
 ];
 
-fn fields(r: &Row) -> [String; 12] {
+fn fields(r: &Row) -> [String; 14] {
     [
         r.geometry.to_string(),
         r.patches.to_string(),
         r.rays.to_string(),
+        r.samples.to_string(),
+        r.near_field.to_string(),
         r.codec.clone(),
         format!("{:.3}", r.bake_s),
         format!("{:.3}", r.encode_s),
