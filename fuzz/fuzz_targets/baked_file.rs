@@ -2,7 +2,7 @@
 //! and the shard merge do with a file they are handed. Every reader of the format is run, and a
 //! file that parses has its transport matrix decoded and applied once, as the CPU engine would:
 //! the reader validates shapes and lengths so that the decoder can trust them, and this checks
-//! that promise too. Any panic (including an arithmetic overflow: debug assertions are on) is a
+//! that promise too, as the near-field correction does with its matrix. Any panic (including an arithmetic overflow: debug assertions are on) is a
 //! bug; an error is the expected answer to a bad file.
 #![no_main]
 
@@ -29,6 +29,19 @@ fuzz_target!(|data: &[u8]| {
         let x = vec![[1.0f32; 3]; op.n()];
         let mut out = vec![[0.0f32; 3]; op.n()];
         let _ = op.matvec_batch(&x, &mut out);
+    }
+    // The near field's columns index every sample point and, through them, every row: the
+    // reader's checks are what make the correction's indexing safe.
+    if let (Some(near), Some(surface)) = (&baked.near_field, &baked.surface) {
+        let rows = near.rows();
+        let samples = rows * surface.per_patch as usize;
+        if samples <= MAX_DECODED_ENTRIES {
+            let _ = near.correction(
+                &vec![[0.5f32; 3]; rows],
+                &vec![[1.0f32; 3]; rows],
+                &vec![[2.0f32; 3]; samples],
+            );
+        }
     }
     // A file that reads must write back: the writer trusts the values the reader accepted.
     let _ = baked.to_bytes();
