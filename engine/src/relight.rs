@@ -253,7 +253,7 @@ impl Engine {
         }
         let n = scene.rows.len();
         let start = Instant::now();
-        let (direct, near) = self.direct_and_near(scene, lights)?;
+        let (direct, near) = self.direct(scene, lights, true)?;
         let b0: Vec<[f32; 3]> = direct
             .iter()
             .flat_map(|e| exitance_b0(&scene.rows, e))
@@ -310,7 +310,7 @@ impl Engine {
         scene: &Scene,
         lights: &[LightSet],
     ) -> Result<Vec<Vec<[f32; 3]>>, EngineError> {
-        Ok(self.direct_and_near(scene, lights)?.0)
+        Ok(self.direct(scene, lights, false)?.0)
     }
 
     /// [`Engine::direct_on_rows`] and, for a scene with a near field that this engine's sample
@@ -322,11 +322,23 @@ impl Engine {
         scene: &Scene,
         lights: &[LightSet],
     ) -> Result<(Vec<Vec<[f32; 3]>>, Option<Vec<Vec<[f32; 3]>>>), EngineError> {
-        if let (Some(_), DirectLight::GpuSurface(gpu)) = (self.near_in_use(scene), &scene.direct) {
+        self.direct(scene, lights, true)
+    }
+
+    /// Direct light, and the near field's correction when `near` asks for it and the scene's
+    /// can be applied.
+    #[allow(clippy::type_complexity)]
+    fn direct(
+        &self,
+        scene: &Scene,
+        lights: &[LightSet],
+        near: bool,
+    ) -> Result<(Vec<Vec<[f32; 3]>>, Option<Vec<Vec<[f32; 3]>>>), EngineError> {
+        let in_use = self.near_in_use(scene).filter(|_| near);
+        if let (Some(_), DirectLight::GpuSurface(gpu)) = (in_use, &scene.direct) {
             return Ok(gpu.irradiance_near(lights, self.samples_for(scene))?);
         }
-        if let (Some(near), DirectLight::Cpu(shadow, _)) = (self.near_in_use(scene), &scene.direct)
-        {
+        if let (Some(near), DirectLight::Cpu(shadow, _)) = (in_use, &scene.direct) {
             let mut direct = Vec::with_capacity(lights.len());
             let mut corrections = Vec::with_capacity(lights.len());
             for set in lights {
