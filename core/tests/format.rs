@@ -396,7 +396,7 @@ fn layout_on_disk_matches_the_documentation() {
     let baked = sample(3, true);
     let b = baked.to_bytes().unwrap();
     assert_eq!(&b[..8], b"BOUNCE\0B");
-    assert_eq!(get_u32(&b, 8), 3);
+    assert_eq!(get_u32(&b, 8), 4);
     assert_eq!(get_u32(&b, 12), 5);
     assert_eq!(get_u64(&b, 16), b.len() as u64);
     let kinds: Vec<&[u8]> = (0..5).map(|i| &b[entry_at(i)..entry_at(i) + 4]).collect();
@@ -652,7 +652,7 @@ fn future_version() {
             FormatError::UnsupportedVersion {
                 found: 7,
                 oldest: 1,
-                supported: 3
+                supported: 4
             }
         ),
         "{err:?}"
