@@ -550,11 +550,13 @@ pub fn direct_with_samples(
         .iter()
         .filter_map(PreparedLight::new)
         .collect();
-    let count = samples.clamp(1, surface.per_patch) as usize;
+    // A file stores at least one sample a row; a hand-built `SurfaceData` may store none, and
+    // its rows are then unlit.
+    let count = samples.max(1).min(surface.per_patch) as usize;
     let rows: Vec<([f32; 3], Vec<[f32; 3]>)> = (0..layout.len())
         .into_par_iter()
         .map(|i| {
-            if prepared.is_empty() {
+            if prepared.is_empty() || count == 0 {
                 return ([0.0; 3], vec![[0.0; 3]; count]);
             }
             let values = sample_irradiance(mesh, &surface.samples(i)[..count], &prepared);

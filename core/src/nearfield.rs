@@ -82,7 +82,7 @@ impl NearField {
     pub fn check(&self, rows: usize, total_rows: usize, per_row: u32) -> Result<(), String> {
         if self.per_row != per_row {
             return Err(format!(
-                "{} samples per row, but the file stores {per_row}",
+                "its columns count {} samples a row, the scene has {per_row}",
                 self.per_row
             ));
         }

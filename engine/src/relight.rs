@@ -372,7 +372,8 @@ impl Engine {
     /// Direct-light samples a row of `scene` takes ([`Engine::samples`]).
     pub fn samples_for(&self, scene: &Scene) -> u32 {
         match (self.samples, scene.stored_samples) {
-            (Some(n), Some(stored)) => n.clamp(1, stored),
+            // A file stores at least one sample a row (the reader checks).
+            (Some(n), Some(stored)) => n.max(1).min(stored.max(1)),
             (Some(n), None) => n,
             (None, Some(stored)) => stored,
             (None, None) => DEFAULT_SAMPLES,
