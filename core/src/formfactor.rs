@@ -129,15 +129,9 @@ pub fn form_factor_rows(
     form_factor_rows_tallied(scene, rows, rays, seed, progress).map(|(rows, _)| rows)
 }
 
-/// As [`form_factor_rows`], also telling where the rays that reached no patch went.
-pub fn form_factor_rows_tallied(
-    scene: &dyn RowTracer,
-    rows: Range<usize>,
-    rays: u32,
-    seed: u64,
-    progress: &(dyn Fn(u64) + Sync),
-) -> Result<(Vec<f32>, RayTally), FormFactorError> {
-    let n = scene.patch_count();
+/// Whether rows `rows` of `n`, each traced with `rays` rays, can be traced: what every caller
+/// that retraces a bake's rows (form factors, the near field) checks first.
+pub(crate) fn check_rows(rows: &Range<usize>, rays: u32, n: usize) -> Result<(), FormFactorError> {
     if rays == 0 {
         return Err(FormFactorError::NoRays);
     }
@@ -151,6 +145,19 @@ pub fn form_factor_rows_tallied(
             n,
         });
     }
+    Ok(())
+}
+
+/// As [`form_factor_rows`], also telling where the rays that reached no patch went.
+pub fn form_factor_rows_tallied(
+    scene: &dyn RowTracer,
+    rows: Range<usize>,
+    rays: u32,
+    seed: u64,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<(Vec<f32>, RayTally), FormFactorError> {
+    let n = scene.patch_count();
+    check_rows(&rows, rays, n)?;
     let mut out = vec![0.0f32; rows.len() * n];
     let inv = 1.0 / rays as f32;
     let tally = out

@@ -27,7 +27,7 @@ use std::ops::Range;
 use glam::Vec3;
 use rayon::prelude::*;
 
-use crate::formfactor::{FormFactorError, MAX_RAYS};
+use crate::formfactor::{FormFactorError, check_rows};
 use crate::surface::{SurfaceData, SurfaceScene};
 
 /// How far from its origin a form-factor ray may land and still count as near, in voxels,
@@ -195,19 +195,7 @@ pub fn near_field_rows(
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<NearField, FormFactorError> {
     let n = tracer.row_count();
-    if rays == 0 {
-        return Err(FormFactorError::NoRays);
-    }
-    if rays > MAX_RAYS {
-        return Err(FormFactorError::TooManyRays(rays));
-    }
-    if rows.start > rows.end || rows.end > n {
-        return Err(FormFactorError::RowRange {
-            start: rows.start,
-            end: rows.end,
-            n,
-        });
-    }
+    check_rows(&rows, rays, n)?;
     let (samples, per_row) = (&surface.points, surface.per_patch);
     let k = per_row as usize;
     assert!(
@@ -261,11 +249,17 @@ pub fn near_field_rows(
     Ok(out)
 }
 
+/// A small matrix the tests of this module and of its file section share.
+#[cfg(test)]
+pub(crate) fn test_field() -> NearField {
+    tests::field()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
 
-    fn field() -> NearField {
+    pub(super) fn field() -> NearField {
         // Two rows, two samples a row: row 0 sees samples 2 and 3 (row 1's), row 1 sample 0.
         NearField {
             per_row: 2,

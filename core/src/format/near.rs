@@ -96,14 +96,7 @@ pub(crate) fn decode_near(
 mod tests {
     use super::*;
 
-    fn field() -> NearField {
-        NearField {
-            per_row: 2,
-            row_ptr: vec![0, 2, 3],
-            cols: vec![2, 3, 0],
-            values: vec![0.25, 0.125, 0.5],
-        }
-    }
+    use crate::nearfield::test_field as field;
 
     #[test]
     fn a_near_field_reads_back() {

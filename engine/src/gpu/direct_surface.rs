@@ -467,18 +467,22 @@ impl GpuSurfaceDirect {
         let lights_buf = storage_of(device, "prepared lights", &lights)?;
         let offsets_buf = storage(device, "light offsets", bytemuck::cast_slice(&offsets))?;
         let bytes = n * u64::from(sets_n) * 12;
-        let out = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("surface direct irradiance"),
-            size: bytes,
-            usage: U::STORAGE | U::COPY_SRC,
-            mapped_at_creation: false,
-        });
-        let readback = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("surface direct readback"),
-            size: bytes,
-            usage: U::MAP_READ | U::COPY_DST,
-            mapped_at_creation: false,
-        });
+        // A result per (light set, row) the passes write, and the buffer it is read back from.
+        let rgb_out = |what: &str| {
+            let buffer = |suffix: &str, usage| {
+                device.create_buffer(&wgpu::BufferDescriptor {
+                    label: Some(&format!("{what}{suffix}")),
+                    size: bytes,
+                    usage,
+                    mapped_at_creation: false,
+                })
+            };
+            (
+                buffer("", U::STORAGE | U::COPY_SRC),
+                buffer(" readback", U::MAP_READ | U::COPY_DST),
+            )
+        };
+        let (out, readback) = rgb_out("surface direct irradiance");
         let per_sample = match near {
             Some(_) => {
                 // Within the binding the slice was cut to.
@@ -578,18 +582,7 @@ impl GpuSurfaceDirect {
         // After the last piece: a row's correction reads samples of any row.
         let mut delta_readback = None;
         if let (Some((near, _)), Some(per_sample)) = (near, &per_sample) {
-            let delta = device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("near-field correction"),
-                size: bytes,
-                usage: U::STORAGE | U::COPY_SRC,
-                mapped_at_creation: false,
-            });
-            let readback = device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("near-field readback"),
-                size: bytes,
-                usage: U::MAP_READ | U::COPY_DST,
-                mapped_at_creation: false,
-            });
+            let (delta, readback) = rgb_out("near-field correction");
             let params = NearParams {
                 n: self.n,
                 sets: sets_n,
