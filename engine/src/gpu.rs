@@ -28,7 +28,7 @@ pub use direct_surface::{
     GpuSample, GpuSurfaceDirect, RAYS_PER_PIECE, SURFACE_STACK, SURFACE_WG, SurfaceParams,
 };
 pub use error::GpuError;
-pub use kernel::{CHUNK, CHUNKS, Params, ROWS, Split, variant_for};
+pub use kernel::{CHUNK, CHUNKS, Params, ROWS, Split, TILE_ROWS, TILE_SETS, variant_for};
 pub use light::GpuLight;
 pub use matrix::GpuMatrix;
 pub use near_field::{NEAR_WG, NearParams};
@@ -38,7 +38,10 @@ pub use near_field::{NEAR_WG, NearParams};
 pub mod sources {
     pub use super::direct::direct_source;
     pub use super::direct_surface::direct_surface_source;
-    pub use super::kernel::{dense_source, logblock_source, sparse_source, with_chunk};
+    pub use super::kernel::{
+        dense_source, dense_tiled_source, logblock_source, logblock_tiled_source, sparse_source,
+        with_chunk,
+    };
     pub use super::near_field::near_field_source;
 
     /// The bandwidth probe's kernel.

@@ -8,7 +8,7 @@ use bounce_core::matrix::{DENSE_F32, EncodedMatrix};
 use bounce_core::codec::CodecError;
 
 use super::GpuError;
-use super::kernel::{ROWS, Split, dense_source, matvec_pipelines, storage};
+use super::kernel::{Body, Split, matvec_variants, storage};
 use super::matrix::{Bound, Pass};
 
 pub(super) fn upload(
@@ -36,13 +36,7 @@ pub(super) fn upload(
         });
     }
     let constants = [("HALF", if half { 1.0 } else { 0.0 })];
-    let pipelines = matvec_pipelines(
-        device,
-        "dense_matvec",
-        &dense_source(),
-        "dense_matvec",
-        &constants,
-    )?;
+    let variants = matvec_variants(device, "dense_matvec", Body::Dense, &constants)?;
     let plane = n * n * width;
     let mut passes = Vec::new();
     let mut row0 = 0;
@@ -59,9 +53,8 @@ pub(super) fn upload(
             storage(device, "dense matrix band", &bytes)?
         };
         passes.push(Pass {
-            pipelines: pipelines.clone(),
+            variants: variants.clone(),
             bound: vec![(3, Bound::Buffer(matrix))],
-            groups: (rows as u32).div_ceil(ROWS),
             row0: row0 as u32,
             rows: rows as u32,
             tile: 0,

@@ -8,20 +8,27 @@ use wgpu::util::DeviceExt;
 
 use super::GpuError;
 
-/// Rows a workgroup owns (mirrors `ROWS` in `common.wgsl`).
+/// Rows a workgroup owns in the matrix-vector kernels (mirrors `ROWS` in `common.wgsl`).
 pub const ROWS: u32 = 4;
-/// Light sets a workgroup serves per pass over its rows, at most (mirrors `CHUNK` in
-/// `common.wgsl`): a batch of `b` light sets reads the matrix `ceil(b / CHUNK)` times.
+/// Light sets a workgroup of the matrix-vector kernels serves per pass over its rows, at most
+/// (mirrors `CHUNK` in `common.wgsl`).
 pub const CHUNK: u32 = 8;
+/// Light sets and rows a workgroup of the tiled kernel serves (`CHUNK` and `TM` in
+/// `tile_block.wgsl`): batches over [`CHUNK`] sets are matrix-matrix products, and that kernel
+/// decodes each entry once for up to 64 of them.
+pub const TILE_SETS: u32 = 64;
+pub const TILE_ROWS: u32 = 64;
 
-/// The chunk sizes each matvec kernel is compiled for. A thread keeps `ROWS · chunk` RGB sums in
+/// The chunk sizes the product kernels are compiled for: the matrix-vector kernel for 1, 4 and
+/// [`CHUNK`], the tiled kernel for [`TILE_SETS`]. A thread keeps `ROWS · chunk` RGB sums in
 /// registers whatever the batch holds, so one kernel for every batch would make a batch of one
-/// light set pay 32 accumulators (and the occupancy they cost) to use 4.
-pub const CHUNKS: [u32; 3] = [1, 4, CHUNK];
+/// light set pay 32 accumulators (and the occupancy they cost) to use 4. A batch of `b` sets
+/// reads the matrix `ceil(b / chunk)` times.
+pub const CHUNKS: [u32; 4] = [1, 4, CHUNK, TILE_SETS];
 
 /// Which of [`CHUNKS`] serves a batch of `sets` light sets: the smallest that takes the batch in
-/// one pass over the matrix, else the largest allowed. `BOUNCE_GPU_MAX_CHUNK` (1, 4 or 8) caps
-/// it, to measure the variants against each other on a device.
+/// one pass over the matrix, else the largest allowed. `BOUNCE_GPU_MAX_CHUNK` (1, 4, 8 or 64)
+/// caps it, to measure the variants against each other on a device (8: no tiled kernel).
 pub fn variant_for(sets: u32) -> usize {
     let allowed = CHUNKS.iter().filter(|&&c| c <= max_chunk()).count().max(1);
     CHUNKS[..allowed]
@@ -36,7 +43,7 @@ fn max_chunk() -> u32 {
         std::env::var("BOUNCE_GPU_MAX_CHUNK")
             .ok()
             .and_then(|v| v.parse().ok())
-            .unwrap_or(CHUNK)
+            .unwrap_or(TILE_SETS)
     })
 }
 
@@ -102,13 +109,29 @@ fn binding_limit(limits: &wgpu::Limits) -> u64 {
 
 const COMMON: &str = include_str!("shaders/common.wgsl");
 const ROW_BLOCK: &str = include_str!("shaders/row_block.wgsl");
+const TILE_BLOCK: &str = include_str!("shaders/tile_block.wgsl");
+const DENSE: &str = include_str!("shaders/dense.wgsl");
+const LOGBLOCK: &str = include_str!("shaders/logblock.wgsl");
 
+/// The dense kernels' matrix-vector source (entry point `matvec`).
 pub fn dense_source() -> String {
-    [COMMON, ROW_BLOCK, include_str!("shaders/dense.wgsl")].concat()
+    [COMMON, ROW_BLOCK, DENSE].concat()
 }
 
+/// The block codecs' matrix-vector source (entry point `matvec`).
 pub fn logblock_source() -> String {
-    [COMMON, ROW_BLOCK, include_str!("shaders/logblock.wgsl")].concat()
+    [COMMON, ROW_BLOCK, LOGBLOCK].concat()
+}
+
+/// The dense kernels' tiled source (entry point `matvec_tiled`, compiled with
+/// `CHUNK` = [`TILE_SETS`]).
+pub fn dense_tiled_source() -> String {
+    with_chunk(&[COMMON, TILE_BLOCK, DENSE].concat(), TILE_SETS)
+}
+
+/// The block codecs' tiled source (entry point `matvec_tiled`).
+pub fn logblock_tiled_source() -> String {
+    with_chunk(&[COMMON, TILE_BLOCK, LOGBLOCK].concat(), TILE_SETS)
 }
 
 pub fn sparse_source() -> String {
@@ -117,32 +140,86 @@ pub fn sparse_source() -> String {
 
 const CHUNK_LINE: &str = "const CHUNK: u32 = 8u;";
 
-/// A matvec source compiled for `chunk` light sets a pass (one of [`CHUNKS`]).
+/// A matvec source compiled for `chunk` light sets a pass.
 pub fn with_chunk(source: &str, chunk: u32) -> String {
     debug_assert!(source.contains(CHUNK_LINE), "the prelude declares CHUNK");
     source.replace(CHUNK_LINE, &format!("const CHUNK: u32 = {chunk}u;"))
 }
 
-/// One pipeline per entry of [`CHUNKS`] for a matvec kernel, with the loops compiled as counted
-/// loops (see [`Loops::Counted`]).
-pub fn matvec_pipelines(
+/// One compiled product kernel: the light sets it serves a pass and the matrix rows a
+/// workgroup of it owns.
+#[derive(Clone)]
+pub struct Variant {
+    pub pipeline: wgpu::ComputePipeline,
+    pub chunk: u32,
+    pub rows_per_group: u32,
+}
+
+/// Which product a pass runs: the dense or the block codecs' kernels (`dense.wgsl`,
+/// `logblock.wgsl`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Body {
+    Dense,
+    Blocks,
+}
+
+/// One variant per entry of [`CHUNKS`] for a product kernel (the matrix-vector kernel, then the
+/// tiled one), with the loops compiled as counted loops (see [`Loops::Counted`]).
+pub fn matvec_variants(
     device: &wgpu::Device,
     label: &'static str,
-    source: &str,
-    entry: &str,
+    body: Body,
     constants: &[(&str, f64)],
-) -> Result<Vec<wgpu::ComputePipeline>, GpuError> {
+) -> Result<Vec<Variant>, GpuError> {
+    let (row, tiled) = match body {
+        Body::Dense => (dense_source(), dense_tiled_source()),
+        Body::Blocks => (logblock_source(), logblock_tiled_source()),
+    };
+    CHUNKS
+        .iter()
+        .map(|&chunk| {
+            let (source, entry, rows_per_group) = if chunk == TILE_SETS {
+                (tiled.clone(), "matvec_tiled", TILE_ROWS)
+            } else {
+                (with_chunk(&row, chunk), "matvec", ROWS)
+            };
+            Ok(Variant {
+                pipeline: pipeline_with(
+                    device,
+                    label,
+                    &source,
+                    entry,
+                    constants,
+                    Loops::Counted,
+                )?,
+                chunk,
+                rows_per_group,
+            })
+        })
+        .collect()
+}
+
+/// The sparse pass's variants, one per entry of [`CHUNKS`] so a batch picks the same index in
+/// every pass: one row a workgroup, at most [`CHUNK`] sets a pass (the exactly kept entries are
+/// a few per cent of the matrix, so a batch of 64 reads them 8 times).
+pub fn sparse_variants(device: &wgpu::Device) -> Result<Vec<Variant>, GpuError> {
+    let source = sparse_source();
     CHUNKS
         .iter()
         .map(|&c| {
-            pipeline_with(
-                device,
-                label,
-                &with_chunk(source, c),
-                entry,
-                constants,
-                Loops::Counted,
-            )
+            let chunk = c.min(CHUNK);
+            Ok(Variant {
+                pipeline: pipeline_with(
+                    device,
+                    "sparse_add",
+                    &with_chunk(&source, chunk),
+                    "sparse_add",
+                    &[],
+                    Loops::Counted,
+                )?,
+                chunk,
+                rows_per_group: 1,
+            })
         })
         .collect()
 }

@@ -8,7 +8,7 @@ use bounce_core::codec::MatrixOp;
 use bounce_core::codec::logblock::{self, Blocks, LogBlockOp};
 use bounce_core::matrix::EncodedMatrix;
 
-use super::kernel::{ROWS, Split, logblock_source, matvec_pipelines, storage, u32_bytes};
+use super::kernel::{Body, Split, matvec_variants, storage, u32_bytes};
 use super::matrix::{Bound, Pass};
 use super::{GpuContext, GpuError, sparse};
 
@@ -45,19 +45,12 @@ pub(super) fn upload(
     let col_perm = storage(device, "column order", u32_bytes(op.col_perm()))?;
     let bc4 = if blocks == Blocks::Bc1 { 0.0 } else { 1.0 };
     let pass = Pass {
-        pipelines: matvec_pipelines(
-            device,
-            "logblock_matvec",
-            &logblock_source(),
-            "logblock_matvec",
-            &[("BC4", bc4)],
-        )?,
+        variants: matvec_variants(device, "logblock_matvec", Body::Blocks, &[("BC4", bc4)])?,
         bound: vec![
             (3, Bound::Texture(texture)),
             (4, Bound::Buffer(row_perm)),
             (5, Bound::Buffer(col_perm)),
         ],
-        groups: (op.row_perm().len() as u32).div_ceil(ROWS),
         row0: 0,
         rows: op.row_perm().len() as u32,
         tile,

@@ -7,7 +7,7 @@ use bounce_core::codec::CodecError;
 use bounce_core::matrix::EncodedMatrix;
 
 use super::kernel::{
-    CHUNKS, Params, Split, check_binding, grid, scoped, sets_per_dispatch, variant_for,
+    CHUNKS, Params, Split, Variant, check_binding, grid, scoped, sets_per_dispatch, variant_for,
 };
 use super::{GpuContext, GpuError, dense, logblock};
 
@@ -17,12 +17,11 @@ pub(super) enum Bound {
     Texture(wgpu::TextureView),
 }
 
-/// One dispatch per batch chunk: a pipeline per entry of [`CHUNKS`], its own resources, how
-/// many workgroups a chunk of light sets needs, and the part of the matrix it covers.
+/// One dispatch per batch chunk: a kernel variant per entry of [`CHUNKS`], its own resources,
+/// and the part of the matrix it covers.
 pub(super) struct Pass {
-    pub pipelines: Vec<wgpu::ComputePipeline>,
+    pub variants: Vec<Variant>,
     pub bound: Vec<(u32, Bound)>,
-    pub groups: u32,
     /// First matrix row and row count (a dense band); the whole matrix for the other passes.
     pub row0: u32,
     pub rows: u32,
@@ -30,6 +29,13 @@ pub(super) struct Pass {
     pub tile: u32,
     /// Entries of a sparse band (sparse passes), else 0.
     pub nnz: u32,
+}
+
+impl Pass {
+    /// Workgroups a chunk of light sets needs under `variant`.
+    fn groups(&self, variant: usize) -> u32 {
+        self.rows.div_ceil(self.variants[variant].rows_per_group)
+    }
 }
 
 /// Light, output and readback buffers for up to `sets` light sets, with the bind groups that
@@ -188,7 +194,12 @@ impl GpuMatrix {
             .max_storage_buffer_binding_size
             .min(limits.max_buffer_size)
             / set_bytes;
-        let widest = self.passes.iter().map(|p| p.groups).max().unwrap_or(1);
+        let widest = self
+            .passes
+            .iter()
+            .flat_map(|p| (0..CHUNKS.len()).map(|v| p.groups(v)))
+            .max()
+            .unwrap_or(1);
         let by_grid = sets_per_dispatch(&self.device, widest);
         let slice = by_binding.min(by_grid).min(sets as u64) as usize;
         if slice == 0 {
@@ -243,8 +254,9 @@ impl GpuMatrix {
             let variant = variant_for(sets);
             let groups = &io.groups[variant];
             for ((pass, params), group) in self.passes.iter().zip(&io.params).zip(groups) {
+                let kernel = &pass.variants[variant];
                 let ([gx, gy, gz], groups_x) =
-                    grid(&self.device, pass.groups, sets, CHUNKS[variant]);
+                    grid(&self.device, pass.groups(variant), sets, kernel.chunk);
                 let p = Params {
                     n: self.n,
                     channels: self.channels,
@@ -257,7 +269,7 @@ impl GpuMatrix {
                     max: self.max,
                 };
                 self.queue.write_buffer(params, 0, bytemuck::bytes_of(&p));
-                cpass.set_pipeline(&pass.pipelines[variant]);
+                cpass.set_pipeline(&kernel.pipeline);
                 cpass.set_bind_group(0, group, &[]);
                 // Dispatches in one pass are ordered: wgpu puts a barrier between the block
                 // pass's writes to `out` and the sparse pass's read-modify-write.
@@ -411,7 +423,7 @@ impl GpuMatrix {
                 }
                 self.device.create_bind_group(&wgpu::BindGroupDescriptor {
                     label: None,
-                    layout: &pass.pipelines[variant].get_bind_group_layout(0),
+                    layout: &pass.variants[variant].pipeline.get_bind_group_layout(0),
                     entries: &entries,
                 })
             })

@@ -5,7 +5,7 @@
 use bounce_core::codec::transform::SparsePart;
 
 use super::GpuError;
-use super::kernel::{Split, matvec_pipelines, sparse_source, storage, u32_bytes};
+use super::kernel::{Split, sparse_variants, storage, u32_bytes};
 use super::matrix::{Bound, Pass};
 
 /// The passes, one per row band; none when nothing was kept.
@@ -22,7 +22,7 @@ pub(super) fn upload(
     let limit = split.binding_bytes as usize;
     // The largest of a band's bindings: its values (4 bytes an entry a channel).
     let bytes = |entries: usize| entries * 4 * channels;
-    let pipelines = matvec_pipelines(device, "sparse_add", &sparse_source(), "sparse_add", &[])?;
+    let variants = sparse_variants(device)?;
     let mut passes = Vec::new();
     let mut row0 = 0;
     while row0 < sp.n {
@@ -51,7 +51,7 @@ pub(super) fn upload(
             .copied()
             .collect();
         passes.push(Pass {
-            pipelines: pipelines.clone(),
+            variants: variants.clone(),
             bound: vec![
                 (
                     3,
@@ -74,7 +74,6 @@ pub(super) fn upload(
                     )?),
                 ),
             ],
-            groups: rows as u32,
             row0: row0 as u32,
             rows: rows as u32,
             tile: 0,

@@ -7,7 +7,7 @@ use bounce_core::codec::dense::{DenseF16, DenseF32};
 use bounce_core::codec::logblock::LogBlock;
 use bounce_core::codec::{Codec, decode};
 use bounce_core::matrix::{DenseMatrix, EncodedMatrix};
-use bounce_engine::gpu::{GpuError, GpuMatrix, Split};
+use bounce_engine::gpu::{CHUNK, GpuError, GpuMatrix, Split};
 
 use crate::common::context;
 
@@ -103,7 +103,7 @@ fn dense_against_cpu(codec: &dyn Codec) {
         for n in SIZES {
             let enc = codec.encode(&transport(n, channels, n as u64)).unwrap();
             let m = GpuMatrix::upload(ctx, &enc).unwrap();
-            for sets in [1, 3, 8, 64] {
+            for sets in [1, 3, 8, 64, 70] {
                 let x = lights(n, sets, 7 + sets as u64);
                 let err = rel_l2(&gpu(&m, &x), &cpu(&enc, &x), n);
                 // Same f32 products summed in another order: a few ulps times log2(n).
@@ -172,7 +172,7 @@ fn blocks_against_cpu(codec: LogBlock) {
                 .unwrap();
             let m = GpuMatrix::upload(ctx, &enc).unwrap();
             let mut worst = 0.0f64;
-            for sets in [1, 3, 8, 64] {
+            for sets in [1, 3, 8, 64, 70] {
                 let x = lights(n, sets, 11 + sets as u64);
                 let (got, want) = (gpu(&m, &x), cpu(&enc, &x));
                 for (k, (g, w)) in got.iter().zip(&want).enumerate() {
@@ -310,8 +310,11 @@ fn block_entries_decode_like_the_cpu() {
     }
 }
 
-/// A batch is the same arithmetic as its sets one by one: each set's sums run in the same order
-/// whatever chunk it lands in, so the results are bit for bit equal.
+/// A set's result does not depend on the sets beside it in the batch. Batches of up to CHUNK
+/// sets run the matrix-vector kernel, where each set's sums run in the same order whatever chunk
+/// it lands in: bit for bit the sets one by one. Larger batches run the tiled kernel, which sums
+/// each row over the columns in order: bit for bit the same set in any other large batch (here
+/// at another place among other sets), and the one-by-one result to f32 rounding.
 #[test]
 fn batched_equals_one_by_one() {
     let Some(ctx) = context() else { return };
@@ -326,17 +329,31 @@ fn batched_equals_one_by_one() {
     for codec in codecs {
         let enc = codec.encode(&t).unwrap();
         let m = GpuMatrix::upload(ctx, &enc).unwrap();
-        for sets in [1, 3, 8, 64] {
+        for sets in [1, 3, 8, 9, 64, 70] {
             let x = lights(n, sets, 3);
             let batched = gpu(&m, &x);
+            // The same sets in reverse order, after one more.
+            let mut other = lights(n, 1, 4);
+            for k in (0..sets).rev() {
+                other.extend_from_slice(&x[k * n..(k + 1) * n]);
+            }
+            let moved = gpu(&m, &other);
             for k in 0..sets {
+                let got = &batched[k * n..(k + 1) * n];
                 let one = gpu(&m, &x[k * n..(k + 1) * n]);
-                assert_eq!(
-                    &batched[k * n..(k + 1) * n],
-                    &one[..],
-                    "{} set {k} of {sets}",
-                    enc.codec
-                );
+                if sets <= CHUNK as usize {
+                    assert_eq!(got, &one[..], "{} set {k} of {sets}", enc.codec);
+                } else {
+                    let at = (sets - k) * n;
+                    assert_eq!(
+                        got,
+                        &moved[at..at + n],
+                        "{} set {k} of {sets}, moved",
+                        enc.codec
+                    );
+                    let err = rel_l2(got, &one, n);
+                    assert!(err <= 1e-5, "{} set {k} of {sets}: {err:e}", enc.codec);
+                }
             }
         }
     }

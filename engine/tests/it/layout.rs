@@ -3,7 +3,7 @@
 //! direct-light kernels and the renderer share (with its kind constants), the direct-light
 //! kernels' own structs, and the near-field pass's `NearParams`.
 
-use bounce_engine::gpu::{CHUNK, CHUNKS, Params, ROWS, sources};
+use bounce_engine::gpu::{CHUNK, CHUNKS, Params, ROWS, TILE_ROWS, TILE_SETS, sources};
 use naga::{Expression, Literal, Module, TypeInner};
 
 fn parse(name: &str, source: &str) -> Module {
@@ -11,7 +11,18 @@ fn parse(name: &str, source: &str) -> Module {
         .unwrap_or_else(|e| panic!("{name}: {}", e.emit_to_string(source)))
 }
 
-fn all_sources() -> [(&'static str, String); 3] {
+fn all_sources() -> [(&'static str, String); 5] {
+    [
+        ("dense", sources::dense_source()),
+        ("logblock", sources::logblock_source()),
+        ("sparse", sources::sparse_source()),
+        ("dense tiled", sources::dense_tiled_source()),
+        ("logblock tiled", sources::logblock_tiled_source()),
+    ]
+}
+
+/// The matrix-vector sources, compiled for each chunk up to CHUNK.
+fn row_sources() -> [(&'static str, String); 3] {
     [
         ("dense", sources::dense_source()),
         ("logblock", sources::logblock_source()),
@@ -69,9 +80,13 @@ fn constant(module: &Module, name: &str) -> u32 {
 
 #[test]
 fn work_split_constants_match_wgsl() {
-    assert_eq!(CHUNKS.last(), Some(&CHUNK), "the largest variant is CHUNK");
-    for (name, source) in all_sources() {
-        for chunk in CHUNKS {
+    assert_eq!(
+        CHUNKS,
+        [1, 4, CHUNK, TILE_SETS],
+        "the matrix-vector chunks, then the tiled kernel's"
+    );
+    for (name, source) in row_sources() {
+        for chunk in CHUNKS.into_iter().filter(|&c| c <= CHUNK) {
             let variant = sources::with_chunk(&source, chunk);
             let module = parse(name, &variant);
             assert_eq!(constant(&module, "ROWS"), ROWS, "{name}");
@@ -100,6 +115,63 @@ fn work_split_constants_match_wgsl() {
                 );
             }
         }
+    }
+}
+
+fn array_len(module: &Module, name: &str) -> u32 {
+    let var = module
+        .global_variables
+        .iter()
+        .find(|(_, v)| v.name.as_deref() == Some(name))
+        .unwrap_or_else(|| panic!("no var {name}"))
+        .1;
+    match module.types[var.ty].inner {
+        TypeInner::Array {
+            size: naga::ArraySize::Constant(len),
+            ..
+        } => len.get(),
+        ref other => panic!("var {name} is {other:?}"),
+    }
+}
+
+/// The tiled kernel's split: the host dispatches `rows / TILE_ROWS` workgroups per chunk of
+/// TILE_SETS sets, the threads cover the tile exactly, each step's loads are whole rounds of the
+/// workgroup, and the workgroup tiles hold a step.
+#[test]
+fn tiled_split_constants_match_wgsl() {
+    for (name, source) in [
+        ("dense tiled", sources::dense_tiled_source()),
+        ("logblock tiled", sources::logblock_tiled_source()),
+    ] {
+        let module = parse(name, &source);
+        let c = |n| constant(&module, n);
+        assert_eq!(c("CHUNK"), TILE_SETS, "{name}");
+        assert_eq!(c("TM"), TILE_ROWS, "{name}");
+        assert_eq!(c("RM"), 4, "{name}: a thread's rows are one vec4");
+        assert_eq!(c("RS"), 4, "{name}: a thread's sets are one vec4");
+        assert_eq!(
+            (c("TM") / c("RM")) * (c("CHUNK") / c("RS")),
+            c("TWG"),
+            "{name}: one thread per RM x RS of the tile"
+        );
+        assert_eq!(c("TM") * c("TK") % c("TWG"), 0, "{name}: matrix loads");
+        assert_eq!(c("CHUNK") * c("TK") % c("TWG"), 0, "{name}: light loads");
+        assert_eq!(
+            array_len(&module, "a_tile"),
+            3 * c("TK") * c("ROW_GROUPS"),
+            "{name}"
+        );
+        assert_eq!(
+            array_len(&module, "b_tile"),
+            3 * c("TK") * c("SET_GROUPS"),
+            "{name}"
+        );
+        let entry = module
+            .entry_points
+            .iter()
+            .find(|e| e.name == "matvec_tiled")
+            .unwrap_or_else(|| panic!("{name}: no matvec_tiled"));
+        assert_eq!(entry.workgroup_size, [c("TWG"), 1, 1], "{name}");
     }
 }
 

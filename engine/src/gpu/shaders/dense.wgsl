@@ -32,11 +32,3 @@ fn column(l: u32) -> u32 {
 fn row(k: u32) -> u32 {
     return params.row0 + k;
 }
-
-@compute @workgroup_size(64)
-fn dense_matvec(
-    @builtin(workgroup_id) wid: vec3<u32>,
-    @builtin(local_invocation_index) tid: u32,
-) {
-    row_block(wid, tid);
-}

@@ -70,11 +70,3 @@ fn column(l: u32) -> u32 {
 fn row(k: u32) -> u32 {
     return row_perm[k];
 }
-
-@compute @workgroup_size(64)
-fn logblock_matvec(
-    @builtin(workgroup_id) wid: vec3<u32>,
-    @builtin(local_invocation_index) tid: u32,
-) {
-    row_block(wid, tid);
-}

@@ -68,3 +68,11 @@ fn row_block(wid: vec3<u32>, tid: u32) {
         workgroupBarrier();
     }
 }
+
+@compute @workgroup_size(64)
+fn matvec(
+    @builtin(workgroup_id) wid: vec3<u32>,
+    @builtin(local_invocation_index) tid: u32,
+) {
+    row_block(wid, tid);
+}
