@@ -28,7 +28,9 @@ pub use direct_surface::{
     GpuSample, GpuSurfaceDirect, RAYS_PER_PIECE, SURFACE_STACK, SURFACE_WG, SurfaceParams,
 };
 pub use error::GpuError;
-pub use kernel::{CHUNK, CHUNKS, Params, ROWS, Split, TILE_ROWS, TILE_SETS, variant_for};
+pub use kernel::{
+    CHUNK, CHUNKS, Params, ROWS, Split, TILE_ROWS, TILE_SETS, variant_for, variant_within,
+};
 pub use light::GpuLight;
 pub use matrix::GpuMatrix;
 pub use near_field::{NEAR_WG, NearParams};

@@ -53,9 +53,21 @@ pub struct BenchEnginesArgs {
     /// bake of that size would give; the bytes a product reads are the same.
     #[arg(long, value_delimiter = ',', value_name = "N")]
     pub synthetic: Vec<usize>,
+    /// GPU product kernels for batches over 8 light sets, comma separated: tiled (the engine's
+    /// choice: one pass per 64 sets, each entry decoded once a pass) and matvec (the
+    /// matrix-vector kernel, one pass per 8 sets), measured on the same upload; the table
+    /// names the second engine `gpu-matvec`.
+    #[arg(long, value_delimiter = ',', default_value = "tiled")]
+    pub kernels: Vec<Kernel>,
     /// Write the table as CSV here too.
     #[arg(long, value_name = "OUT.csv")]
     pub csv: Option<PathBuf>,
+}
+
+#[derive(clap::ValueEnum, Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Kernel {
+    Tiled,
+    Matvec,
 }
 
 /// One timed configuration.
@@ -108,7 +120,27 @@ impl Product {
     fn passes_for(&self, sets: usize) -> usize {
         match self {
             Product::Cpu(_) => usize::from(sets > 0),
-            Product::Gpu(_) => GpuMatrix::passes_for(sets),
+            Product::Gpu(m) => m.passes(sets),
+        }
+    }
+
+    /// The GPU kernels to measure this product with, and the engine name each row takes.
+    fn kernels(&self, name: &str, wanted: &[Kernel]) -> Vec<(Kernel, String)> {
+        match self {
+            Product::Cpu(_) => vec![(Kernel::Tiled, name.to_string())],
+            Product::Gpu(_) => wanted
+                .iter()
+                .map(|&k| match k {
+                    Kernel::Tiled => (k, name.to_string()),
+                    Kernel::Matvec => (k, format!("{name}-matvec")),
+                })
+                .collect(),
+        }
+    }
+
+    fn set_kernel(&mut self, kernel: Kernel) {
+        if let Product::Gpu(m) = self {
+            m.set_tiled(kernel == Kernel::Tiled);
         }
     }
 }
@@ -238,7 +270,7 @@ pub fn run(args: &BenchEnginesArgs) -> Result<()> {
             let kernel = (!r.kernel_times.is_empty()).then(|| percentiles(&r.kernel_times).0);
             // A GPU's share of its bandwidth is the kernels' own rate (the wall time also holds
             // the light's upload and the readback); a CPU's is the wall rate.
-            let (device_bw, rate) = if r.engine == "gpu" {
+            let (device_bw, rate) = if r.engine.starts_with("gpu") {
                 (gpu_bandwidth, kernel.map(|k| read / k))
             } else {
                 (Some(bandwidth), Some(gbs))
@@ -341,46 +373,58 @@ fn product_rows(
                     Product::Gpu(Box::new(m))
                 }),
             };
-            let product: Product = match loaded {
+            let mut product: Product = match loaded {
                 Ok(p) => p,
                 Err(e) => {
                     eprintln!("    {codec_name}: not measured on {name}: {e}");
                     continue;
                 }
             };
-            for &batch in &args.batches {
-                let x = &subject.b0[..batch * n];
-                let mut out = vec![[0.0f32; 3]; x.len()];
-                product.apply(x, &mut out)?;
-                let mut times = Vec::with_capacity(args.repeat);
-                let mut kernel_times = Vec::with_capacity(args.repeat);
-                for _ in 0..args.repeat {
-                    let start = Instant::now();
+            for (kernel, engine) in product.kernels(name, &args.kernels) {
+                product.set_kernel(kernel);
+                for &batch in &args.batches {
+                    // Up to CHUNK sets both choices run the matrix-vector kernel: measured once.
+                    if kernel == Kernel::Matvec
+                        && args.kernels.contains(&Kernel::Tiled)
+                        && batch <= bounce_engine::gpu::CHUNK as usize
+                    {
+                        continue;
+                    }
+                    let x = &subject.b0[..batch * n];
+                    let mut out = vec![[0.0f32; 3]; x.len()];
                     product.apply(x, &mut out)?;
-                    times.push(start.elapsed().as_secs_f64());
-                    kernel_times.extend(product.kernel_seconds());
+                    let mut times = Vec::with_capacity(args.repeat);
+                    let mut kernel_times = Vec::with_capacity(args.repeat);
+                    for _ in 0..args.repeat {
+                        let start = Instant::now();
+                        product.apply(x, &mut out)?;
+                        times.push(start.elapsed().as_secs_f64());
+                        kernel_times.extend(product.kernel_seconds());
+                    }
+                    let (rel_l2, rel_max) = errors(&out, &subject.reference[..x.len()]);
+                    rows.push(Row {
+                        engine: engine.clone(),
+                        codec: codec_name.clone(),
+                        rows: n,
+                        batch,
+                        times,
+                        kernel_times,
+                        bytes: encoded.payload.len(),
+                        passes: product.passes_for(batch),
+                        rel_l2,
+                        rel_max,
+                    });
+                    report(&subject.label, rows.last());
                 }
-                let (rel_l2, rel_max) = errors(&out, &subject.reference[..x.len()]);
-                rows.push(Row {
-                    engine: name.clone(),
-                    codec: codec_name.clone(),
-                    rows: n,
-                    batch,
-                    times,
-                    kernel_times,
-                    bytes: encoded.payload.len(),
-                    passes: product.passes_for(batch),
-                    rel_l2,
-                    rel_max,
-                });
-                report(&subject.label, rows.last());
             }
         }
     }
     Ok(rows)
 }
 
-/// A block codec as configured, but without the reorder pass; other codecs as they are.
+/// A block codec as configured, but without the reorder pass and with BC1's fast endpoint
+/// search (a product reads the same bytes; the search's cost grows with N², 276 s for 32,768 on
+/// 16 cores with the bake's search); other codecs as they are.
 fn without_reorder(name: &str) -> Result<Box<dyn Codec>> {
     let base = match name {
         logblock::BC1 => LogBlock::bc1(),
@@ -389,7 +433,11 @@ fn without_reorder(name: &str) -> Result<Box<dyn Codec>> {
         logblock::BC1_RESID => LogBlock::bc1_resid(),
         other => return Ok(codec::configured(other, None)?),
     };
-    Ok(Box::new(LogBlock { passes: 0, ..base }))
+    Ok(Box::new(LogBlock {
+        passes: 0,
+        fit: bounce_core::codec::bc::Fit::Range,
+        ..base
+    }))
 }
 
 /// The exact product of a batch, on the CPU.

@@ -30,7 +30,12 @@ pub const CHUNKS: [u32; 4] = [1, 4, CHUNK, TILE_SETS];
 /// one pass over the matrix, else the largest allowed. `BOUNCE_GPU_MAX_CHUNK` (1, 4, 8 or 64)
 /// caps it, to measure the variants against each other on a device (8: no tiled kernel).
 pub fn variant_for(sets: u32) -> usize {
-    let allowed = CHUNKS.iter().filter(|&&c| c <= max_chunk()).count().max(1);
+    variant_within(sets, max_chunk())
+}
+
+/// [`variant_for`] with the chunks capped at `cap` (`CHUNK`: the matrix-vector kernel alone).
+pub fn variant_within(sets: u32, cap: u32) -> usize {
+    let allowed = CHUNKS.iter().filter(|&&c| c <= cap).count().max(1);
     CHUNKS[..allowed]
         .iter()
         .position(|&c| c >= sets)
@@ -184,14 +189,7 @@ pub fn matvec_variants(
                 (with_chunk(&row, chunk), "matvec", ROWS)
             };
             Ok(Variant {
-                pipeline: pipeline_with(
-                    device,
-                    label,
-                    &source,
-                    entry,
-                    constants,
-                    Loops::Counted,
-                )?,
+                pipeline: pipeline_with(device, label, &source, entry, constants, Loops::Counted)?,
                 chunk,
                 rows_per_group,
             })

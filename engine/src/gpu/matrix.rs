@@ -7,7 +7,8 @@ use bounce_core::codec::CodecError;
 use bounce_core::matrix::EncodedMatrix;
 
 use super::kernel::{
-    CHUNKS, Params, Split, Variant, check_binding, grid, scoped, sets_per_dispatch, variant_for,
+    CHUNK, CHUNKS, Params, Split, Variant, check_binding, grid, scoped, sets_per_dispatch,
+    variant_for, variant_within,
 };
 use super::{GpuContext, GpuError, dense, logblock};
 
@@ -76,6 +77,9 @@ pub struct GpuMatrix {
     pieces: usize,
     /// Row bands of the sparse part (block codecs; 0 when nothing was kept exactly).
     sparse_bands: usize,
+    /// Whether batches over `CHUNK` sets run the tiled kernel (the default) or the
+    /// matrix-vector kernel in several passes; the bench measures both.
+    tiled: bool,
     io: Mutex<Option<Io>>,
 }
 
@@ -137,6 +141,7 @@ impl GpuMatrix {
             passes,
             sparse_bands,
             pieces,
+            tiled: true,
             kernel_seconds: Mutex::new(None),
             io: Mutex::new(None),
         })
@@ -177,6 +182,26 @@ impl GpuMatrix {
     pub fn passes_for(sets: usize) -> usize {
         let sets = u32::try_from(sets).unwrap_or(u32::MAX);
         sets.div_ceil(CHUNKS[variant_for(sets)]) as usize
+    }
+
+    /// [`GpuMatrix::passes_for`] for this matrix's kernel choice.
+    pub fn passes(&self, sets: usize) -> usize {
+        let sets = u32::try_from(sets).unwrap_or(u32::MAX);
+        sets.div_ceil(CHUNKS[self.variant(sets)]) as usize
+    }
+
+    /// Run batches over `CHUNK` light sets on the tiled kernel (`true`, the default) or on the
+    /// matrix-vector kernel, `ceil(sets / CHUNK)` passes (to measure one against the other).
+    pub fn set_tiled(&mut self, tiled: bool) {
+        self.tiled = tiled;
+    }
+
+    fn variant(&self, sets: u32) -> usize {
+        if self.tiled {
+            variant_for(sets)
+        } else {
+            variant_within(sets, CHUNK)
+        }
     }
 
     /// `out[k·n + i][c] = Σ_j T_c(i, j) · x[k·n + j][c]` for every light set `k`, as
@@ -251,7 +276,7 @@ impl GpuMatrix {
                     end_of_pass_write_index: Some(1),
                 }),
             });
-            let variant = variant_for(sets);
+            let variant = self.variant(sets);
             let groups = &io.groups[variant];
             for ((pass, params), group) in self.passes.iter().zip(&io.params).zip(groups) {
                 let kernel = &pass.variants[variant];

@@ -43,7 +43,7 @@ impl Codec for LogBlock {
 
         let width = n.div_ceil(4) * 4;
         let mut codes = codes;
-        let blocks = encode_blocks(self.blocks, &codes, n, width, &row_perm, &col_perm);
+        let blocks = encode_blocks(self, &codes, n, width, &row_perm, &col_perm);
         let lut: Vec<[f32; 256]> = max.iter().map(|&m| lut(m)).collect();
         let no_sparse = SparsePart {
             n,
@@ -76,7 +76,7 @@ impl Codec for LogBlock {
                     code[p as usize] = 0;
                 }
             }
-            let blocks = encode_blocks(self.blocks, &codes, n, width, &op.row_perm, &op.col_perm);
+            let blocks = encode_blocks(self, &codes, n, width, &op.row_perm, &op.col_perm);
             let channels: Vec<&[f32]> = (0..ch).map(|c| t.channel(c)).collect();
             let sparse = gather_positions(&channels, n, &positions);
             op = LogBlockOp::assemble(
@@ -212,7 +212,7 @@ fn worst_positions(
 /// The block image of `codes` (one `n × n` plane per channel) under the permutations: BC1 packs
 /// the channels as RGB (a single channel repeated), BC4 and raw codes store one image each.
 fn encode_blocks(
-    blocks: Blocks,
+    codec: &LogBlock,
     codes: &[Vec<u8>],
     n: usize,
     width: usize,
@@ -230,7 +230,7 @@ fn encode_blocks(
         }
         img
     };
-    match blocks {
+    match codec.blocks {
         Blocks::Bc1 => {
             let planes: Vec<Vec<u8>> = (0..ch).map(image).collect();
             let rgb: Vec<[u8; 3]> = (0..width * width)
@@ -239,7 +239,7 @@ fn encode_blocks(
                     [v(0), v(1), v(2)]
                 })
                 .collect();
-            bc::encode_bc1(&rgb, width, width)
+            bc::encode_bc1_with(&rgb, width, width, codec.fit)
         }
         Blocks::Bc4 => (0..ch)
             .flat_map(|c| bc::encode_bc4(&image(c), width, width))

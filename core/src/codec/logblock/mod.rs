@@ -52,6 +52,8 @@ pub struct LogBlock {
     pub residual: f64,
     /// How the sparse part is stored.
     pub store: SparseStore,
+    /// The BC1 encoder's endpoint search (not stored: a decoder reads either).
+    pub fit: bc::Fit,
 }
 
 /// Storage of the sparse part's column indices and values.
@@ -88,6 +90,7 @@ impl LogBlock {
             passes: 2,
             residual: 0.0,
             store: SparseStore::U32f32,
+            fit: bc::Fit::Cluster,
         }
     }
 
@@ -101,6 +104,7 @@ impl LogBlock {
             passes: 2,
             residual: 0.0,
             store: SparseStore::U32f32,
+            fit: bc::Fit::Cluster,
         }
     }
 
@@ -114,6 +118,7 @@ impl LogBlock {
             passes: 0,
             residual: 0.0,
             store: SparseStore::U32f32,
+            fit: bc::Fit::Cluster,
         }
     }
 
@@ -130,6 +135,7 @@ impl LogBlock {
             passes: 2,
             residual: 1.0,
             store: SparseStore::U16f16,
+            fit: bc::Fit::Cluster,
         }
     }
 }
