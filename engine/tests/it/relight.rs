@@ -109,11 +109,16 @@ fn batched_relights_equal_one_by_one() {
                     engine.describe(),
                     codec.name()
                 );
-                // The GPU kernels and the CPU row kernels sum each output in one order whatever
-                // the batch, so they give the same bits; from GEMM_FROM sets on, the CPU product
-                // is a blocked matrix product whose order depends on the batch: f32 rounding.
-                let bit_exact = engine.kind() == EngineKind::Gpu
-                    || sets.len() < bounce_core::codec::dense::GEMM_FROM;
+                // The GPU's matrix-vector kernels and the CPU row kernels sum each output in one
+                // order whatever the batch, so they give the same bits. Past CHUNK sets the GPU
+                // runs the tiled kernel, which sums in another (batch-independent) order, and
+                // from GEMM_FROM sets on the CPU product is a blocked matrix product whose order
+                // depends on the batch: f32 rounding.
+                let bit_exact = if engine.kind() == EngineKind::Gpu {
+                    sets.len() <= bounce_engine::gpu::CHUNK as usize
+                } else {
+                    sets.len() < bounce_core::codec::dense::GEMM_FROM
+                };
                 if bit_exact {
                     assert_eq!(
                         one[0].indirect,
@@ -124,7 +129,12 @@ fn batched_relights_equal_one_by_one() {
                     );
                 } else {
                     let err = rel_l2(&batch[k].indirect, &one[0].indirect);
-                    assert!(err < 1e-6, "{} set {k}: rel L2 {err:e}", codec.name());
+                    assert!(
+                        err < 1e-5,
+                        "{} {} set {k}: rel L2 {err:e}",
+                        engine.describe(),
+                        codec.name()
+                    );
                 }
             }
         }
