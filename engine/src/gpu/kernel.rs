@@ -42,12 +42,6 @@ pub fn variant_within(sets: u32, cap: u32) -> usize {
         .unwrap_or(allowed - 1)
 }
 
-/// Whether the tiled kernel loads a step ahead (`PREFETCH` in `tile_block.wgsl`; on unless
-/// `BOUNCE_GPU_TILE_PREFETCH=0`, to measure the two on a device).
-fn tile_prefetch() -> bool {
-    std::env::var("BOUNCE_GPU_TILE_PREFETCH").map_or(true, |v| v != "0")
-}
-
 fn max_chunk() -> u32 {
     static MAX: std::sync::OnceLock<u32> = std::sync::OnceLock::new();
     *MAX.get_or_init(|| {
@@ -189,15 +183,13 @@ pub fn matvec_variants(
     CHUNKS
         .iter()
         .map(|&chunk| {
-            let mut constants = constants.to_vec();
             let (source, entry, rows_per_group) = if chunk == TILE_SETS {
-                constants.push(("PREFETCH", if tile_prefetch() { 1.0 } else { 0.0 }));
                 (tiled.clone(), "matvec_tiled", TILE_ROWS)
             } else {
                 (with_chunk(&row, chunk), "matvec", ROWS)
             };
             Ok(Variant {
-                pipeline: pipeline_with(device, label, &source, entry, &constants, Loops::Counted)?,
+                pipeline: pipeline_with(device, label, &source, entry, constants, Loops::Counted)?,
                 chunk,
                 rows_per_group,
             })

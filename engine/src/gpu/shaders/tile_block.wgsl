@@ -10,17 +10,16 @@
 // decodes a TM × TK tile of the matrix and gathers a TK × CHUNK tile of light into workgroup
 // memory, once, and every thread multiplies RM rows by RS sets of them from there
 // (48 multiply-adds for each 6 vec4 loads). Each entry is decoded once a pass, each light value
-// gathered once per TM rows (row_block: per 4). A thread loads the next step's share while it
-// multiplies this one's, so the loads' latency hides behind the arithmetic.
+// gathered once per TM rows (row_block: per 4).
+//
+// Loads stay inline in the loop: a version that loaded the next step ahead through a helper
+// taking pointers to the thread's arrays ran 3–4× slower a pass on an H200 (those arrays, we
+// suspect, went to local memory), with or without the look-ahead (docs/h200).
 //
 // Sums run over the columns in order, k = 0, 1, ..., n − 1, one sum per (row, set, channel): the
 // result does not depend on which sets share the batch, but it is not row_block's order (which
 // sums a row across 64 threads, then reduces), so a set's result here may differ from the same
 // set's in a small batch by f32 rounding.
-
-// Whether a thread loads the next step's share while it multiplies this one's (see tile_block);
-// the host sets it (BOUNCE_GPU_TILE_PREFETCH=0 turns it off, to measure one against the other).
-override PREFETCH: bool = true;
 
 const TM: u32 = 64u;
 const TK: u32 = 8u;
@@ -30,45 +29,12 @@ const RM: u32 = 4u;
 const RS: u32 = 4u;
 const ROW_GROUPS: u32 = TM / RM;
 const SET_GROUPS: u32 = CHUNK / RS;
-// Matrix entries (and light values) a thread loads a step: TM * TK / TWG = CHUNK * TK / TWG.
-const PER_THREAD: u32 = 2u;
 
 // Channel-planar tiles, four rows (or four sets) to a vec4, so a thread reads its four with one
 // load: a_tile[(c * TK + k) * ROW_GROUPS + g][r] is channel c of the entry at row g * RM + r of
 // the tile and column k of the step; b_tile likewise for set g * RS + r. 6 KiB each.
 var<workgroup> a_tile: array<vec4<f32>, 384>; // 3 * TK * ROW_GROUPS
 var<workgroup> b_tile: array<vec4<f32>, 384>; // 3 * TK * SET_GROUPS
-
-// One step's share of a thread: the matrix entries at (e / TK, k0 + e % TK) and the light of
-// set e / TK at column k0 + e % TK, for e = tid + i * TWG, i < PER_THREAD. Neighbouring threads take neighbouring columns of one row: a warp's
-// texels fall in two 4 × 4 blocks, its dense entries in whole 32-byte sectors. Past the last
-// column (and past the batch's sets) the values are zero.
-fn fetch(
-    k0: u32,
-    row0: u32,
-    base: u32,
-    sets: u32,
-    tid: u32,
-    ma: ptr<function, array<vec3<f32>, PER_THREAD>>,
-    mb: ptr<function, array<vec3<f32>, PER_THREAD>>,
-) {
-    let n = params.n;
-    for (var i = 0u; i < PER_THREAD; i++) {
-        let e = tid + i * TWG;
-        let k = k0 + e % TK;
-        var a = vec3<f32>(0.0);
-        var b = vec3<f32>(0.0);
-        if k < n {
-            // Rows past the end repeat the last row; their sums are never stored.
-            a = entry(min(row0 + e / TK, params.rows - 1u), k);
-            if e / TK < sets {
-                b = light(base + e / TK, column(k));
-            }
-        }
-        (*ma)[i] = a;
-        (*mb)[i] = b;
-    }
-}
 
 fn tile_block(wid: vec3<u32>, tid: u32) {
     let n = params.n;
@@ -85,38 +51,39 @@ fn tile_block(wid: vec3<u32>, tid: u32) {
     let sg = tid % SET_GROUPS;
     // acc[c * RM + r]: channel c of row rg * RM + r, over the thread's RS sets.
     var acc: array<vec4<f32>, 12>;
-    // The next step's entries and light, loaded while this step's are multiplied: the loads'
-    // latency (texture fetches, gathers from L2) overlaps the arithmetic instead of stalling
-    // every thread of the workgroup at the barrier.
-    var ma: array<vec3<f32>, PER_THREAD>;
-    var mb: array<vec3<f32>, PER_THREAD>;
-    if PREFETCH {
-        fetch(0u, row0, base, sets, tid, &ma, &mb);
-    }
     for (var k0 = 0u; k0 < n; k0 += TK) {
-        if !PREFETCH {
-            fetch(k0, row0, base, sets, tid, &ma, &mb);
-        }
-        for (var i = 0u; i < PER_THREAD; i++) {
+        // Neighbouring threads take neighbouring columns of one row: a warp's texels fall in
+        // two 4 × 4 blocks, its dense entries in whole 32-byte sectors.
+        for (var i = 0u; i < TM * TK / TWG; i++) {
             let e = tid + i * TWG;
-            let k = e % TK;
             let r = e / TK;
+            let k = e % TK;
+            var v = vec3<f32>(0.0);
+            if k0 + k < n {
+                // Rows past the end repeat the last row; their sums are never stored.
+                v = entry(min(row0 + r, rows - 1u), k0 + k);
+            }
             let g = r / RM;
             let q = r % RM;
-            a_tile[k * ROW_GROUPS + g][q] = ma[i].x;
-            a_tile[(TK + k) * ROW_GROUPS + g][q] = ma[i].y;
-            a_tile[(2u * TK + k) * ROW_GROUPS + g][q] = ma[i].z;
+            a_tile[k * ROW_GROUPS + g][q] = v.x;
+            a_tile[(TK + k) * ROW_GROUPS + g][q] = v.y;
+            a_tile[(2u * TK + k) * ROW_GROUPS + g][q] = v.z;
+        }
+        for (var i = 0u; i < CHUNK * TK / TWG; i++) {
+            let e = tid + i * TWG;
             let s = e / TK;
-            let gs = s / RS;
-            let qs = s % RS;
-            b_tile[k * SET_GROUPS + gs][qs] = mb[i].x;
-            b_tile[(TK + k) * SET_GROUPS + gs][qs] = mb[i].y;
-            b_tile[(2u * TK + k) * SET_GROUPS + gs][qs] = mb[i].z;
+            let k = e % TK;
+            var v = vec3<f32>(0.0);
+            if k0 + k < n && s < sets {
+                v = light(base + s, column(k0 + k));
+            }
+            let g = s / RS;
+            let q = s % RS;
+            b_tile[k * SET_GROUPS + g][q] = v.x;
+            b_tile[(TK + k) * SET_GROUPS + g][q] = v.y;
+            b_tile[(2u * TK + k) * SET_GROUPS + g][q] = v.z;
         }
         workgroupBarrier();
-        if PREFETCH {
-            fetch(k0 + TK, row0, base, sets, tid, &ma, &mb);
-        }
         for (var k = 0u; k < TK; k++) {
             for (var c = 0u; c < 3u; c++) {
                 let a = a_tile[(c * TK + k) * ROW_GROUPS + rg];
