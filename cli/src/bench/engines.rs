@@ -49,8 +49,9 @@ pub struct BenchEnginesArgs {
     /// separated: sizes a small machine cannot bake in reasonable time. Entry (i, j) is the
     /// file's T(i mod n, j mod n) · n / N, so rows keep their sums and the matrix its value and
     /// sparsity profile; the light is the file's B0 tiled the same way. The block codecs encode
-    /// them without the reorder pass (its greedy chain is O(N³)), so their error is above what a
-    /// bake of that size would give; the bytes a product reads are the same.
+    /// them without the reorder pass (its greedy chain is O(N³)), and past 8,192 rows with BC1's
+    /// fast endpoint search, so their error is above what a bake of that size would give; the
+    /// bytes a product reads are the same.
     #[arg(long, value_delimiter = ',', value_name = "N")]
     pub synthetic: Vec<usize>,
     /// GPU product kernels for batches over 8 light sets, comma separated: tiled (the engine's
@@ -358,7 +359,7 @@ fn product_rows(
         let codec = if subject.reorder {
             codec::configured(codec_name, None)?
         } else {
-            without_reorder(codec_name)?
+            without_reorder(codec_name, n)?
         };
         let encoded = encode(codec.as_ref(), &subject.exact)?;
         for (name, device) in devices {
@@ -422,10 +423,11 @@ fn product_rows(
     Ok(rows)
 }
 
-/// A block codec as configured, but without the reorder pass and with BC1's fast endpoint
-/// search (a product reads the same bytes; the search's cost grows with N², 276 s for 32,768 on
-/// 16 cores with the bake's search); other codecs as they are.
-fn without_reorder(name: &str) -> Result<Box<dyn Codec>> {
+/// A block codec as configured, but without the reorder pass, and past [`RANGE_FIT_FROM`] rows
+/// with BC1's fast endpoint search (a product reads the same bytes; the bake's search costs
+/// about 276 s at 32,768 rows on 16 cores, the fast one a tenth, with two to three times the
+/// error); other codecs as they are.
+fn without_reorder(name: &str, size: usize) -> Result<Box<dyn Codec>> {
     let base = match name {
         logblock::BC1 => LogBlock::bc1(),
         logblock::BC4 => LogBlock::bc4(),
@@ -433,12 +435,20 @@ fn without_reorder(name: &str) -> Result<Box<dyn Codec>> {
         logblock::BC1_RESID => LogBlock::bc1_resid(),
         other => return Ok(codec::configured(other, None)?),
     };
+    let fit = if size > RANGE_FIT_FROM {
+        bounce_core::codec::bc::Fit::Range
+    } else {
+        bounce_core::codec::bc::Fit::Cluster
+    };
     Ok(Box::new(LogBlock {
         passes: 0,
-        fit: bounce_core::codec::bc::Fit::Range,
+        fit,
         ..base
     }))
 }
+
+/// Synthetic sizes above this many rows encode BC1 with the fast endpoint search.
+const RANGE_FIT_FROM: usize = 8192;
 
 /// The exact product of a batch, on the CPU.
 fn product(exact: &DenseMatrix, b0: &[[f32; 3]]) -> Result<Vec<[f32; 3]>> {
