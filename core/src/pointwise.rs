@@ -16,7 +16,7 @@ use std::sync::Arc;
 use glam::Vec3;
 use rayon::prelude::*;
 
-use crate::direct::{PreparedLight, surface_irradiance};
+use crate::direct::{PreparedLight, ShadowCache, surface_irradiance};
 use crate::light::LightSet;
 use crate::patch::PatchLayout;
 use crate::scene::Scene;
@@ -54,24 +54,27 @@ pub fn first_bounce(
     let tracer = SurfaceScene::new(scene, mesh.clone(), rows, pieces);
     let per_row: Vec<([f32; 3], [f32; 3])> = (0..rows.len())
         .into_par_iter()
-        .map(|i| {
-            let (mut pointwise, mut element) = (Vec3::ZERO, Vec3::ZERO);
-            for k in 0..rays {
-                let Some(l) = tracer.landing(scene, i, k, seed) else {
-                    continue;
-                };
-                let t = &scene.triangles[l.triangle as usize];
-                let at = SamplePoint {
-                    position: l.position.to_array(),
-                    normal: l.normal.to_array(),
-                };
-                let e = Vec3::from(surface_irradiance(&mesh, &[at], &prepared));
-                pointwise += t.emission + t.albedo * e;
-                element += Vec3::from(element_b0[l.row]);
-            }
-            let r = rays.max(1) as f32;
-            ((pointwise / r).to_array(), (element / r).to_array())
-        })
+        .map_init(
+            || ShadowCache::new(prepared.len()),
+            |cache, i| {
+                let (mut pointwise, mut element) = (Vec3::ZERO, Vec3::ZERO);
+                for k in 0..rays {
+                    let Some(l) = tracer.landing(scene, i, k, seed) else {
+                        continue;
+                    };
+                    let t = &scene.triangles[l.triangle as usize];
+                    let at = SamplePoint {
+                        position: l.position.to_array(),
+                        normal: l.normal.to_array(),
+                    };
+                    let e = Vec3::from(surface_irradiance(&mesh, &[at], &prepared, cache));
+                    pointwise += t.emission + t.albedo * e;
+                    element += Vec3::from(element_b0[l.row]);
+                }
+                let r = rays.max(1) as f32;
+                ((pointwise / r).to_array(), (element / r).to_array())
+            },
+        )
         .collect();
     FirstBounce {
         pointwise: per_row.iter().map(|p| p.0).collect(),

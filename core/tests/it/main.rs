@@ -16,3 +16,4 @@ mod shard;
 mod stress;
 mod surface;
 mod tracers;
+mod trimesh;
