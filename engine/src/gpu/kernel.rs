@@ -202,24 +202,29 @@ pub fn matvec_variants(
 /// a few per cent of the matrix, so a batch of 64 reads them 8 times).
 pub fn sparse_variants(device: &wgpu::Device) -> Result<Vec<Variant>, GpuError> {
     let source = sparse_source();
-    CHUNKS
-        .iter()
-        .map(|&c| {
-            let chunk = c.min(CHUNK);
-            Ok(Variant {
-                pipeline: pipeline_with(
-                    device,
-                    "sparse_add",
-                    &with_chunk(&source, chunk),
-                    "sparse_add",
-                    &[],
-                    Loops::Counted,
-                )?,
-                chunk,
-                rows_per_group: 1,
-            })
-        })
-        .collect()
+    let mut compiled: Vec<Variant> = Vec::with_capacity(CHUNKS.len());
+    for &c in &CHUNKS {
+        let chunk = c.min(CHUNK);
+        // The tiled kernel's index runs the sparse pass at CHUNK sets too: one pipeline serves
+        // both.
+        if let Some(same) = compiled.iter().find(|v| v.chunk == chunk) {
+            compiled.push(same.clone());
+            continue;
+        }
+        compiled.push(Variant {
+            pipeline: pipeline_with(
+                device,
+                "sparse_add",
+                &with_chunk(&source, chunk),
+                "sparse_add",
+                &[],
+                Loops::Counted,
+            )?,
+            chunk,
+            rows_per_group: 1,
+        });
+    }
+    Ok(compiled)
 }
 
 /// Whether naga guards a kernel's loops against running forever.
