@@ -10,6 +10,7 @@
 use std::collections::HashMap;
 
 use glam::{DVec3, Vec3};
+use rayon::prelude::*;
 use thiserror::Error;
 
 use crate::element::{Elements, Refinement, sub_cell};
@@ -895,15 +896,16 @@ fn cluster_with(
         .bounds()
         .map_or(0.0, |(lo, hi)| (hi - lo).max_element());
     // Elements are told apart by (connected surface, space faced, openness), numbered as first
-    // met.
-    let mut sides_of: HashMap<(u32, Facing), u32> = HashMap::new();
-    let mut id_of: Vec<u32> = Vec::new();
-    let mut groups: HashMap<(u64, Face, u32, u32), Group> = HashMap::new();
+    // met. The labels cost rays (a space's facing point, 16 openness rays a part), so the walk
+    // over the pieces first records every part and its label query in order, the queries are
+    // answered in parallel, and the parts are then grouped in the recorded order: the same
+    // numbering, whatever the thread count.
+    let mut pending: Vec<Pending> = Vec::new();
+    let mut parts: Vec<(Poly, f64, DVec3)> = Vec::new();
+    let mut queries: Vec<Query> = Vec::new();
     let mut unassigned = 0.0f64;
     let mut stack = Vec::new();
     let mut fine_polys = Vec::new();
-    let mut facing = Vec::new();
-    let mut locals: HashMap<u64, crate::space::Local> = HashMap::new();
     grid.pieces(scene, |index, tri, n, poly, area, centroid| {
         let sides: &[f64] = if tri.double_sided {
             &[1.0, -1.0]
@@ -952,55 +954,99 @@ fn cluster_with(
             }
             for &sign in sides {
                 let normal = n * sign;
-                let face = dominant_face(normal.as_vec3());
                 // The space each fine part of the piece faces; one group when they agree.
-                facing.clear();
-                if let Some((spaces, _, mesh, factor)) = &spaces {
-                    let local = locals.entry(key).or_insert_with(|| {
-                        let lo = cell.map(|c| (c * factor).saturating_sub(SPACE_MARGIN));
-                        let hi = cell.map(|c| (c + 1) * factor + SPACE_MARGIN);
-                        spaces.local(lo, hi)
-                    });
+                let first = parts.len();
+                if spaces.is_some() {
                     for f in &fine_polys {
                         let (a, c) = f.area_centroid(n);
                         if a > 0.0 {
-                            let (p, nv) = (c.as_vec3(), normal.as_vec3());
-                            let space = spaces
-                                .facing(mesh, p, nv)
-                                .and_then(|point| local.label(spaces, point));
-                            let open = crate::openness::class(mesh, p, nv, extent, size);
-                            facing.push(((space, open), *f, a, c));
+                            parts.push((*f, a, c));
+                            queries.push(Query {
+                                key,
+                                cell,
+                                p: c.as_vec3(),
+                                normal: normal.as_vec3(),
+                            });
                         }
                     }
                 }
-                let whole = facing.windows(2).all(|w| w[0].0 == w[1].0);
-                let parts: Vec<(Facing, Poly, f64, DVec3)> = if whole {
-                    let label = facing.first().map_or((None, 0), |f| f.0);
-                    vec![(label, *piece, area, centroid)]
-                } else {
-                    facing.clone()
-                };
-                for (label, part, area, centroid) in parts {
-                    let next = sides_of.len() as u32;
-                    let id = *sides_of
-                        .entry((component[index], label))
-                        .or_insert_with(|| {
-                            id_of.push(component[index]);
-                            next
-                        });
-                    let g = groups.entry((key, face, id, sub)).or_default();
-                    g.acc.add(tri, area, centroid, normal);
-                    g.tris
-                        .extend(part.fan(n).iter().map(|&(corners, a)| PieceTri {
-                            corners,
-                            normal: normal.as_vec3(),
-                            area: a,
-                            triangle: index as u32,
-                        }));
-                }
+                pending.push(Pending {
+                    index,
+                    key,
+                    sub,
+                    n,
+                    normal,
+                    piece: *piece,
+                    area,
+                    centroid,
+                    parts: first..parts.len(),
+                });
             }
         }
     });
+    let labels: Vec<Facing> = match &spaces {
+        Some((spaces, _, mesh, factor)) => {
+            let mut cells: Vec<(u64, [u32; 3])> = queries.iter().map(|q| (q.key, q.cell)).collect();
+            cells.sort_unstable_by_key(|&(key, _)| key);
+            cells.dedup_by_key(|&mut (key, _)| key);
+            let locals: HashMap<u64, crate::space::Local> = cells
+                .par_iter()
+                .map(|&(key, cell)| {
+                    let lo = cell.map(|c| (c * factor).saturating_sub(SPACE_MARGIN));
+                    let hi = cell.map(|c| (c + 1) * factor + SPACE_MARGIN);
+                    (key, spaces.local(lo, hi))
+                })
+                .collect();
+            queries
+                .par_iter()
+                .map(|q| {
+                    let space = spaces
+                        .facing(mesh, q.p, q.normal)
+                        .and_then(|point| locals.get(&q.key)?.label(spaces, point));
+                    let open = crate::openness::class(mesh, q.p, q.normal, extent, size);
+                    (space, open)
+                })
+                .collect()
+        }
+        None => Vec::new(),
+    };
+    let mut sides_of: HashMap<(u32, Facing), u32> = HashMap::new();
+    let mut id_of: Vec<u32> = Vec::new();
+    let mut groups: HashMap<(u64, Face, u32, u32), Group> = HashMap::new();
+    for item in &pending {
+        let facing = &labels[item.parts.clone()];
+        let whole = facing.windows(2).all(|w| w[0] == w[1]);
+        let split: Vec<(Facing, Poly, f64, DVec3)> = if whole {
+            let label = facing.first().copied().unwrap_or((None, 0));
+            vec![(label, item.piece, item.area, item.centroid)]
+        } else {
+            facing
+                .iter()
+                .zip(&parts[item.parts.clone()])
+                .map(|(&label, &(poly, a, c))| (label, poly, a, c))
+                .collect()
+        };
+        let tri = &scene.triangles[item.index];
+        let face = dominant_face(item.normal.as_vec3());
+        for (label, part, area, centroid) in split {
+            let next = sides_of.len() as u32;
+            let id = *sides_of
+                .entry((component[item.index], label))
+                .or_insert_with(|| {
+                    id_of.push(component[item.index]);
+                    next
+                });
+            let g = groups.entry((item.key, face, id, item.sub)).or_default();
+            g.acc.add(tri, area, centroid, item.normal);
+            g.tris
+                .extend(part.fan(item.n).iter().map(|&(corners, a)| PieceTri {
+                    corners,
+                    normal: item.normal.as_vec3(),
+                    area: a,
+                    triangle: item.index as u32,
+                }));
+        }
+    }
     let groups = merge_small_spaces(groups, &id_of);
     let groups = within_budget(groups, &mut refined, REFINE_BUDGET);
     // Sorted keys put each patch's elements together, in component then sub-cell order.
@@ -1087,6 +1133,30 @@ fn cluster_with(
 /// What a part of a patch faces: its space ([`crate::space`], `None` where no lattice point is
 /// in view) and its openness class ([`crate::openness`]).
 type Facing = (Option<u32>, i8);
+
+/// One side of one piece of surface, recorded in walk order before its labels are known, with
+/// the fine parts whose labels decide whether it is one element or several.
+struct Pending {
+    index: usize,
+    key: u64,
+    sub: u32,
+    /// The triangle's normal, and the side's (`±` it).
+    n: DVec3,
+    normal: DVec3,
+    piece: Poly,
+    area: f64,
+    centroid: DVec3,
+    /// Its fine parts, in `parts` and (for their labels) in the queries.
+    parts: std::ops::Range<usize>,
+}
+
+/// A fine part's label query: the space it faces and its openness, from its centroid.
+struct Query {
+    key: u64,
+    cell: [u32; 3],
+    p: Vec3,
+    normal: Vec3,
+}
 
 /// Lattice points per voxel edge for finding the spaces surfaces face ([`crate::space`]).
 pub const SPACE_FACTOR: u32 = 4;
