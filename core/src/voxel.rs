@@ -897,12 +897,11 @@ fn cluster_with(
         .map_or(0.0, |(lo, hi)| (hi - lo).max_element());
     // Elements are told apart by (connected surface, space faced, openness), numbered as first
     // met. The labels cost rays (a space's facing point, 16 openness rays a part), so the walk
-    // over the pieces first records every part and its label query in order, the queries are
-    // answered in parallel, and the parts are then grouped in the recorded order: the same
-    // numbering, whatever the thread count.
+    // over the pieces first records every side and its parts in order, the parts' labels are
+    // found in parallel (in that order), and the parts are then grouped in the recorded order:
+    // the same numbering, whatever the thread count.
     let mut pending: Vec<Pending> = Vec::new();
     let mut parts: Vec<(Poly, f64, DVec3)> = Vec::new();
-    let mut queries: Vec<Query> = Vec::new();
     let mut unassigned = 0.0f64;
     let mut stack = Vec::new();
     let mut fine_polys = Vec::new();
@@ -961,18 +960,13 @@ fn cluster_with(
                         let (a, c) = f.area_centroid(n);
                         if a > 0.0 {
                             parts.push((*f, a, c));
-                            queries.push(Query {
-                                key,
-                                cell,
-                                p: c.as_vec3(),
-                                normal: normal.as_vec3(),
-                            });
                         }
                     }
                 }
                 pending.push(Pending {
                     index,
                     key,
+                    cell,
                     sub,
                     n,
                     normal,
@@ -986,7 +980,11 @@ fn cluster_with(
     });
     let labels: Vec<Facing> = match &spaces {
         Some((spaces, _, mesh, factor)) => {
-            let mut cells: Vec<(u64, [u32; 3])> = queries.iter().map(|q| (q.key, q.cell)).collect();
+            let mut cells: Vec<(u64, [u32; 3])> = pending
+                .iter()
+                .filter(|item| !item.parts.is_empty())
+                .map(|item| (item.key, item.cell))
+                .collect();
             cells.sort_unstable_by_key(|&(key, _)| key);
             cells.dedup_by_key(|&mut (key, _)| key);
             let locals: HashMap<u64, crate::space::Local> = cells
@@ -997,14 +995,20 @@ fn cluster_with(
                     (key, spaces.local(lo, hi))
                 })
                 .collect();
-            queries
+            // Rayon's collect keeps the parts' order.
+            pending
                 .par_iter()
-                .map(|q| {
-                    let space = spaces
-                        .facing(mesh, q.p, q.normal)
-                        .and_then(|point| locals.get(&q.key)?.label(spaces, point));
-                    let open = crate::openness::class(mesh, q.p, q.normal, extent, size);
-                    (space, open)
+                .flat_map_iter(|item| {
+                    let normal = item.normal.as_vec3();
+                    let local = locals.get(&item.key);
+                    parts[item.parts.clone()].iter().map(move |&(_, _, c)| {
+                        let p = c.as_vec3();
+                        let space = spaces
+                            .facing(mesh, p, normal)
+                            .and_then(|point| local?.label(spaces, point));
+                        let open = crate::openness::class(mesh, p, normal, extent, size);
+                        (space, open)
+                    })
                 })
                 .collect()
         }
@@ -1139,6 +1143,8 @@ type Facing = (Option<u32>, i8);
 struct Pending {
     index: usize,
     key: u64,
+    /// The voxel, whose neighbourhood tells the spaces its parts face apart.
+    cell: [u32; 3],
     sub: u32,
     /// The triangle's normal, and the side's (`±` it).
     n: DVec3,
@@ -1146,16 +1152,8 @@ struct Pending {
     piece: Poly,
     area: f64,
     centroid: DVec3,
-    /// Its fine parts, in `parts` and (for their labels) in the queries.
+    /// Its fine parts in `parts`, and their labels at the same indices.
     parts: std::ops::Range<usize>,
-}
-
-/// A fine part's label query: the space it faces and its openness, from its centroid.
-struct Query {
-    key: u64,
-    cell: [u32; 3],
-    p: Vec3,
-    normal: Vec3,
 }
 
 /// Lattice points per voxel edge for finding the spaces surfaces face ([`crate::space`]).
