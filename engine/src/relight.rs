@@ -109,10 +109,11 @@ impl Engine {
                 Ok(ctx) => {
                     let a = ctx.adapter();
                     let description = format!(
-                        "gpu ({}, {}{})",
+                        "gpu ({}, {}{}{})",
                         a.name,
                         a.backend,
-                        if a.software { ", software" } else { "" }
+                        if a.software { ", software" } else { "" },
+                        if a.tensor_cores { ", tensor cores" } else { "" }
                     );
                     Ok(Engine {
                         gpu: Some(ctx),
@@ -133,6 +134,11 @@ impl Engine {
         } else {
             EngineKind::Cpu
         }
+    }
+
+    /// The GPU engine's adapter; `None` on the CPU engine.
+    pub fn adapter(&self) -> Option<&crate::gpu::AdapterSummary> {
+        self.gpu.as_ref().map(GpuContext::adapter)
     }
 
     /// What runs: the engine kind and, for the GPU, the adapter.

@@ -16,7 +16,7 @@ use bounce_core::matrix::{DENSE_F32, DenseMatrix};
 use bounce_core::meta::Bounces;
 use bounce_core::patch::PatchLayout;
 use bounce_engine::baseline::jacobi;
-use bounce_engine::gpu::{GpuContext, GpuMatrix, Split, bandwidth};
+use bounce_engine::gpu::{BatchKernel, GpuContext, GpuMatrix, Split, bandwidth};
 use bounce_engine::{Engine, EngineChoice};
 use clap::Args;
 use rayon::prelude::*;
@@ -38,9 +38,15 @@ pub struct BenchEnginesArgs {
     /// Light sets per product, comma separated.
     #[arg(long, value_delimiter = ',', default_value = "1,8,64")]
     pub batches: Vec<usize>,
-    /// Timed products per row (after one warm-up); the table shows the median and the p99.
+    /// Timed products per row; the table shows the median and the p99.
     #[arg(long, default_value_t = 10)]
     pub repeat: usize,
+    /// Seconds of untimed products before each row's timed ones (at least one product). A GPU
+    /// that was idle, or busy with a bake, runs its first tens of milliseconds at low clocks:
+    /// after a single warm-up product the same kernel measured up to 4 times slower on an H200
+    /// (docs/h200, runs 7 and 8).
+    #[arg(long, default_value_t = 0.5, value_name = "SECONDS")]
+    pub warm_up: f64,
     /// Engines, comma separated: cpu, gpu. A GPU that cannot be opened is reported, not skipped
     /// silently.
     #[arg(long, value_delimiter = ',', default_value = "cpu,gpu")]
@@ -54,11 +60,13 @@ pub struct BenchEnginesArgs {
     /// bytes a product reads are the same.
     #[arg(long, value_delimiter = ',', value_name = "N")]
     pub synthetic: Vec<usize>,
-    /// GPU product kernels for batches over 8 light sets, comma separated: tiled (the engine's
-    /// choice: one pass per 64 sets, each entry decoded once a pass) and matvec (the
-    /// matrix-vector kernel, one pass per 8 sets), measured on the same upload; the table
-    /// names the second engine `gpu-matvec`.
-    #[arg(long, value_delimiter = ',', default_value = "tiled")]
+    /// GPU product kernels for batches over 8 light sets, comma separated, measured on the
+    /// same upload: tiled (FP32, one pass per 64 sets, each entry decoded once a pass), tensor
+    /// (the block codecs' tensor-core kernel, f16 inputs and f32 sums: the engine's choice
+    /// where the device has one; elsewhere it is not measured and the bench says why) and
+    /// matvec (the matrix-vector kernel, one pass per 8 sets). The table names them `gpu`,
+    /// `gpu-tensor` and `gpu-matvec`.
+    #[arg(long, value_delimiter = ',', default_value = "tiled,tensor")]
     pub kernels: Vec<Kernel>,
     /// Write the table as CSV here too.
     #[arg(long, value_name = "OUT.csv")]
@@ -68,6 +76,7 @@ pub struct BenchEnginesArgs {
 #[derive(clap::ValueEnum, Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Kernel {
     Tiled,
+    Tensor,
     Matvec,
 }
 
@@ -133,15 +142,35 @@ impl Product {
                 .iter()
                 .map(|&k| match k {
                     Kernel::Tiled => (k, name.to_string()),
+                    Kernel::Tensor => (k, format!("{name}-tensor")),
                     Kernel::Matvec => (k, format!("{name}-matvec")),
                 })
                 .collect(),
         }
     }
 
-    fn set_kernel(&mut self, kernel: Kernel) {
-        if let Product::Gpu(m) = self {
-            m.set_tiled(kernel == Kernel::Tiled);
+    /// Selects `kernel`; false where it cannot run on this product (a GPU product asked for
+    /// tensor cores it has not got), which the caller reports instead of measuring.
+    fn set_kernel(&mut self, kernel: Kernel) -> bool {
+        let Product::Gpu(m) = self else { return true };
+        let want = match kernel {
+            Kernel::Tiled => BatchKernel::Tiled,
+            Kernel::Tensor => BatchKernel::Tensor,
+            Kernel::Matvec => BatchKernel::Matvec,
+        };
+        m.set_kernel(want) == want
+    }
+
+    /// Why the tensor kernel does not run on this product.
+    fn no_tensor(&self) -> String {
+        match self {
+            Product::Gpu(m) => match m.tensor_refused() {
+                Some(why) => format!("the driver refused it: {why}"),
+                None => "the device has no tensor cores usable from WGSL, or the codec is \
+                         not a block codec"
+                    .to_string(),
+            },
+            Product::Cpu(_) => "CPU product".to_string(),
         }
     }
 }
@@ -160,6 +189,9 @@ struct Subject {
 pub fn run(args: &BenchEnginesArgs) -> Result<()> {
     if args.repeat == 0 || args.batches.contains(&0) || args.synthetic.contains(&0) {
         bail!("--repeat and every --batches and --synthetic entry must be at least 1");
+    }
+    if !(args.warm_up.is_finite() && args.warm_up >= 0.0) {
+        bail!("--warm-up must be a number of seconds, 0 or more");
     }
     if let Some(&big) = args.synthetic.iter().find(|&&n| n > MAX_SYNTHETIC) {
         bail!("--synthetic {big}: at most {MAX_SYNTHETIC} rows (an n² entry index must fit u32)");
@@ -308,6 +340,16 @@ pub fn run(args: &BenchEnginesArgs) -> Result<()> {
     emit(&header, &table, args.csv.as_deref())
 }
 
+/// Runs `f` once, then again until `seconds` have passed since the first began.
+fn warm_up(seconds: f64, mut f: impl FnMut() -> Result<()>) -> Result<()> {
+    let start = Instant::now();
+    f()?;
+    while start.elapsed().as_secs_f64() < seconds {
+        f()?;
+    }
+    Ok(())
+}
+
 /// Entries of an n × n matrix are indexed in u32 by the codecs' sparse parts.
 const MAX_SYNTHETIC: usize = 65_535;
 
@@ -381,19 +423,26 @@ fn product_rows(
                     continue;
                 }
             };
+            // Up to CHUNK sets every kernel choice runs the matrix-vector kernel: measured once,
+            // under the first choice that runs.
+            let mut small_measured = false;
             for (kernel, engine) in product.kernels(name, &args.kernels) {
-                product.set_kernel(kernel);
+                if !product.set_kernel(kernel) {
+                    eprintln!(
+                        "    {codec_name}: {engine} not measured: {}",
+                        product.no_tensor()
+                    );
+                    continue;
+                }
+                let small_here = !small_measured;
+                small_measured = true;
                 for &batch in &args.batches {
-                    // Up to CHUNK sets both choices run the matrix-vector kernel: measured once.
-                    if kernel == Kernel::Matvec
-                        && args.kernels.contains(&Kernel::Tiled)
-                        && batch <= bounce_engine::gpu::CHUNK as usize
-                    {
+                    if !small_here && batch <= bounce_engine::gpu::CHUNK as usize {
                         continue;
                     }
                     let x = &subject.b0[..batch * n];
                     let mut out = vec![[0.0f32; 3]; x.len()];
-                    product.apply(x, &mut out)?;
+                    warm_up(args.warm_up, || product.apply(x, &mut out))?;
                     let mut times = Vec::with_capacity(args.repeat);
                     let mut kernel_times = Vec::with_capacity(args.repeat);
                     for _ in 0..args.repeat {
@@ -545,6 +594,10 @@ fn direct_rows(
     let mut rows = Vec::new();
     for &batch in &args.batches {
         let sets = &sets[..batch];
+        warm_up(args.warm_up, || {
+            engine.relight_timed(scene, sets)?;
+            Ok(())
+        })?;
         let (mut lit, _) = engine.relight_timed(scene, sets)?;
         let mut times = Vec::with_capacity(args.repeat);
         for _ in 0..args.repeat {

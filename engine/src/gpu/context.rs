@@ -21,6 +21,9 @@ pub struct AdapterSummary {
     pub software: bool,
     /// BC texture sampling, which the `bc1` / `bc4` kernels need.
     pub bc_textures: bool,
+    /// Tensor cores the block codecs' large-batch kernel can use: 16 × 16 × 16 cooperative
+    /// matrices with f16 inputs and f32 sums, in subgroups of 32 (see [`tensor_support`]).
+    pub tensor_cores: bool,
 }
 
 impl std::fmt::Display for AdapterSummary {
@@ -28,6 +31,9 @@ impl std::fmt::Display for AdapterSummary {
         write!(f, "{} ({}, {}", self.name, self.backend, self.driver)?;
         if self.software {
             write!(f, ", software")?;
+        }
+        if self.tensor_cores {
+            write!(f, ", tensor cores")?;
         }
         write!(f, ")")
     }
@@ -68,12 +74,31 @@ impl GpuContext {
         // `GpuMatrix::last_kernel_seconds`); they cost nothing where unused.
         let features = adapter.features()
             & (wgpu::Features::TEXTURE_COMPRESSION_BC | wgpu::Features::TIMESTAMP_QUERY);
-        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
-            label: Some("bounce-engine"),
-            required_features: features,
-            required_limits: adapter.limits(),
-            ..Default::default()
-        }))
+        let open = |tensor: bool| {
+            let (required_features, experimental_features) = if tensor {
+                // SAFETY: wgpu marks cooperative matrices experimental (its implementation may
+                // have bugs). bounce uses them in one kernel, whose results its tests compare
+                // with the FP32 kernels' on the hardware that runs it; `BOUNCE_GPU_TENSOR=0`
+                // leaves them off.
+                (features | TENSOR_FEATURES, unsafe {
+                    wgpu::ExperimentalFeatures::enabled()
+                })
+            } else {
+                (features, wgpu::ExperimentalFeatures::disabled())
+            };
+            pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+                label: Some("bounce-engine"),
+                required_features,
+                required_limits: adapter.limits(),
+                experimental_features,
+                ..Default::default()
+            }))
+        };
+        // A device with the experimental features that fails to open is retried without them.
+        let (device, queue) = match tensor_support(&adapter) {
+            true => open(true).or_else(|_| open(false)),
+            false => open(false),
+        }
         .map_err(|source| GpuError::RequestDevice {
             adapter: adapter.get_info().name,
             source,
@@ -117,6 +142,9 @@ impl GpuContext {
             bc_textures: device
                 .features()
                 .contains(wgpu::Features::TEXTURE_COMPRESSION_BC),
+            tensor_cores: device.features().contains(TENSOR_FEATURES)
+                && info.subgroup_min_size == 32
+                && info.subgroup_max_size == 32,
         };
         GpuContext {
             device,
@@ -137,4 +165,27 @@ impl GpuContext {
     pub fn queue(&self) -> &wgpu::Queue {
         &self.queue
     }
+}
+
+/// What the tensor-core kernel (`tensor_block.wgsl`) needs from a device.
+const TENSOR_FEATURES: wgpu::Features = wgpu::Features::SHADER_F16
+    .union(wgpu::Features::SUBGROUP)
+    .union(wgpu::Features::EXPERIMENTAL_COOPERATIVE_MATRIX);
+
+/// Whether `adapter` can run the tensor-core kernel: f16 shaders, subgroups exactly 32 wide (the
+/// kernel splits its 256 threads into eight of them), and a 16 × 16 × 16 cooperative matrix
+/// product of f16 inputs into f32 sums. `BOUNCE_GPU_TENSOR=0` says no, to measure or rule out
+/// the kernel.
+pub fn tensor_support(adapter: &wgpu::Adapter) -> bool {
+    if std::env::var("BOUNCE_GPU_TENSOR").is_ok_and(|v| v == "0") {
+        return false;
+    }
+    let info = adapter.get_info();
+    adapter.features().contains(TENSOR_FEATURES)
+        && info.subgroup_min_size == 32
+        && info.subgroup_max_size == 32
+        && adapter.cooperative_matrix_properties().iter().any(|p| {
+            use wgpu::CooperativeScalarType as S;
+            (p.m_size, p.n_size, p.k_size, p.ab_type, p.cr_type) == (16, 16, 16, S::F16, S::F32)
+        })
 }

@@ -59,6 +59,7 @@ pub(super) fn upload(
             rows: rows as u32,
             tile: 0,
             nnz: 0,
+            tensor: None,
         });
         row0 += rows;
     }

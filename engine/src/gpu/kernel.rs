@@ -139,11 +139,51 @@ pub fn logblock_tiled_source() -> String {
     with_chunk(&[COMMON, TILE_BLOCK, LOGBLOCK].concat(), TILE_SETS)
 }
 
+/// The block codecs' tensor-core source (entry points `light_top_of`, `light_pack` and
+/// `matvec_tensor`, compiled with `CHUNK` = [`TILE_SETS`]); `enable` lines come first in WGSL.
+pub fn tensor_source() -> String {
+    with_chunk(
+        &[
+            "enable f16;\nenable wgpu_cooperative_matrix;\n",
+            COMMON,
+            include_str!("shaders/tensor_block.wgsl"),
+            LOGBLOCK,
+        ]
+        .concat(),
+        TILE_SETS,
+    )
+}
+
 pub fn sparse_source() -> String {
     [COMMON, include_str!("shaders/sparse.wgsl")].concat()
 }
 
 const CHUNK_LINE: &str = "const CHUNK: u32 = 8u;";
+const ROWS_LINE: &str = "const ROWS: u32 = 4u;";
+
+/// A matvec source compiled for `rows` rows a workgroup.
+fn with_rows(source: &str, rows: u32) -> String {
+    debug_assert!(source.contains(ROWS_LINE), "the prelude declares ROWS");
+    source.replace(ROWS_LINE, &format!("const ROWS: u32 = {rows}u;"))
+}
+
+/// Rows a workgroup of the matrix-vector kernel owns for `chunk` light sets: [`ROWS`], except
+/// that `BOUNCE_GPU_ROWS1` (1, 2, 4 or 8) sets it for the one-set kernel, to measure how many
+/// rows a matrix-vector product should keep in flight on a device (fewer rows a workgroup means
+/// fewer distinct rows streaming at once).
+fn rows_for(chunk: u32) -> u32 {
+    static ROWS1: std::sync::OnceLock<u32> = std::sync::OnceLock::new();
+    if chunk != 1 {
+        return ROWS;
+    }
+    *ROWS1.get_or_init(|| {
+        std::env::var("BOUNCE_GPU_ROWS1")
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .filter(|r| [1, 2, 4, 8].contains(r))
+            .unwrap_or(ROWS)
+    })
+}
 
 /// A matvec source compiled for `chunk` light sets a pass.
 pub fn with_chunk(source: &str, chunk: u32) -> String {
@@ -186,7 +226,8 @@ pub fn matvec_variants(
             let (source, entry, rows_per_group) = if chunk == TILE_SETS {
                 (tiled.clone(), "matvec_tiled", TILE_ROWS)
             } else {
-                (with_chunk(&row, chunk), "matvec", ROWS)
+                let rows = rows_for(chunk);
+                (with_rows(&with_chunk(&row, chunk), rows), "matvec", rows)
             };
             Ok(Variant {
                 pipeline: pipeline_with(device, label, &source, entry, constants, Loops::Counted)?,

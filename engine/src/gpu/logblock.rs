@@ -10,6 +10,7 @@ use bounce_core::matrix::EncodedMatrix;
 
 use super::kernel::{Body, Split, matvec_variants, storage, u32_bytes};
 use super::matrix::{Bound, Pass};
+use super::tensor::TensorKernel;
 use super::{GpuContext, GpuError, sparse};
 
 /// The block pass, the sparse pass if any, and the per-channel maxima and sparse count for
@@ -44,6 +45,17 @@ pub(super) fn upload(
     let row_perm = storage(device, "row order", u32_bytes(op.row_perm()))?;
     let col_perm = storage(device, "column order", u32_bytes(op.col_perm()))?;
     let bc4 = if blocks == Blocks::Bc1 { 0.0 } else { 1.0 };
+    // A driver that rejects the experimental kernel leaves the FP32 one in charge, and says why.
+    let tensor = ctx.adapter().tensor_cores.then(|| {
+        TensorKernel::new(
+            device,
+            bc4,
+            texture.clone(),
+            row_perm.clone(),
+            col_perm.clone(),
+        )
+        .map_err(|e| e.to_string())
+    });
     let pass = Pass {
         variants: matvec_variants(device, "logblock_matvec", Body::Blocks, &[("BC4", bc4)])?,
         bound: vec![
@@ -55,6 +67,7 @@ pub(super) fn upload(
         rows: op.row_perm().len() as u32,
         tile,
         nnz: 0,
+        tensor,
     };
     // The table's top entry is the channel maximum itself (code 255 = max · e^0).
     let mut max = [0.0f32; 4];

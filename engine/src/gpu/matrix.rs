@@ -7,9 +7,10 @@ use bounce_core::codec::CodecError;
 use bounce_core::matrix::EncodedMatrix;
 
 use super::kernel::{
-    CHUNK, CHUNKS, Params, Split, Variant, check_binding, grid, scoped, sets_per_dispatch,
-    variant_for, variant_within,
+    CHUNK, CHUNKS, Params, Split, TILE_SETS, Variant, check_binding, grid, scoped,
+    sets_per_dispatch, variant_for, variant_within,
 };
+use super::tensor::{TensorIo, TensorKernel};
 use super::{GpuContext, GpuError, dense, logblock};
 
 /// A resource a pass binds besides the shared params, light and output buffers (bindings 0–2).
@@ -30,6 +31,21 @@ pub(super) struct Pass {
     pub tile: u32,
     /// Entries of a sparse band (sparse passes), else 0.
     pub nnz: u32,
+    /// The block pass's tensor-core kernel where the device has tensor cores (or why the driver
+    /// refused it); `None` elsewhere.
+    pub tensor: Option<Result<TensorKernel, String>>,
+}
+
+/// Which kernel multiplies a batch of more than [`CHUNK`] light sets.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum BatchKernel {
+    /// The block codecs' tensor-core kernel (`tensor_block.wgsl`): f16 inputs, f32 sums. The
+    /// default where the device has it.
+    Tensor,
+    /// The FP32 tiled kernel (`tile_block.wgsl`), one pass per 64 sets: the default elsewhere.
+    Tiled,
+    /// The matrix-vector kernel, one pass per [`CHUNK`] sets.
+    Matvec,
 }
 
 impl Pass {
@@ -51,6 +67,8 @@ struct Io {
     params: Vec<wgpu::Buffer>,
     /// `groups[variant][pass]`: pipelines with derived layouts take only their own bind groups.
     groups: Vec<Vec<wgpu::BindGroup>>,
+    /// Per pass, the tensor kernel's buffers where the pass has one.
+    tensor: Vec<Option<TensorIo>>,
 }
 
 /// Two timestamps (start and end of the product's compute pass), resolved and read back.
@@ -77,9 +95,8 @@ pub struct GpuMatrix {
     pieces: usize,
     /// Row bands of the sparse part (block codecs; 0 when nothing was kept exactly).
     sparse_bands: usize,
-    /// Whether batches over `CHUNK` sets run the tiled kernel (the default) or the
-    /// matrix-vector kernel in several passes; the bench measures both.
-    tiled: bool,
+    /// The kernel for batches over `CHUNK` sets (the bench measures each on one upload).
+    kernel: BatchKernel,
     io: Mutex<Option<Io>>,
 }
 
@@ -131,7 +148,7 @@ impl GpuMatrix {
             }
             _ => passes.len() - sparse_bands,
         };
-        Ok(GpuMatrix {
+        let mut matrix = GpuMatrix {
             device: ctx.device.clone(),
             queue: ctx.queue.clone(),
             codec: m.codec.clone(),
@@ -141,10 +158,12 @@ impl GpuMatrix {
             passes,
             sparse_bands,
             pieces,
-            tiled: true,
+            kernel: BatchKernel::Tensor,
             kernel_seconds: Mutex::new(None),
             io: Mutex::new(None),
-        })
+        };
+        matrix.set_kernel(BatchKernel::Tensor);
+        Ok(matrix)
     }
 
     /// Into how many row bands the block codecs' exactly kept entries were cut (0 when none
@@ -190,17 +209,60 @@ impl GpuMatrix {
         sets.div_ceil(CHUNKS[self.variant(sets)]) as usize
     }
 
-    /// Run batches over `CHUNK` light sets on the tiled kernel (`true`, the default) or on the
-    /// matrix-vector kernel, `ceil(sets / CHUNK)` passes (to measure one against the other).
-    pub fn set_tiled(&mut self, tiled: bool) {
-        self.tiled = tiled;
+    /// Run batches over `CHUNK` light sets on `kernel` (to measure the kernels against each
+    /// other). The tensor kernel falls back to the tiled one where the matrix has none (dense
+    /// codecs, a device without tensor cores, a driver that refused it): returns the kernel
+    /// that will run.
+    pub fn set_kernel(&mut self, kernel: BatchKernel) -> BatchKernel {
+        self.kernel = match kernel {
+            BatchKernel::Tensor if self.tensor_refused().is_some() || !self.has_tensor() => {
+                BatchKernel::Tiled
+            }
+            k => k,
+        };
+        self.kernel
+    }
+
+    /// The kernel batches over `CHUNK` light sets run on.
+    pub fn batch_kernel(&self) -> BatchKernel {
+        self.kernel
+    }
+
+    /// Why the driver refused the tensor kernel on a device that has tensor cores, if it did.
+    pub fn tensor_refused(&self) -> Option<&str> {
+        self.passes.iter().find_map(|p| match &p.tensor {
+            Some(Err(why)) => Some(why.as_str()),
+            _ => None,
+        })
+    }
+
+    fn has_tensor(&self) -> bool {
+        self.passes.iter().any(|p| matches!(p.tensor, Some(Ok(_))))
     }
 
     fn variant(&self, sets: u32) -> usize {
-        if self.tiled {
-            variant_for(sets)
-        } else {
-            variant_within(sets, CHUNK)
+        match self.kernel {
+            BatchKernel::Tensor | BatchKernel::Tiled => variant_for(sets),
+            BatchKernel::Matvec => variant_within(sets, CHUNK),
+        }
+    }
+
+    /// Whether `pass` runs its tensor kernel for a batch of `sets` under `variant`.
+    fn tensor_for<'a>(
+        &self,
+        pass: &'a Pass,
+        variant: usize,
+        sets: u32,
+    ) -> Option<&'a TensorKernel> {
+        match &pass.tensor {
+            Some(Ok(t))
+                if self.kernel == BatchKernel::Tensor
+                    && CHUNKS[variant] == TILE_SETS
+                    && TensorKernel::takes(&self.device, sets) =>
+            {
+                Some(t)
+            }
+            _ => None,
         }
     }
 
@@ -267,6 +329,12 @@ impl GpuMatrix {
         let mut encoder = self
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
+        let variant = self.variant(sets);
+        for (pass, tio) in self.passes.iter().zip(&io.tensor) {
+            if let (Some(t), Some(tio)) = (self.tensor_for(pass, variant, sets), tio) {
+                t.clear(&mut encoder, tio);
+            }
+        }
         {
             let mut cpass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
                 label: None,
@@ -276,12 +344,20 @@ impl GpuMatrix {
                     end_of_pass_write_index: Some(1),
                 }),
             });
-            let variant = self.variant(sets);
             let groups = &io.groups[variant];
-            for ((pass, params), group) in self.passes.iter().zip(&io.params).zip(groups) {
+            for (((pass, params), group), tio) in self
+                .passes
+                .iter()
+                .zip(&io.params)
+                .zip(groups)
+                .zip(&io.tensor)
+            {
                 let kernel = &pass.variants[variant];
-                let ([gx, gy, gz], groups_x) =
-                    grid(&self.device, pass.groups(variant), sets, kernel.chunk);
+                let tensor = self.tensor_for(pass, variant, sets).zip(tio.as_ref());
+                let ([gx, gy, gz], groups_x) = match tensor {
+                    Some(_) => TensorKernel::dispatch_size(&self.device, pass.rows, sets),
+                    None => grid(&self.device, pass.groups(variant), sets, kernel.chunk),
+                };
                 let p = Params {
                     n: self.n,
                     channels: self.channels,
@@ -294,6 +370,10 @@ impl GpuMatrix {
                     max: self.max,
                 };
                 self.queue.write_buffer(params, 0, bytemuck::bytes_of(&p));
+                if let Some((t, tio)) = tensor {
+                    t.dispatch(&mut cpass, tio, self.n, sets, [gx, gy, gz]);
+                    continue;
+                }
                 cpass.set_pipeline(&kernel.pipeline);
                 cpass.set_bind_group(0, group, &[]);
                 // Dispatches in one pass are ordered: wgpu puts a barrier between the block
@@ -386,6 +466,15 @@ impl GpuMatrix {
         let groups = (0..CHUNKS.len())
             .map(|variant| self.bind_groups(variant, &params, &x, &out))
             .collect();
+        let tensor = self
+            .passes
+            .iter()
+            .zip(&params)
+            .map(|(pass, params)| match &pass.tensor {
+                Some(Ok(t)) => Some(t.io(&self.device, sets, self.n, params, &x, &out)),
+                _ => None,
+            })
+            .collect();
         let timer = self
             .device
             .features()
@@ -417,6 +506,7 @@ impl GpuMatrix {
             readback,
             params,
             groups,
+            tensor,
         })
     }
 

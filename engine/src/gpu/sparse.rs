@@ -78,6 +78,7 @@ pub(super) fn upload(
             rows: rows as u32,
             tile: 0,
             nnz: (end - start) as u32,
+            tensor: None,
         });
         row0 = end_row;
     }

@@ -175,6 +175,81 @@ fn tiled_split_constants_match_wgsl() {
     }
 }
 
+/// The tensor-core kernel's constants agree with its host (`TILE_ROWS` rows × `TILE_SETS` sets a
+/// workgroup, eight 32-wide subgroups of 16 rows × 32 sets each, 16-deep steps), and naga
+/// validates it with the capabilities the host requests and writes it as SPIR-V. No adapter
+/// here may run it (lavapipe has no cooperative matrices), so this is what CI can check of it;
+/// the GPU tests run it wherever the device has tensor cores.
+#[test]
+fn tensor_kernel_compiles_and_matches_its_host() {
+    let source = sources::tensor_source();
+    let module = parse("tensor", &source);
+    let c = |n| constant(&module, n);
+    assert_eq!(c("CHUNK"), TILE_SETS);
+    assert_eq!(c("TT"), TILE_ROWS);
+    assert_eq!(
+        c("TT"),
+        c("CHUNK"),
+        "square tiles: one subgroup layout for rows and sets"
+    );
+    assert_eq!(c("TWG"), 256);
+    // 8 subgroups × (16 rows × 2 sixteen-set blocks) cover the 64 × 64 tile once.
+    assert_eq!((c("TT") / 16) * (c("CHUNK") / 32), c("TWG") / 32);
+    assert_eq!(c("TK") % 16, 0, "a step is whole 16-deep products");
+    assert_eq!(c("TT") * c("TK") % c("TWG"), 0, "decode loads");
+    assert_eq!(array_len(&module, "a_tile"), 3 * c("TT") * c("TK"));
+    assert_eq!(array_len(&module, "c_tile"), c("TT") * c("CHUNK"));
+    for (entry, size) in [
+        ("light_top_of", 256),
+        ("light_pack", 256),
+        ("matvec_tensor", c("TWG")),
+    ] {
+        let e = module
+            .entry_points
+            .iter()
+            .find(|e| e.name == entry)
+            .unwrap_or_else(|| panic!("no {entry}"));
+        assert_eq!(e.workgroup_size, [size, 1, 1], "{entry}");
+    }
+    use naga::valid::{Capabilities, ValidationFlags, Validator};
+    let caps =
+        Capabilities::SHADER_FLOAT16 | Capabilities::SUBGROUP | Capabilities::COOPERATIVE_MATRIX;
+    let info = Validator::new(ValidationFlags::all(), caps)
+        .validate(&module)
+        .unwrap_or_else(|e| panic!("tensor: {}", e.emit_to_string(&source)));
+    // Without the capability the same module is refused: the check above is not vacuous.
+    assert!(
+        Validator::new(
+            ValidationFlags::all(),
+            caps - Capabilities::COOPERATIVE_MATRIX
+        )
+        .validate(&module)
+        .is_err()
+    );
+    for bc4 in [0.0, 1.0] {
+        let constants = std::iter::once(("BC4".to_string(), bc4)).collect();
+        let (module, info) =
+            naga::back::pipeline_constants::process_overrides(&module, &info, None, &constants)
+                .unwrap_or_else(|e| panic!("tensor, BC4 = {bc4}: {e}"));
+        let words =
+            naga::back::spv::write_vec(&module, &info, &naga::back::spv::Options::default(), None)
+                .unwrap_or_else(|e| panic!("tensor SPIR-V, BC4 = {bc4}: {e}"));
+        // OpCooperativeMatrixMulAddKHR (4459), once per accumulator a step.
+        let muladds = spirv_ops(&words).filter(|&op| op == 4459).count();
+        assert_eq!(muladds, 6, "six 16 x 16 accumulators a subgroup");
+    }
+}
+
+/// The opcodes of a SPIR-V module's instructions, after its five-word header.
+fn spirv_ops(words: &[u32]) -> impl Iterator<Item = u32> + '_ {
+    let mut at = 5;
+    std::iter::from_fn(move || {
+        let word = *words.get(at)?;
+        at += (word >> 16).max(1) as usize;
+        Some(word & 0xffff)
+    })
+}
+
 /// A struct's size and `(member, offset)` list as naga lays it out in `source`.
 fn wgsl_struct(source_name: &str, source: &str, name: &str) -> (usize, Vec<(String, usize)>) {
     let module = parse(source_name, source);

@@ -128,9 +128,15 @@ fn batched_relights_equal_one_by_one() {
                         codec.name()
                     );
                 } else {
+                    // A GPU with tensor cores runs the block codecs' large batches with f16
+                    // inputs (f32 sums): about 1e-4 here, where FP32 kernels differ by rounding.
+                    let tensor = engine.kind() == EngineKind::Gpu
+                        && engine.adapter().is_some_and(|a| a.tensor_cores)
+                        && codec.name() != "dense-f32";
+                    let close = if tensor { 3e-3 } else { 1e-5 };
                     let err = rel_l2(&batch[k].indirect, &one[0].indirect);
                     assert!(
-                        err < 1e-5,
+                        err < close,
                         "{} {} set {k}: rel L2 {err:e}",
                         engine.describe(),
                         codec.name()

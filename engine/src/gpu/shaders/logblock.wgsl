@@ -23,10 +23,11 @@ fn dequantize(u: f32, top: f32) -> f32 {
     return select(top * exp(25.0 * u - 25.0), 0.0, u == 0.0);
 }
 
+// The decoded unorm u of storage row k, column l, per channel (0 where there is no light path).
 // The image is cut into square tiles of side params.tile (one tile when it fits the device's
 // texture side), row-major; tile t holds layers t * L .. t * L + L, L = 1 for BC1 and the channel
 // count for BC4 and raw codes.
-fn entry(k: u32, l: u32) -> vec3<f32> {
+fn unit(k: u32, l: u32) -> vec3<f32> {
     var at = vec2<u32>(l, k);
     var tile = 0u;
     // Integer division by a run-time value is slow on every GPU: only a tiled image pays it
@@ -59,7 +60,17 @@ fn entry(k: u32, l: u32) -> vec3<f32> {
         }
         u = select(t.rgb, vec3<f32>(t.r), params.channels == 1u);
     }
-    let mx = select(params.max.xyz, vec3<f32>(params.max.x), params.channels == 1u);
+    return u;
+}
+
+// The channel maxima the codes scale (a one-channel matrix repeats channel 0).
+fn tops() -> vec3<f32> {
+    return select(params.max.xyz, vec3<f32>(params.max.x), params.channels == 1u);
+}
+
+fn entry(k: u32, l: u32) -> vec3<f32> {
+    let u = unit(k, l);
+    let mx = tops();
     return vec3<f32>(dequantize(u.x, mx.x), dequantize(u.y, mx.y), dequantize(u.z, mx.z));
 }
 

@@ -61,7 +61,8 @@ fn row_block(wid: vec3<u32>, tid: u32) {
             let slot = round + tid;
             let k = row0 + slot / CHUNK;
             let s = slot % CHUNK;
-            if k < rows && s < sets {
+            // Fewer slots than lanes (one row, one set) leave lanes past SLOTS unused.
+            if slot < SLOTS && k < rows && s < sets {
                 store(base + s, row(k), red[tid * WG]);
             }
         }
