@@ -30,6 +30,7 @@ pub mod patch;
 pub mod pointwise;
 pub mod rays;
 pub mod scene;
+pub mod sky;
 pub mod space;
 pub mod surface;
 pub mod transport;
