@@ -22,6 +22,7 @@ pub mod format;
 pub mod formfactor;
 pub mod import;
 pub use bounce_types::light;
+pub use bounce_types::sh;
 pub mod matrix;
 pub mod meta;
 pub mod nearfield;
