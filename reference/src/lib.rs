@@ -219,7 +219,11 @@ impl Reference {
     /// surfaces would have it, which separates the error of lighting a voxel patch from the
     /// error of its transport.
     pub fn direct(&self, lights: &LightSet, points: &[Point]) -> Vec<[f64; 3]> {
-        let lights = Illumination::new(lights);
+        self.direct_with(&Illumination::new(lights), points, SKY_DIRECT_RAYS)
+    }
+
+    /// [`Reference::direct`] with `sky_rays` rays a point for the sky.
+    fn direct_with(&self, lights: &Illumination, points: &[Point], sky_rays: u32) -> Vec<[f64; 3]> {
         points
             .par_iter()
             .map(|p| {
@@ -236,14 +240,14 @@ impl Reference {
                         .fold(0u64, |h, v| mix(h ^ u64::from(v.to_bits())));
                     let mut rng = Pcg32::new(key, mix(key));
                     let mut sum = [0.0f64; 3];
-                    for _ in 0..SKY_DIRECT_RAYS {
+                    for _ in 0..sky_rays {
                         let s = estimate::sky_direct(&self.mesh, sky, x, n, &mut rng);
                         for c in 0..3 {
                             sum[c] += f64::from(s[c]);
                         }
                     }
                     for c in 0..3 {
-                        e[c] += sum[c] / f64::from(SKY_DIRECT_RAYS);
+                        e[c] += sum[c] / f64::from(sky_rays.max(1));
                     }
                 }
                 e
@@ -292,7 +296,7 @@ impl Reference {
 
     /// Direct irradiance averaged over each patch's footprint (the same points
     /// [`Self::estimate_footprints`] draws for this seed; the snapped centroid where there are
-    /// none).
+    /// none). A sky's share takes [`SKY_DIRECT_RAYS`] rays a patch, spread over its points.
     pub fn footprint_direct(
         &self,
         lights: &LightSet,
@@ -302,6 +306,7 @@ impl Reference {
     ) -> Vec<[f64; 3]> {
         let sets = footprint::footprints(&self.mesh, layout, points_per_patch.max(1), seed);
         let (snapped, _) = self.snap_patches(layout);
+        let lights = Illumination::new(lights);
         sets.iter()
             .zip(snapped)
             .map(|(set, fallback)| {
@@ -310,8 +315,9 @@ impl Reference {
                 } else {
                     set.as_slice()
                 };
+                let sky_rays = SKY_DIRECT_RAYS.div_ceil(set.len() as u32).max(1);
                 let sum = self
-                    .direct(lights, set)
+                    .direct_with(&lights, set, sky_rays)
                     .into_iter()
                     .fold([0.0; 3], |a, d| [a[0] + d[0], a[1] + d[1], a[2] + d[2]]);
                 sum.map(|v| v / set.len() as f64)
