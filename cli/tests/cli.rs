@@ -38,7 +38,7 @@ fn bake_then_inspect_the_cornell_box() {
     assert!(summary.contains("patches"), "{summary}");
 
     let j = inspect_json(&file);
-    assert_eq!(j["format_version"], 4);
+    assert_eq!(j["format_version"], 5);
     assert_eq!(j["near_field_radius"], 1.0, "a near field by default");
     assert!(j["near_field_entries"].as_u64().unwrap() > 0);
     assert_eq!(j["geometry"], "surface", "surface patches are the default");
@@ -52,6 +52,10 @@ fn bake_then_inspect_the_cornell_box() {
     let rows = Baked::read(&file).unwrap().transport_layout().len() as u64;
     assert!(rows >= n, "{rows} rows for {n} patches");
     assert_eq!(j["matrix_bytes"].as_u64().unwrap(), rows * rows * 3 * 4);
+    // Every row's view of the sky is kept; the box is open at the front, so some rays escape.
+    assert_eq!(j["sky_view_rows"].as_u64(), Some(rows));
+    let escaped = j["sky_view_escaped_share"].as_f64().unwrap();
+    assert!((0.01..0.9).contains(&escaped), "{escaped}");
     let row_max = j["row_sum_max"].as_f64().unwrap();
     assert!(row_max <= 1.0 + 1e-5 && row_max > 0.5, "{row_max}");
     // Per-entry reciprocity is limited by ray noise: 1024 rays over a few hundred visible
@@ -68,7 +72,15 @@ fn bake_then_inspect_the_cornell_box() {
     let out = run(bounce().arg("inspect").arg(&file));
     assert!(out.status.success());
     let text = String::from_utf8_lossy(&out.stdout);
-    for word in ["format", "patches", "dense-f32", "row sums", "reciprocity"] {
+    for word in [
+        "format",
+        "patches",
+        "dense-f32",
+        "row sums",
+        "reciprocity",
+        "sky view",
+        "SKYV",
+    ] {
         assert!(text.contains(word), "inspect text lacks '{word}':\n{text}");
     }
 
