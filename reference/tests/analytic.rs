@@ -240,8 +240,8 @@ fn a_sky_lights_a_plate_that_lights_a_point() {
             let est = reference
                 .estimate(&lights, &[at], &options, &|_| {})
                 .unwrap()[0];
-            for c in 0..3 {
-                let expected = f64::from(rho) * plate_e[c] * f;
+            for (c, plate_c) in plate_e.iter().enumerate() {
+                let expected = f64::from(rho) * plate_c * f;
                 let (mean, s) = (est.mean[c], est.stderr[c]);
                 eprintln!("sky {c}: {mean:.4} ± {s:.4} against {expected:.4}");
                 assert!(
