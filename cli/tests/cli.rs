@@ -534,6 +534,66 @@ fn relight_the_cornell_box_on_both_engines() {
 }
 
 /// A 1 × 1 plate facing up, two triangles, as glTF with an embedded buffer.
+/// A sky lights a new bake; an older file (the fuzz corpus' version-3 seed) reads and relights,
+/// gets nothing from the sky, and says why; a bad sky is refused naming its field.
+#[test]
+fn a_sky_lights_new_files_and_old_ones_say_why_not() {
+    let dir = tempfile::tempdir().unwrap();
+    let sky = dir.path().join("sky.json");
+    std::fs::write(&sky, r#"{"lights": [{"type": "sky", "color": [1, 1, 1]}]}"#).unwrap();
+    let relight = |baked: &Path, name: &str| {
+        let json = dir.path().join(name);
+        let out = run(bounce()
+            .arg("relight")
+            .arg(baked)
+            .arg("--lights")
+            .arg(&sky)
+            .args(["--engine", "cpu", "--out"])
+            .arg(&json));
+        assert!(out.status.success(), "{}", stderr(&out));
+        let v: Value = serde_json::from_slice(&std::fs::read(json).unwrap()).unwrap();
+        let total = |key: &str| -> f64 {
+            v["sets"][0][key]
+                .as_array()
+                .unwrap()
+                .iter()
+                .flat_map(|p| p.as_array().unwrap().iter().map(|x| x.as_f64().unwrap()))
+                .sum()
+        };
+        (stderr(&out), total("direct"), total("indirect"))
+    };
+    let new = dir.path().join("box.bounce");
+    let out = run(bounce()
+        .args(["bake", "--patches", "200", "--rays", "256"])
+        .args(["--codec", "dense-f32", "--quiet", "-o"])
+        .arg(&new)
+        .arg(cornell()));
+    assert!(out.status.success(), "{}", stderr(&out));
+    let (err, direct, indirect) = relight(&new, "new.json");
+    assert!(!err.contains("sky visibility"), "{err}");
+    assert!(direct > 0.0 && indirect > 0.0, "{direct} {indirect}");
+
+    let old =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../fuzz/corpus/baked_file/cornell-30.bounce");
+    let (err, direct, indirect) = relight(&old, "old.json");
+    assert!(
+        err.contains("has no sky visibility") && err.contains("bake the scene again"),
+        "{err}"
+    );
+    assert_eq!((direct, indirect), (0.0, 0.0));
+    let text = String::from_utf8_lossy(&run(bounce().arg("inspect").arg(&old)).stdout).into_owned();
+    assert!(text.contains("sky view      none"), "{text}");
+
+    std::fs::write(&sky, r#"{"lights": [{"type": "sky", "sh": [[1, 1, 1]]}]}"#).unwrap();
+    let out = run(bounce().arg("relight").arg(&new).arg("--lights").arg(&sky));
+    assert!(!out.status.success());
+    assert!(
+        stderr(&out).contains("lights[0].sh: must hold exactly 9 coefficients"),
+        "{}",
+        stderr(&out)
+    );
+}
+
 fn single_plate_gltf() -> String {
     let positions: [[f32; 3]; 4] = [[0., 0., 0.], [0., 0., 1.], [1., 0., 1.], [1., 0., 0.]];
     let indices: [u16; 6] = [0, 1, 2, 0, 2, 3];
