@@ -56,6 +56,12 @@ pub fn run(args: &InspectArgs) -> Result<()> {
     let m = &baked.meta;
     let s = &m.stats;
     let l = &baked.layout;
+    // The share of the surface's form-factor rays that escaped, weighted by area: how much of
+    // the scene a sky reaches.
+    let sky_escaped = baked
+        .sky
+        .as_ref()
+        .map(|sky| sky.mean_escaped(&baked.transport_layout().areas(m.settings.geometry)));
     if args.json {
         let doc = json!({
             "format_version": summary.header.format_version,
@@ -70,6 +76,8 @@ pub fn run(args: &InspectArgs) -> Result<()> {
             "surface_triangles": baked.surface.as_ref().map(|s| s.triangles.len()),
             "near_field_radius": baked.near_field.as_ref().map(|_| m.settings.near_radius),
             "near_field_entries": baked.near_field.as_ref().map(|n| n.nnz()),
+            "sky_view_rows": baked.sky.as_ref().map(|s| s.len()),
+            "sky_view_escaped_share": sky_escaped,
             "surface_area": m.stats.surface_area,
             "unassigned_area": m.stats.unassigned_area,
             "bounces": m.settings.bounces,
@@ -160,6 +168,18 @@ pub fn run(args: &InspectArgs) -> Result<()> {
             near.nnz(),
             near.per_row
         );
+    }
+    match (&baked.sky, sky_escaped) {
+        (Some(sky), Some(share)) => println!(
+            "  sky view      {} rows × 9 SH coefficients; {:.1}% of the surface's rays escape \
+             (area-weighted)",
+            sky.len(),
+            share * 100.0
+        ),
+        _ => println!(
+            "  sky view      none (baked by an older bounce): a sky lights nothing here, bake \
+             again"
+        ),
     }
     match &baked.model {
         Some(m) => println!(

@@ -3,6 +3,7 @@
 use std::path::Path;
 
 use anyhow::{Context, Result, bail};
+use bounce_core::format::Baked;
 use bounce_core::light::LightSet;
 use bounce_core::scene::Scene;
 
@@ -26,4 +27,21 @@ pub fn or_scene(path: Option<&Path>, scene: &Scene) -> Result<LightSet> {
             lights: scene.lights.clone(),
         }),
     }
+}
+
+/// What to tell a user whose lights hold a sky that `baked` cannot take: a file baked before
+/// the sky view (format version 5) has none, and a sky adds nothing to it.
+pub fn sky_warning<'a>(
+    baked: &Baked,
+    file: &Path,
+    sets: impl IntoIterator<Item = &'a LightSet>,
+) -> Option<String> {
+    let has_sky = sets.into_iter().any(|s| s.sky_sh().is_some());
+    (has_sky && baked.sky.is_none()).then(|| {
+        format!(
+            "{} has no sky visibility (baked by a bounce older than format version 5): the sky \
+             adds nothing to it; bake the scene again",
+            file.display()
+        )
+    })
 }

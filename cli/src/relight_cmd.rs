@@ -44,6 +44,9 @@ pub fn run(args: &RelightArgs) -> Result<()> {
     let baked =
         Baked::read(&args.baked).with_context(|| format!("reading {}", args.baked.display()))?;
     let (names, sets) = light_sets(args, &baked)?;
+    if let Some(warning) = crate::lights_file::sky_warning(&baked, &args.baked, &sets) {
+        eprintln!("warning: {warning}");
+    }
 
     let mut engine = Engine::new(choice)?;
     engine.samples = args.samples;

@@ -69,6 +69,11 @@ pub fn run(args: &VerifyArgs) -> Result<()> {
     let scene =
         import_path(&args.scene).with_context(|| format!("importing {}", args.scene.display()))?;
     let lights = crate::lights_file::or_scene(args.lights.as_deref(), &scene)?;
+    if let Some(warning) =
+        crate::lights_file::sky_warning(&baked, &args.baked, std::iter::once(&lights))
+    {
+        eprintln!("warning: {warning}");
+    }
     let (exact, exact_from) = exact_transport(&baked, &scene, &args.scene, args.quiet)?;
 
     let engine = Engine::new(args.engine.parse::<EngineChoice>()?)?;
@@ -252,6 +257,15 @@ fn pointwise_source(
     let Some(elements) = &baked.elements else {
         return Ok(None);
     };
+    if lights.sky_sh().is_some() {
+        // Its landings would need the sky's direct light, which only rows have (their baked
+        // view), not points.
+        eprintln!(
+            "verify: the source split traces punctual lights where each ray lands, not a sky; \
+             it is left out"
+        );
+        return Ok(None);
+    }
     let s = &baked.meta.settings;
     if !quiet {
         eprintln!("tracing the form-factor rays again, with the light where each lands");

@@ -38,7 +38,7 @@ fn bake_then_inspect_the_cornell_box() {
     assert!(summary.contains("patches"), "{summary}");
 
     let j = inspect_json(&file);
-    assert_eq!(j["format_version"], 4);
+    assert_eq!(j["format_version"], 5);
     assert_eq!(j["near_field_radius"], 1.0, "a near field by default");
     assert!(j["near_field_entries"].as_u64().unwrap() > 0);
     assert_eq!(j["geometry"], "surface", "surface patches are the default");
@@ -52,6 +52,10 @@ fn bake_then_inspect_the_cornell_box() {
     let rows = Baked::read(&file).unwrap().transport_layout().len() as u64;
     assert!(rows >= n, "{rows} rows for {n} patches");
     assert_eq!(j["matrix_bytes"].as_u64().unwrap(), rows * rows * 3 * 4);
+    // Every row's view of the sky is kept; the box is open at the front, so some rays escape.
+    assert_eq!(j["sky_view_rows"].as_u64(), Some(rows));
+    let escaped = j["sky_view_escaped_share"].as_f64().unwrap();
+    assert!((0.01..0.9).contains(&escaped), "{escaped}");
     let row_max = j["row_sum_max"].as_f64().unwrap();
     assert!(row_max <= 1.0 + 1e-5 && row_max > 0.5, "{row_max}");
     // Per-entry reciprocity is limited by ray noise: 1024 rays over a few hundred visible
@@ -68,7 +72,15 @@ fn bake_then_inspect_the_cornell_box() {
     let out = run(bounce().arg("inspect").arg(&file));
     assert!(out.status.success());
     let text = String::from_utf8_lossy(&out.stdout);
-    for word in ["format", "patches", "dense-f32", "row sums", "reciprocity"] {
+    for word in [
+        "format",
+        "patches",
+        "dense-f32",
+        "row sums",
+        "reciprocity",
+        "sky view",
+        "SKYV",
+    ] {
         assert!(text.contains(word), "inspect text lacks '{word}':\n{text}");
     }
 
@@ -522,6 +534,66 @@ fn relight_the_cornell_box_on_both_engines() {
 }
 
 /// A 1 × 1 plate facing up, two triangles, as glTF with an embedded buffer.
+/// A sky lights a new bake; an older file (the fuzz corpus' version-3 seed) reads and relights,
+/// gets nothing from the sky, and says why; a bad sky is refused naming its field.
+#[test]
+fn a_sky_lights_new_files_and_old_ones_say_why_not() {
+    let dir = tempfile::tempdir().unwrap();
+    let sky = dir.path().join("sky.json");
+    std::fs::write(&sky, r#"{"lights": [{"type": "sky", "color": [1, 1, 1]}]}"#).unwrap();
+    let relight = |baked: &Path, name: &str| {
+        let json = dir.path().join(name);
+        let out = run(bounce()
+            .arg("relight")
+            .arg(baked)
+            .arg("--lights")
+            .arg(&sky)
+            .args(["--engine", "cpu", "--out"])
+            .arg(&json));
+        assert!(out.status.success(), "{}", stderr(&out));
+        let v: Value = serde_json::from_slice(&std::fs::read(json).unwrap()).unwrap();
+        let total = |key: &str| -> f64 {
+            v["sets"][0][key]
+                .as_array()
+                .unwrap()
+                .iter()
+                .flat_map(|p| p.as_array().unwrap().iter().map(|x| x.as_f64().unwrap()))
+                .sum()
+        };
+        (stderr(&out), total("direct"), total("indirect"))
+    };
+    let new = dir.path().join("box.bounce");
+    let out = run(bounce()
+        .args(["bake", "--patches", "200", "--rays", "256"])
+        .args(["--codec", "dense-f32", "--quiet", "-o"])
+        .arg(&new)
+        .arg(cornell()));
+    assert!(out.status.success(), "{}", stderr(&out));
+    let (err, direct, indirect) = relight(&new, "new.json");
+    assert!(!err.contains("sky visibility"), "{err}");
+    assert!(direct > 0.0 && indirect > 0.0, "{direct} {indirect}");
+
+    let old =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../fuzz/corpus/baked_file/cornell-30.bounce");
+    let (err, direct, indirect) = relight(&old, "old.json");
+    assert!(
+        err.contains("has no sky visibility") && err.contains("bake the scene again"),
+        "{err}"
+    );
+    assert_eq!((direct, indirect), (0.0, 0.0));
+    let text = String::from_utf8_lossy(&run(bounce().arg("inspect").arg(&old)).stdout).into_owned();
+    assert!(text.contains("sky view      none"), "{text}");
+
+    std::fs::write(&sky, r#"{"lights": [{"type": "sky", "sh": [[1, 1, 1]]}]}"#).unwrap();
+    let out = run(bounce().arg("relight").arg(&new).arg("--lights").arg(&sky));
+    assert!(!out.status.success());
+    assert!(
+        stderr(&out).contains("lights[0].sh: must hold exactly 9 coefficients"),
+        "{}",
+        stderr(&out)
+    );
+}
+
 fn single_plate_gltf() -> String {
     let positions: [[f32; 3]; 4] = [[0., 0., 0.], [0., 0., 1.], [1., 0., 1.], [1., 0., 0.]];
     let indices: [u16; 6] = [0, 1, 2, 0, 2, 3];

@@ -234,7 +234,9 @@ pub enum LightKind {
 
 impl PreparedLight {
     /// `None` for a light that cannot light anything: one that fails validation (so no
-    /// non-finite value reaches the sums) or has zero intensity or colour.
+    /// non-finite value reaches the sums) or has zero intensity or colour; and for the sky, which
+    /// is no punctual light: it reaches a row through the row's baked sky view
+    /// (`crate::sky::SkyVisibility::irradiance`), not a shadow ray per sample.
     pub fn new(light: &Light) -> Option<PreparedLight> {
         light.validate().ok()?;
         let (kind, position, axis, color, intensity, range, cones) = match *light {
@@ -285,6 +287,7 @@ impl PreparedLight {
                 range,
                 Some((inner_cone_angle, outer_cone_angle)),
             ),
+            Light::Sky { .. } => return None,
         };
         let radiant = Vec3::from(color) * intensity;
         if radiant.max_element() <= 0.0 {

@@ -17,6 +17,8 @@ use thiserror::Error;
 use crate::matrix::DenseMatrix;
 use crate::patch::Quad;
 pub use crate::rays::{RayFate, RayScene, RayTally, Tracer};
+use crate::sky::{SkySum, SkyVisibility};
+use bounce_types::sh::SH_COEFFICIENTS;
 
 #[derive(Debug, Error)]
 pub enum FormFactorError {
@@ -58,8 +60,20 @@ fn cosine_direction(quad: &Quad, u1: f32, u2: f32) -> Vec3 {
 /// ([`crate::surface::SurfaceScene`]).
 pub trait RowTracer: Sync {
     fn patch_count(&self) -> usize;
-    /// Shoot `rays` rays from patch `row`, adding to `counts[j]` each that reached patch `j`.
-    fn trace_row(&self, row: usize, rays: u32, seed: u64, counts: &mut [u32]) -> RayTally;
+    /// Shoot `rays` rays from patch `row`, adding to `counts[j]` each that reached patch `j` and
+    /// to `sky` the direction of each that escaped the scene ([`crate::sky`]).
+    fn trace_row_sky(
+        &self,
+        row: usize,
+        rays: u32,
+        seed: u64,
+        counts: &mut [u32],
+        sky: &mut SkySum,
+    ) -> RayTally;
+    /// [`RowTracer::trace_row_sky`] without the sky.
+    fn trace_row(&self, row: usize, rays: u32, seed: u64, counts: &mut [u32]) -> RayTally {
+        self.trace_row_sky(row, rays, seed, counts, &mut SkySum::default())
+    }
     /// Whether any of `rays` probe rays (other samples than the row's) from `row` reaches a
     /// patch.
     fn sees_another(&self, row: usize, rays: u32, seed: u64) -> bool;
@@ -70,7 +84,14 @@ impl RowTracer for RayScene {
         RayScene::patch_count(self)
     }
 
-    fn trace_row(&self, row: usize, rays: u32, seed: u64, counts: &mut [u32]) -> RayTally {
+    fn trace_row_sky(
+        &self,
+        row: usize,
+        rays: u32,
+        seed: u64,
+        counts: &mut [u32],
+        sky: &mut SkySum,
+    ) -> RayTally {
         let quad = self.patch(row);
         let s = row_seed(seed, row);
         let mut tally = RayTally::default();
@@ -81,8 +102,11 @@ impl RowTracer for RayScene {
             let origin = quad.point(a, b);
             let dir = cosine_direction(quad, c, d);
             let fate = self.trace(row, origin, dir);
-            if let RayFate::Patch(j) = fate {
-                counts[j] += 1;
+            match fate {
+                RayFate::Patch(j) => counts[j] += 1,
+                // Out of the voxel grid: nothing the scene holds stands in the way.
+                RayFate::Escaped => sky.add(dir),
+                RayFate::Occluder | RayFate::BackFace => {}
             }
             tally.count(fate);
         }
@@ -156,27 +180,43 @@ pub fn form_factor_rows_tallied(
     seed: u64,
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<(Vec<f32>, RayTally), FormFactorError> {
+    form_factor_rows_sky(scene, rows, rays, seed, progress).map(|(f, tally, _)| (f, tally))
+}
+
+/// As [`form_factor_rows_tallied`], also each row's view of the sky from the same rays
+/// ([`crate::sky`]).
+pub fn form_factor_rows_sky(
+    scene: &dyn RowTracer,
+    rows: Range<usize>,
+    rays: u32,
+    seed: u64,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<(Vec<f32>, RayTally, SkyVisibility), FormFactorError> {
     let n = scene.patch_count();
     check_rows(&rows, rays, n)?;
     let mut out = vec![0.0f32; rows.len() * n];
+    let mut sky = vec![[0.0f32; SH_COEFFICIENTS]; rows.len()];
     let inv = 1.0 / rays as f32;
     let tally = out
         .par_chunks_mut(n.max(1))
+        .zip(sky.par_iter_mut())
         .enumerate()
         .map_init(
             || vec![0u32; n],
-            |counts, (k, row_out)| {
+            |counts, (k, (row_out, sky_out))| {
                 counts.fill(0);
-                let tally = scene.trace_row(rows.start + k, rays, seed, counts);
+                let mut sum = SkySum::default();
+                let tally = scene.trace_row_sky(rows.start + k, rays, seed, counts, &mut sum);
                 for (o, &c) in row_out.iter_mut().zip(counts.iter()) {
                     *o = c as f32 * inv;
                 }
+                *sky_out = sum.finish(rays);
                 progress(1);
                 tally
             },
         )
         .reduce(RayTally::default, |a, b| a + b);
-    Ok((out, tally))
+    Ok((out, tally, SkyVisibility { rows: sky }))
 }
 
 /// The whole single-bounce form-factor matrix.
@@ -186,8 +226,18 @@ pub fn form_factors(
     seed: u64,
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<(DenseMatrix, RayTally), FormFactorError> {
+    form_factors_sky(scene, rays, seed, progress).map(|(f, tally, _)| (f, tally))
+}
+
+/// [`form_factors`] and every row's view of the sky ([`crate::sky`]).
+pub fn form_factors_sky(
+    scene: &dyn RowTracer,
+    rays: u32,
+    seed: u64,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<(DenseMatrix, RayTally, SkyVisibility), FormFactorError> {
     let n = scene.patch_count();
-    let (data, tally) = form_factor_rows_tallied(scene, 0..n, rays, seed, progress)?;
+    let (data, tally, sky) = form_factor_rows_sky(scene, 0..n, rays, seed, progress)?;
     Ok((
         DenseMatrix {
             n,
@@ -195,6 +245,7 @@ pub fn form_factors(
             data,
         },
         tally,
+        sky,
     ))
 }
 

@@ -9,7 +9,8 @@
 //! point, found exactly rather than from the voxel, so the rows may cut a voxel's surface however
 //! they like. A ray that escapes, meets the back of a single-sided triangle, or meets surface that
 //! belongs to no row (a dropped patch's) carries nothing. So a row sums to
-//! at most 1, and its samples depend on its index and the seed alone.
+//! at most 1, and its samples depend on its index and the seed alone. The directions of the rays
+//! that escape make the row's view of the sky ([`crate::sky`]).
 
 use std::sync::Arc;
 
@@ -20,6 +21,7 @@ use crate::formfactor::{RowTracer, row_seed};
 use crate::patch::{PatchLayout, PieceTri, Pieces};
 use crate::rays::{RayFate, RayTally};
 use crate::scene::Scene;
+use crate::sky::SkySum;
 use crate::trimesh::{TriMesh, extent_of, offset_origin};
 
 /// Direct-light sample points per patch a bake stores unless asked otherwise.
@@ -289,7 +291,14 @@ impl RowTracer for SurfaceScene {
         self.pieces.patch_count()
     }
 
-    fn trace_row(&self, row: usize, rays: u32, seed: u64, counts: &mut [u32]) -> RayTally {
+    fn trace_row_sky(
+        &self,
+        row: usize,
+        rays: u32,
+        seed: u64,
+        counts: &mut [u32],
+        sky: &mut SkySum,
+    ) -> RayTally {
         let s = row_seed(seed, row);
         let mut tally = RayTally::default();
         if self.pieces.of(row).is_empty() {
@@ -299,8 +308,10 @@ impl RowTracer for SurfaceScene {
         for k in 0..rays {
             let (origin, dir) = self.ray(row, k, 0, s);
             let fate = self.fate(origin, dir);
-            if let RayFate::Patch(j) = fate {
-                counts[j] += 1;
+            match fate {
+                RayFate::Patch(j) => counts[j] += 1,
+                RayFate::Escaped => sky.add(dir),
+                RayFate::Occluder | RayFate::BackFace => {}
             }
             tally.count(fate);
         }

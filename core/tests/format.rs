@@ -194,6 +194,7 @@ fn sample(channels: usize, with_form_factors: bool) -> Baked {
         surface: None,
         elements: None,
         near_field: None,
+        sky: None,
         model: None,
     }
 }
@@ -396,7 +397,7 @@ fn layout_on_disk_matches_the_documentation() {
     let baked = sample(3, true);
     let b = baked.to_bytes().unwrap();
     assert_eq!(&b[..8], b"BOUNCE\0B");
-    assert_eq!(get_u32(&b, 8), 4);
+    assert_eq!(get_u32(&b, 8), 5);
     assert_eq!(get_u32(&b, 12), 5);
     assert_eq!(get_u64(&b, 16), b.len() as u64);
     let kinds: Vec<&[u8]> = (0..5).map(|i| &b[entry_at(i)..entry_at(i) + 4]).collect();
@@ -652,14 +653,14 @@ fn future_version() {
             FormatError::UnsupportedVersion {
                 found: 7,
                 oldest: 1,
-                supported: 4
+                supported: 5
             }
         ),
         "{err:?}"
     );
     assert_eq!(
         err.to_string(),
-        "unsupported format version 7 (this build reads versions 1 to 4); bake the scene again \
+        "unsupported format version 7 (this build reads versions 1 to 5); bake the scene again \
          with this bounce"
     );
 }
@@ -833,6 +834,103 @@ fn a_near_field_round_trips_and_is_checked() {
     for cut in (0..bytes.len()).step_by(61) {
         assert!(Baked::from_bytes(&bytes[..cut]).is_err());
     }
+}
+
+/// A sky view of `rows` rows, each a different share of its rays escaped upwards and sideways.
+fn sample_sky(rows: usize) -> bounce_core::sky::SkyVisibility {
+    bounce_core::sky::SkyVisibility {
+        rows: (0..rows)
+            .map(|i| {
+                let mut s = bounce_core::sky::SkySum::default();
+                for k in 0..i {
+                    s.add(if k % 2 == 0 {
+                        glam::Vec3::Y
+                    } else {
+                        glam::Vec3::X
+                    });
+                }
+                s.finish(rows as u32)
+            })
+            .collect(),
+    }
+}
+
+#[test]
+fn a_sky_view_round_trips_and_is_checked() {
+    // Over the transport's rows: the elements where there are some.
+    for mut b in [sample(3, true), element_sample()] {
+        let rows = b.transport_layout().len();
+        b.sky = Some(sample_sky(rows));
+        let bytes = b.to_bytes().expect("a sky sample encodes");
+        assert_eq!(Baked::from_bytes(&bytes).unwrap(), b);
+        // Laid out as documented: 16 bytes of counts, then 9 f32 a row; flagged optional.
+        let (o, l) = section_of(&bytes, b"SKYV");
+        assert_eq!(l, 16 + rows * 9 * 4);
+        assert_eq!(get_u32(&bytes, o), rows as u32);
+        assert_eq!(get_u32(&bytes, o + 4), 9);
+        assert_eq!(get_u32(&bytes, entry_at(entry_of(&bytes, b"SKYV")) + 4), 1);
+        let last = rows - 1;
+        let c00 = f32::from_le_bytes(bytes[o + 16 + last * 36..][..4].try_into().unwrap());
+        assert_eq!(c00, b.sky.as_ref().unwrap().rows[last][0]);
+        // A corrupted value (resealed, so the check and not the checksum refuses it), a count
+        // that does not match the rows, and a version-4 file claiming one are refused.
+        for (at, value) in [
+            (o + 16 + 4 * 2, f32::NAN.to_bits()),
+            (o + 16, 3.0f32.to_bits()),
+        ] {
+            let mut bad = bytes.clone();
+            put_u32(&mut bad, at, value);
+            reseal(&mut bad);
+            let e = refuse(&bad);
+            assert!(matches!(e, FormatError::Sky(_)), "{e:?}");
+            assert!(e.to_string().starts_with("section 'SKYV': row 0"), "{e}");
+        }
+        let mut bad = bytes.clone();
+        put_u32(&mut bad, o, rows as u32 + 1);
+        reseal(&mut bad);
+        assert!(refuse(&bad).to_string().contains("rows, expected"));
+        // Unsealed, a flipped bit is the checksum's to find.
+        let mut flipped = bytes.clone();
+        flipped[o + 20] ^= 1;
+        assert!(matches!(
+            refuse(&flipped),
+            FormatError::SectionChecksum { .. }
+        ));
+        let mut old = bytes.clone();
+        put_u32(&mut old, 8, 4);
+        reseal(&mut old);
+        assert!(
+            refuse(&old)
+                .to_string()
+                .contains("a version-4 file cannot hold a sky view")
+        );
+        // The writer refuses a view of other rows, as the reader would.
+        let mut wrong = b.clone();
+        wrong.sky = Some(sample_sky(rows + 1));
+        assert!(wrong.to_bytes().is_err());
+        for cut in (0..bytes.len()).step_by(29) {
+            assert!(Baked::from_bytes(&bytes[..cut]).is_err());
+        }
+    }
+}
+
+/// Files from before the sky view read, without one: a sky then adds nothing to them.
+#[test]
+fn older_files_read_without_a_sky_view() {
+    // As version 4 (the near field's), written without the section.
+    let mut b = element_sample().to_bytes().unwrap();
+    put_u32(&mut b, 8, 4);
+    reseal(&mut b);
+    let read = Baked::from_bytes(&b).expect("version 4 is read");
+    assert_eq!(read.sky, None);
+    // And a real version-3 file an older bounce wrote (the fuzz corpus' seed).
+    let path =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../fuzz/corpus/baked_file/cornell-30.bounce");
+    let bytes = std::fs::read(&path).unwrap();
+    assert_eq!(get_u32(&bytes, 8), 3, "the seed is a version-3 file");
+    let old = Baked::from_bytes(&bytes).expect("the version-3 seed reads");
+    assert!(old.sky.is_none());
+    assert!(old.surface.is_some());
 }
 
 #[test]
@@ -1576,6 +1674,7 @@ fn arb_baked() -> impl Strategy<Value = Baked> {
                 surface: None,
                 elements: None,
                 near_field: None,
+                sky: None,
                 model: None,
             })
     })

@@ -14,6 +14,12 @@
 //! surface geometry (shadows from the patches alone, a BVH of quads the GPU kernels do not have)
 //! are lit on the CPU on either engine. [`Scene::direct_engine`] says which, and
 //! [`Scene::direct_fallback`] why.
+//!
+//! A sky is no punctual light: each row's share of it, `E_sky = Σ c_lm L_lm` from the row's
+//! baked sky view (`bounce_core::sky`), is added to the row's direct light on the host, after
+//! either engine's direct light and before `B0`, so both engines light by it alike (it costs
+//! `O(rows)` a light set). A file without a sky view ([`Scene::has_sky_view`]) gets nothing from
+//! a sky.
 
 use std::fmt;
 use std::str::FromStr;
@@ -28,6 +34,7 @@ use bounce_core::format::Baked;
 use bounce_core::light::LightSet;
 use bounce_core::nearfield::NearField;
 use bounce_core::patch::PatchLayout;
+use bounce_core::sky::SkyVisibility;
 
 use crate::EngineError;
 use crate::gpu::{GpuContext, GpuDirect, GpuError, GpuMatrix, GpuSurfaceDirect};
@@ -227,6 +234,7 @@ impl Engine {
             layout: baked.layout.clone(),
             rows: baked.transport_layout().clone(),
             near,
+            sky: baked.sky.clone(),
             stored_samples: baked.surface.as_ref().map(|s| s.per_patch),
             elements: baked.elements.clone(),
             direct,
@@ -331,10 +339,24 @@ impl Engine {
         self.direct(scene, lights, true)
     }
 
-    /// Direct light, and the near field's correction when `near` asks for it and the scene's
-    /// can be applied.
+    /// Direct light with the sky's share, and the near field's correction when `near` asks for
+    /// it and the scene's can be applied.
     #[allow(clippy::type_complexity)]
     fn direct(
+        &self,
+        scene: &Scene,
+        lights: &[LightSet],
+        near: bool,
+    ) -> Result<(Vec<Vec<[f32; 3]>>, Option<Vec<Vec<[f32; 3]>>>), EngineError> {
+        let (mut direct, near) = self.punctual_direct(scene, lights, near)?;
+        add_sky(scene.sky.as_ref(), lights, &mut direct);
+        Ok((direct, near))
+    }
+
+    /// Direct light from the punctual lights, on the engine's device or the CPU (the sky is
+    /// none of theirs: [`add_sky`]).
+    #[allow(clippy::type_complexity)]
+    fn punctual_direct(
         &self,
         scene: &Scene,
         lights: &[LightSet],
@@ -428,6 +450,20 @@ impl Engine {
     }
 }
 
+/// Adds each set's sky, if it has one, to its rows' direct light (`direct[set][row]`), through
+/// the rows' sky view; nothing without a view. The near-field correction needs nothing of it: a
+/// row's sky is the same over the row, so its samples' deviation from the row's mean is zero.
+fn add_sky(view: Option<&SkyVisibility>, lights: &[LightSet], direct: &mut [Vec<[f32; 3]>]) {
+    let Some(view) = view else { return };
+    for (set, rows) in lights.iter().zip(direct.iter_mut()) {
+        let Some(sky) = set.sky_sh() else { continue };
+        for (d, e) in rows.iter_mut().zip(view.irradiance(&sky)) {
+            // Kept finite as the punctual lights' sums are.
+            *d = std::array::from_fn(|c| (d[c] + e[c]).min(f32::MAX));
+        }
+    }
+}
+
 /// Time spent in each half of a relight.
 #[derive(Debug, Clone, Copy, Default)]
 pub struct Timing {
@@ -453,6 +489,8 @@ pub struct Scene {
     rows: PatchLayout,
     /// The near-field first bounce, when the file has one.
     near: Option<NearRows>,
+    /// Each row's view of the sky, when the file has one.
+    sky: Option<SkyVisibility>,
     /// Sample points a surface bake stores per row.
     stored_samples: Option<u32>,
     elements: Option<Elements>,
@@ -468,6 +506,12 @@ impl Scene {
     /// The transport's rows (and columns): what [`Engine::indirect`] takes and gives.
     pub fn rows(&self) -> &PatchLayout {
         &self.rows
+    }
+
+    /// Whether the file has a sky view, so a sky lights the scene. Without one (a file from
+    /// before it) a sky adds nothing: bake the scene again.
+    pub fn has_sky_view(&self) -> bool {
+        self.sky.is_some()
     }
 
     /// Relight without the near-field first bounce from now on: how `bounce verify` shows what

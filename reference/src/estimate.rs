@@ -8,11 +8,18 @@
 //! below with a throughput. Direct light at `y` is next-event estimation: punctual lights are
 //! deltas, so one shadow ray per light is exact. For all bounces, paths end by Russian roulette
 //! after a few bounces (unbiased; the survival chance is the throughput's largest albedo).
+//!
+//! The sky's share of `E_direct(y)`, `∫ L_sky(ω) V(y, ω) cos θ dω`, is next-event estimation
+//! too: one more cosine-weighted ray from `y`, which gives `π L_sky(ω)` where it escapes (meets
+//! no triangle, front or back) and nothing otherwise. The path's own continuing ray that
+//! escapes carries nothing, so the sky is counted once; and the first ray from `x` carries
+//! nothing either way, since light straight from the sky to `x` is `x`'s direct light, not
+//! indirect.
 
 use bounce_core::meta::Bounces;
 use glam::Vec3;
 
-use crate::lights::Source;
+use crate::lights::{Illumination, Sky, Source};
 use crate::mesh::Mesh;
 use crate::rng::Pcg32;
 
@@ -25,7 +32,7 @@ const MAX_BOUNCES: u32 = 10_000;
 /// One indirect-irradiance sample at `x` (unit normal `n`, on the side the light arrives at).
 pub(crate) fn sample(
     mesh: &Mesh,
-    sources: &[Source],
+    lights: &Illumination,
     x: Vec3,
     n: Vec3,
     bounces: Bounces,
@@ -55,7 +62,11 @@ pub(crate) fn sample(
             break;
         };
         let y = origin + dir * hit.t;
-        total += throughput * (tri.emission + tri.albedo * direct(mesh, sources, y, facing));
+        let mut e_direct = direct(mesh, &lights.sources, y, facing);
+        if let Some(sky) = &lights.sky {
+            e_direct += sky_direct(mesh, sky, y, facing, rng);
+        }
+        total += throughput * (tri.emission + tri.albedo * e_direct);
         throughput *= tri.albedo;
         if matches!(bounces, Bounces::All) && bounce + 1 >= ROULETTE_AFTER {
             let survive = throughput.max_element().min(1.0);
@@ -81,6 +92,17 @@ pub(crate) fn direct(mesh: &Mesh, sources: &[Source], y: Vec3, n: Vec3) -> Vec3 
         .filter(|a| !mesh.occluded(origin, a.dir, a.distance))
         .map(|a| a.irradiance)
         .sum()
+}
+
+/// One estimate of the sky's irradiance at `y` (normal `n`): `π L(ω)` along one cosine-weighted
+/// direction `ω` if it escapes the mesh, else 0.
+pub(crate) fn sky_direct(mesh: &Mesh, sky: &Sky, y: Vec3, n: Vec3, rng: &mut Pcg32) -> Vec3 {
+    let dir = cosine_direction(n, rng);
+    let origin = y + n * mesh.epsilon;
+    if mesh.closest(origin, dir).is_some() {
+        return Vec3::ZERO;
+    }
+    std::f32::consts::PI * sky.radiance(dir)
 }
 
 /// A cosine-distributed unit direction about `n` (Malley's method: a uniform disc point lifted

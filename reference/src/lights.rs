@@ -4,8 +4,75 @@
 //! written here again rather than called from `bounce_core::direct`: if the pipeline's light code
 //! drifts from the definition, the reference does not drift with it.
 
-use bounce_core::light::Light;
+use bounce_core::light::{Light, LightSet};
 use glam::Vec3;
+
+/// What the tracer lights a scene with: the punctual lights, and the sky, if any.
+pub(crate) struct Illumination {
+    pub sources: Vec<Source>,
+    pub sky: Option<Sky>,
+}
+
+impl Illumination {
+    pub fn new(lights: &LightSet) -> Illumination {
+        Illumination {
+            sources: lights.lights.iter().filter_map(Source::new).collect(),
+            sky: lights.lights.iter().find_map(Sky::new),
+        }
+    }
+}
+
+/// The sky's radiance by direction: a uniform colour, or order-2 real spherical harmonics in
+/// the standard basis (written out here again, so a slip in the bake's basis does not hide).
+#[derive(Debug, Clone, Copy)]
+pub(crate) enum Sky {
+    Uniform(Vec3),
+    Harmonics([Vec3; 9]),
+}
+
+impl Sky {
+    /// `None` for a punctual light or a sky given neither way.
+    pub fn new(light: &Light) -> Option<Sky> {
+        let Light::Sky { color, sh, .. } = light else {
+            return None;
+        };
+        match (color, sh) {
+            (Some(c), _) => Some(Sky::Uniform(Vec3::from(*c))),
+            (None, Some(sh)) if sh.len() == 9 => {
+                Some(Sky::Harmonics(std::array::from_fn(|k| Vec3::from(sh[k]))))
+            }
+            _ => None,
+        }
+    }
+
+    /// Radiance arriving from unit direction `d` (the direction one looks in, towards the sky).
+    pub fn radiance(&self, d: Vec3) -> Vec3 {
+        match self {
+            Sky::Uniform(c) => *c,
+            Sky::Harmonics(l) => {
+                let (x, y, z) = (d.x, d.y, d.z);
+                let pi = std::f32::consts::PI;
+                let c0 = 0.5 / pi.sqrt();
+                let c1 = (3.0 / (4.0 * pi)).sqrt();
+                let c2 = (15.0 / (4.0 * pi)).sqrt();
+                let c20 = (5.0 / (16.0 * pi)).sqrt();
+                let c22 = (15.0 / (16.0 * pi)).sqrt();
+                let basis = [
+                    c0,
+                    c1 * y,
+                    c1 * z,
+                    c1 * x,
+                    c2 * x * y,
+                    c2 * y * z,
+                    c20 * (3.0 * z * z - 1.0),
+                    c2 * x * z,
+                    c22 * (x * x - y * y),
+                ];
+                basis.iter().zip(l).map(|(b, c)| *c * *b).sum()
+            }
+        }
+    }
+}
 
 /// A light in the form the tracer evaluates.
 #[derive(Debug, Clone, Copy)]
@@ -75,6 +142,8 @@ impl Source {
                     inner_cone_angle.cos(),
                 )),
             },
+            // Not a source a shadow ray can find: [`Sky`].
+            Light::Sky { .. } => return None,
         };
         let power = match source {
             Source::Sun { irradiance, .. } => irradiance,
@@ -137,6 +206,46 @@ impl Source {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The reference's own basis against the bake's: the same radiance in every direction.
+    #[test]
+    fn sky_harmonics_match_the_light_definition() {
+        let coeffs: Vec<[f32; 3]> = (0..9)
+            .map(|k| [1.0 - 0.1 * k as f32, 0.3 * k as f32, 0.05])
+            .collect();
+        let light = Light::Sky {
+            color: None,
+            sh: Some(coeffs.clone()),
+            name: None,
+        };
+        let sky = Sky::new(&light).unwrap();
+        let fixed: [[f32; 3]; 9] = coeffs.try_into().unwrap();
+        for d in [
+            Vec3::X,
+            Vec3::NEG_Y,
+            Vec3::new(0.3, 0.8, -0.52).normalize(),
+            Vec3::new(-0.7, 0.1, 0.7).normalize(),
+        ] {
+            let mine = sky.radiance(d);
+            let theirs = bounce_core::sh::sh_radiance(
+                &fixed,
+                [f64::from(d.x), f64::from(d.y), f64::from(d.z)],
+            );
+            for c in 0..3 {
+                assert!(
+                    (f64::from(mine[c]) - theirs[c]).abs() < 1e-5,
+                    "{d}: {mine} {theirs:?}"
+                );
+            }
+        }
+        let uniform = Sky::new(&Light::Sky {
+            color: Some([0.5, 1.0, 2.0]),
+            sh: None,
+            name: None,
+        })
+        .unwrap();
+        assert_eq!(uniform.radiance(Vec3::Z), Vec3::new(0.5, 1.0, 2.0));
+    }
 
     #[test]
     fn inverse_square_cosine_and_cone() {

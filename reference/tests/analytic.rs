@@ -171,6 +171,102 @@ fn one_bounce_from_an_emitting_square_matches_the_form_factor() {
     assert!(s < 0.01 * expected);
 }
 
+/// A 2 × 2 plate one unit above a point, facing down at it, alone under a sky. The plate's
+/// front sees the whole lower hemisphere open, so it gets the sky's irradiance for its normal,
+/// `E(n) = Σ Â_l L_lm Y_lm(n)` with `Â = (π, 2π/3, π/4)` (Ramamoorthi and Hanrahan), and the
+/// point's indirect light with any number of bounces is `ρ E(−y) F`, `F` the point's form factor
+/// to the plate (as in the test above). The point's own direct sky light is the sky over the
+/// hemisphere the plate does not hide: for a uniform sky `π L (1 − F)`.
+#[test]
+fn a_sky_lights_a_plate_that_lights_a_point() {
+    let rho = 0.6f32;
+    let plate = quad(
+        [
+            Vec3::new(-1.0, 1.0, -1.0),
+            Vec3::new(-1.0, 1.0, 1.0),
+            Vec3::new(1.0, 1.0, 1.0),
+            Vec3::new(1.0, 1.0, -1.0),
+        ],
+        rho,
+        0.0,
+    );
+    assert!(plate[0].cross().y < 0.0, "faces down");
+    let reference = Reference::new(&Scene {
+        triangles: plate.to_vec(),
+        ..Scene::default()
+    })
+    .unwrap();
+    let corner = (1.0 / 2f64.sqrt() * (1.0 / 2f64.sqrt()).atan()) * 2.0 / std::f64::consts::TAU;
+    let f = 4.0 * corner;
+    let at = Point {
+        position: [0.0, 0.0, 0.0],
+        normal: [0.0, 1.0, 0.0],
+    };
+    let pi = std::f64::consts::PI;
+    // A sky brighter above and below than around, tinted: every band of the expansion.
+    let mut sh = vec![[0.0f32; 3]; 9];
+    sh[0] = [2.0, 2.0, 2.5];
+    sh[1] = [-0.8, -0.6, -0.4]; // Y1−1 ∝ y: darker above, brighter below
+    sh[3] = [0.3, 0.3, 0.3]; // ∝ x: no net effect on a horizontal plate
+    sh[6] = [0.4, 0.2, 0.0]; // ∝ 3z² − 1
+    sh[8] = [-0.5, 0.0, 0.5]; // ∝ x² − y²
+    let sh_json = serde_json::json!({"lights": [{"type": "sky", "sh": sh}]});
+    let n = [0.0f64, -1.0, 0.0];
+    let y = bounce_core::sh::sh_basis(n);
+    let band = [pi, 2.0 * pi / 3.0, 2.0 * pi / 3.0, 2.0 * pi / 3.0]
+        .into_iter()
+        .chain([pi / 4.0; 5]);
+    let e_plate: Vec<f64> = (0..3)
+        .map(|c| {
+            band.clone()
+                .enumerate()
+                .map(|(k, a)| a * f64::from(sh[k][c]) * y[k])
+                .sum()
+        })
+        .collect();
+    let uniform = r#"{"lights": [{"type": "sky", "color": [0.5, 1.0, 2.0]}]}"#;
+    let uniform_plate = [0.5f64, 1.0, 2.0].map(|l| pi * l);
+    for (json, plate_e) in [
+        (sh_json.to_string(), e_plate.clone()),
+        (uniform.to_string(), uniform_plate.to_vec()),
+    ] {
+        let lights = LightSet::from_json(&json).unwrap();
+        for bounces in [Bounces::K(1), Bounces::K(3)] {
+            let options = Options {
+                spp: 40_000,
+                bounces,
+                seed: 4,
+            };
+            let est = reference
+                .estimate(&lights, &[at], &options, &|_| {})
+                .unwrap()[0];
+            for (c, plate_c) in plate_e.iter().enumerate() {
+                let expected = f64::from(rho) * plate_c * f;
+                let (mean, s) = (est.mean[c], est.stderr[c]);
+                eprintln!("sky {c}: {mean:.4} ± {s:.4} against {expected:.4}");
+                assert!(
+                    (mean - expected).abs() < 4.0 * s + 1e-9,
+                    "{json} {bounces:?} channel {c}: {mean} ± {s} against {expected}"
+                );
+                assert!(s < 0.02 * expected.abs(), "{s}");
+            }
+        }
+    }
+    // Direct: the uniform sky over what the plate leaves open, from SKY_DIRECT_RAYS rays (a
+    // Bernoulli mean, its σ at most √(1/4N) of π L).
+    let lights = LightSet::from_json(uniform).unwrap();
+    let direct = reference.direct(&lights, &[at])[0];
+    let sigma = (0.25 / f64::from(bounce_reference::SKY_DIRECT_RAYS)).sqrt();
+    for c in 0..3 {
+        let open = direct[c] / uniform_plate[c];
+        assert!(
+            (open - (1.0 - f)).abs() < 4.0 * sigma,
+            "channel {c}: open share {open} against {}",
+            1.0 - f
+        );
+    }
+}
+
 #[test]
 fn the_same_seed_gives_the_same_values_and_bad_input_is_an_error() {
     let reference = Reference::new(&closed_box(0.5, 1.0)).unwrap();

@@ -24,6 +24,9 @@ pub struct SceneInfo {
     /// What the browser page draws ([`crate::model`]); `None` when neither the baked file nor a
     /// glTF beside it has one.
     pub model: Option<Arc<SceneModel>>,
+    /// Whether the file has each row's view of the sky, without which a session's sky adds
+    /// nothing (a file from before format version 5).
+    pub sky_view: bool,
 }
 
 impl SceneInfo {
@@ -31,12 +34,21 @@ impl SceneInfo {
     /// use for it) or, lacking one, looks for a glTF beside `path`.
     pub fn new(name: String, path: PathBuf, baked: &mut Baked) -> SceneInfo {
         let model = model::load(&path, baked.model.take()).map(Arc::new);
+        if baked.sky.is_none() {
+            tracing::warn!(
+                scene = %name,
+                file = %path.display(),
+                "the baked file has no sky visibility (older than format version 5): a sky adds \
+                 nothing to this scene; bake it again"
+            );
+        }
         SceneInfo {
             name,
             path,
             codec: baked.transport.codec.clone(),
             layout: baked.layout.clone(),
             model,
+            sky_view: baked.sky.is_some(),
         }
     }
 

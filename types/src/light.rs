@@ -1,8 +1,15 @@
-//! Punctual lights in the one JSON form shared by the CLI, the baked file and (later) the server.
+//! Lights in the one JSON form shared by the CLI, the baked file and the server.
 //!
-//! Names and units follow glTF `KHR_lights_punctual`: point and spot intensity in candela, directional
-//! in lux, cone angles in radians. Unlike glTF, placement is explicit (`position`, `direction`) rather
-//! than taken from a node, so a light configuration is self-contained.
+//! Names and units of the punctual lights follow glTF `KHR_lights_punctual`: point and spot
+//! intensity in candela, directional in lux, cone angles in radians. Unlike glTF, placement is
+//! explicit (`position`, `direction`) rather than taken from a node, so a light configuration is
+//! self-contained.
+//!
+//! A **sky** is the light arriving from outside the scene, from every direction a surface sees
+//! no geometry in: `{"type": "sky", "color": [r, g, b]}` is a uniform radiance (an open, level
+//! surface under it gets irradiance `π · color`), `{"type": "sky", "sh": [[r, g, b], ...]}` an
+//! environment given by its 9 order-2 spherical-harmonic radiance coefficients
+//! ([`crate::sh`], world axes). A set holds at most one sky.
 //!
 //! This module owns the types, their JSON form and their validation ([`LightSet::from_json`],
 //! [`LightSet::validate`]): whatever reaches a light engine has passed these checks. What a light
@@ -11,6 +18,8 @@
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
+use crate::sh::{SH_COEFFICIENTS, uniform_sh};
+
 /// A set of lights, as read from or written to `{"lights": [...]}`.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -18,7 +27,7 @@ pub struct LightSet {
     pub lights: Vec<Light>,
 }
 
-/// One punctual light.
+/// One light: punctual, or the sky.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "type", rename_all = "lowercase", deny_unknown_fields)]
 pub enum Light {
@@ -56,6 +65,18 @@ pub enum Light {
         inner_cone_angle: f32,
         #[serde(default = "default_outer_cone")]
         outer_cone_angle: f32,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        name: Option<String>,
+    },
+    /// Light from outside the scene: exactly one of `color` and `sh`.
+    Sky {
+        /// A uniform radiance, linear RGB.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        color: Option<[f32; 3]>,
+        /// Radiance as order-2 real spherical harmonics: 9 RGB coefficients `L_lm` in the order
+        /// of [`crate::sh`].
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        sh: Option<Vec<[f32; 3]>>,
         #[serde(default, skip_serializing_if = "Option::is_none")]
         name: Option<String>,
     },
@@ -162,8 +183,8 @@ impl LightSet {
     }
 
     /// Checks every value a light engine relies on: finite numbers, non-negative intensity and
-    /// colour, usable directions, positive ranges, and spot cones with
-    /// `0 ≤ inner < outer ≤ π/2`.
+    /// colour, usable directions, positive ranges, spot cones with `0 ≤ inner < outer ≤ π/2`,
+    /// and at most one sky, given one way.
     pub fn validate(&self) -> Result<(), LightError> {
         if self.lights.len() > MAX_LIGHTS {
             return Err(LightError::TooMany {
@@ -171,12 +192,27 @@ impl LightSet {
                 max: MAX_LIGHTS,
             });
         }
+        let mut sky: Option<usize> = None;
         for (i, light) in self.lights.iter().enumerate() {
             light.validate().map_err(|(field, reason)| {
                 LightError::invalid(format!("lights[{i}].{field}"), reason)
             })?;
+            if matches!(light, Light::Sky { .. }) {
+                if let Some(first) = sky {
+                    return Err(LightError::invalid(
+                        format!("lights[{i}]"),
+                        format!("a light set holds at most one sky, and lights[{first}] is one"),
+                    ));
+                }
+                sky = Some(i);
+            }
         }
         Ok(())
+    }
+
+    /// The set's sky as radiance coefficients ([`Light::sky_sh`]), if it has one.
+    pub fn sky_sh(&self) -> Option<[[f32; 3]; SH_COEFFICIENTS]> {
+        self.lights.iter().find_map(Light::sky_sh)
     }
 }
 
@@ -184,12 +220,26 @@ impl LightSet {
 pub type FieldError = (&'static str, String);
 
 impl Light {
+    /// A sky's radiance as its 9 spherical-harmonic coefficients (a uniform colour is its `L00`
+    /// alone); `None` for a punctual light, or a sky that [`Light::validate`] refuses.
+    pub fn sky_sh(&self) -> Option<[[f32; 3]; SH_COEFFICIENTS]> {
+        let Light::Sky { color, sh, .. } = self else {
+            return None;
+        };
+        match (color, sh) {
+            (Some(c), None) => Some(uniform_sh(*c)),
+            (None, Some(sh)) => sh.as_slice().try_into().ok(),
+            _ => None,
+        }
+    }
+
     /// As [`LightSet::validate`] for one light; the error names the field.
     pub fn validate(&self) -> Result<(), FieldError> {
         let name = match self {
             Light::Directional { name, .. }
             | Light::Point { name, .. }
-            | Light::Spot { name, .. } => name,
+            | Light::Spot { name, .. }
+            | Light::Sky { name, .. } => name,
         };
         if let Some(name) = name
             && name.len() > MAX_NAME_BYTES
@@ -242,7 +292,53 @@ impl Light {
                 check_range(*range)?;
                 check_cones(*inner_cone_angle, *outer_cone_angle)
             }
+            Light::Sky { color, sh, .. } => check_sky(color.as_ref(), sh.as_deref()),
         }
+    }
+}
+
+/// A sky is given one way: a uniform colour, or exactly 9 finite coefficients whose mean
+/// radiance (`L00`) is not negative. The higher coefficients may be negative: that is how an
+/// environment brighter above than below is written.
+fn check_sky(color: Option<&[f32; 3]>, sh: Option<&[[f32; 3]]>) -> Result<(), FieldError> {
+    match (color, sh) {
+        (Some(c), None) => check_color(c),
+        (None, Some(sh)) => {
+            if sh.len() != SH_COEFFICIENTS {
+                return Err((
+                    "sh",
+                    format!(
+                        "must hold exactly {SH_COEFFICIENTS} coefficients (order-2 spherical \
+                         harmonics), got {}",
+                        sh.len()
+                    ),
+                ));
+            }
+            if let Some(k) = sh.iter().position(|c| !c.iter().all(|v| v.is_finite())) {
+                return Err((
+                    "sh",
+                    format!("coefficient {k} is not finite (got {:?})", sh[k]),
+                ));
+            }
+            if sh[0].iter().any(|&v| v < 0.0) {
+                return Err((
+                    "sh",
+                    format!(
+                        "coefficient 0 (the mean radiance) must not be negative (got {:?})",
+                        sh[0]
+                    ),
+                ));
+            }
+            Ok(())
+        }
+        (Some(_), Some(_)) => Err((
+            "sh",
+            "a sky is either a uniform color or sh coefficients, not both".to_string(),
+        )),
+        (None, None) => Err((
+            "color",
+            "missing: a sky needs a uniform color [r, g, b] or 9 sh coefficients".to_string(),
+        )),
     }
 }
 
@@ -515,7 +611,7 @@ mod tests {
         assert_refused(
             1,
             r#"{"type":"area","position":[0,0,0],"intensity":1}"#,
-            "lights[1]: unknown variant `area`",
+            "lights[1]: unknown variant `area`, expected one of `directional`, `point`, `spot`, `sky`",
         );
         assert_refused(
             0,
@@ -569,6 +665,95 @@ mod tests {
         assert!(
             e.to_string().contains("258 bytes, more than the 256"),
             "{e}"
+        );
+    }
+
+    #[test]
+    fn a_sky_reads_as_a_colour_or_as_coefficients() {
+        let set = LightSet::from_json(
+            r#"{"lights": [{"type": "sky", "color": [0.5, 0.6, 1.0]},
+                           {"type": "point", "position": [0, 1, 0], "intensity": 1}]}"#,
+        )
+        .unwrap();
+        let sh = set.sky_sh().unwrap();
+        assert_eq!(sh[0], crate::sh::uniform_sh([0.5, 0.6, 1.0])[0]);
+        assert!(sh[1..].iter().all(|c| *c == [0.0; 3]));
+        let coeffs: Vec<[f32; 3]> = (0..9)
+            .map(|k| [1.0, 0.5 * k as f32, 0.2 - 0.1 * k as f32])
+            .collect();
+        let json = serde_json::json!({"lights": [{"type": "sky", "sh": coeffs, "name": "day"}]});
+        let set = LightSet::from_json(&json.to_string()).unwrap();
+        assert_eq!(set.sky_sh().unwrap().to_vec(), coeffs);
+        // What it writes, it reads; a set without a sky has none.
+        let again = LightSet::from_json(&serde_json::to_string(&set).unwrap()).unwrap();
+        assert_eq!(again, set);
+        assert_eq!(LightSet::from_json(GOOD).unwrap().sky_sh(), None);
+    }
+
+    #[test]
+    fn bad_skies_are_refused_with_the_reason() {
+        let sh = |n: usize| {
+            serde_json::json!({"type": "sky", "sh": vec![[0.1f32, 0.1, 0.1]; n]}).to_string()
+        };
+        assert_refused(
+            1,
+            &sh(8),
+            "lights[1].sh: must hold exactly 9 coefficients (order-2 spherical harmonics), got 8",
+        );
+        assert_refused(1, &sh(10), "lights[1].sh: must hold exactly 9 coefficients");
+        assert_refused(
+            0,
+            r#"{"type":"sky","color":[1,-1,1]}"#,
+            "lights[0].color: components must be finite and non-negative",
+        );
+        assert_refused(
+            0,
+            r#"{"type":"sky","color":[1,1,1e39]}"#,
+            "lights[0].color: components must be finite",
+        );
+        assert_refused(
+            0,
+            r#"{"type":"sky"}"#,
+            "lights[0].color: missing: a sky needs a uniform color",
+        );
+        assert_refused(
+            0,
+            &serde_json::json!({"type": "sky", "color": [1, 1, 1], "sh": vec![[0.0; 3]; 9]})
+                .to_string(),
+            "lights[0].sh: a sky is either a uniform color or sh coefficients, not both",
+        );
+        let mut coeffs = vec![[0.5f32; 3]; 9];
+        coeffs[0] = [1.0, -0.5, 1.0];
+        assert_refused(
+            2,
+            &serde_json::json!({"type": "sky", "sh": coeffs}).to_string(),
+            "lights[2].sh: coefficient 0 (the mean radiance) must not be negative",
+        );
+        assert_refused(
+            2,
+            r#"{"type":"sky","sh":[[1,1,1],[1,1,1e40],[0,0,0],[0,0,0],[0,0,0],[0,0,0],[0,0,0],[0,0,0],[0,0,0]]}"#,
+            "lights[2].sh: coefficient 1 is not finite",
+        );
+        assert_refused(
+            0,
+            r#"{"type":"sky","sh":[[1,1]]}"#,
+            "lights[0]: invalid length 2",
+        );
+        assert_refused(
+            0,
+            r#"{"type":"sky","color":[1,1,1],"intensity":2}"#,
+            "lights[0]: unknown field `intensity`",
+        );
+        // One sky a set.
+        let e = LightSet::from_json(
+            r#"{"lights": [{"type":"sky","color":[1,1,1]},
+                           {"type":"point","position":[0,0,0],"intensity":1},
+                           {"type":"sky","color":[0,0,1]}]}"#,
+        )
+        .unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "lights[2]: a light set holds at most one sky, and lights[0] is one"
         );
     }
 

@@ -37,6 +37,12 @@ type FieldError = (&'static str, String);
 
 fn light(l: &proto::Light) -> Result<Light, FieldError> {
     let name = l.name.clone();
+    if l.r#type == "sky" {
+        return sky(l, name);
+    }
+    if matches!(l.r#type.as_str(), "point" | "directional" | "spot") {
+        unused(l.sh.is_empty(), "sh", &l.r#type)?;
+    }
     let intensity = l.intensity.ok_or(("intensity", "missing".to_string()))?;
     let color = match l.color.as_slice() {
         [] => [1.0; 3],
@@ -78,9 +84,37 @@ fn light(l: &proto::Light) -> Result<Light, FieldError> {
         "" => Err(("type", "missing".to_string())),
         other => Err((
             "type",
-            format!("unknown light type {other:?} (expected point, directional or spot)"),
+            format!("unknown light type {other:?} (expected point, directional, spot or sky)"),
         )),
     }
+}
+
+/// A sky: a colour or 27 numbers of coefficients, nothing a punctual light has. Which of the two
+/// it is (and that it is one of them) is [`LightSet::validate`]'s check, as for the JSON form.
+fn sky(l: &proto::Light, name: Option<String>) -> Result<Light, FieldError> {
+    unused(l.position.is_empty(), "position", "sky")?;
+    unused(l.direction.is_empty(), "direction", "sky")?;
+    unused(l.intensity.is_none(), "intensity", "sky")?;
+    unused(l.range.is_none(), "range", "sky")?;
+    no_cones(l, "sky")?;
+    let color = match l.color.as_slice() {
+        [] => None,
+        c => Some(vec3("color", c)?),
+    };
+    let sh = match l.sh.as_slice() {
+        [] => None,
+        v if v.len() % 3 == 0 => Some(v.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect()),
+        v => {
+            return Err((
+                "sh",
+                format!(
+                    "must be 27 numbers, 9 coefficients of red, green and blue (got {})",
+                    v.len()
+                ),
+            ));
+        }
+    };
+    Ok(Light::Sky { color, sh, name })
 }
 
 fn vec3(field: &'static str, v: &[f32]) -> Result<[f32; 3], FieldError> {
@@ -160,6 +194,14 @@ fn light_to_proto(l: &Light) -> proto::Light {
             inner_cone_angle: Some(*inner_cone_angle),
             outer_cone_angle: Some(*outer_cone_angle),
             name: name.clone(),
+            ..Default::default()
+        },
+        Light::Sky { color, sh, name } => proto::Light {
+            r#type: "sky".into(),
+            color: color.map(|c| c.to_vec()).unwrap_or_default(),
+            sh: sh.iter().flatten().flatten().copied().collect(),
+            name: name.clone(),
+            ..Default::default()
         },
     }
 }
@@ -218,6 +260,60 @@ mod tests {
         assert_eq!(light_set(&lights).unwrap(), json);
     }
 
+    fn sky(color: Vec<f32>, sh: Vec<f32>) -> proto::Light {
+        proto::Light {
+            r#type: "sky".into(),
+            color,
+            sh,
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn a_sky_converts_like_its_json_and_back() {
+        let coeffs: Vec<f32> = (0..27).map(|k| 1.0 - k as f32 / 40.0).collect();
+        let json = serde_json::json!({"lights": [
+            {"type": "point", "position": [0, 1.5, 0], "intensity": 10},
+            {"type": "sky", "sh": coeffs.chunks(3).collect::<Vec<_>>()}
+        ]});
+        let want = LightSet::from_json(&json.to_string()).unwrap();
+        let got = light_set(&[point(), sky(vec![], coeffs)]).unwrap();
+        assert_eq!(got, want);
+        assert_eq!(light_set(&to_proto(&got)).unwrap(), got);
+        let uniform = light_set(&[sky(vec![0.2, 0.4, 1.0], vec![])]).unwrap();
+        assert_eq!(
+            uniform,
+            LightSet::from_json(r#"{"lights":[{"type":"sky","color":[0.2,0.4,1]}]}"#).unwrap()
+        );
+        assert_eq!(light_set(&to_proto(&uniform)).unwrap(), uniform);
+    }
+
+    #[test]
+    fn bad_skies_are_refused_naming_the_field() {
+        assert_eq!(
+            refused(sky(vec![1.0; 3], vec![0.5; 26])),
+            "lights[1].sh: must be 27 numbers, 9 coefficients of red, green and blue (got 26)"
+        );
+        assert!(
+            refused(sky(vec![], vec![0.5; 24]))
+                .starts_with("lights[1].sh: must hold exactly 9 coefficients")
+        );
+        assert!(refused(sky(vec![], vec![])).starts_with("lights[1].color: missing"));
+        assert!(refused(sky(vec![1.0; 3], vec![0.5; 27])).contains("not both"));
+        let mut l = sky(vec![1.0; 3], vec![]);
+        l.intensity = Some(2.0);
+        assert_eq!(refused(l), "lights[1].intensity: not used by a sky light");
+        let mut l = sky(vec![1.0; 3], vec![]);
+        l.position = vec![0.0; 3];
+        assert_eq!(refused(l), "lights[1].position: not used by a sky light");
+        assert!(
+            light_set(&[sky(vec![1.0; 3], vec![]), sky(vec![0.5; 3], vec![])])
+                .unwrap_err()
+                .to_string()
+                .contains("at most one sky")
+        );
+    }
+
     #[test]
     fn refusals_name_the_field() {
         let mut l = point();
@@ -244,6 +340,9 @@ mod tests {
         let mut l = point();
         l.color = vec![1.0, -1.0, 0.0];
         assert!(refused(l).starts_with("lights[1].color:"));
+        let mut l = point();
+        l.sh = vec![0.0; 27];
+        assert_eq!(refused(l), "lights[1].sh: not used by a point light");
         let e = light_set(&vec![point(); MAX_LIGHTS + 1]).unwrap_err();
         assert_eq!(e.path(), "lights");
         assert_eq!(

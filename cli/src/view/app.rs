@@ -316,6 +316,7 @@ impl App {
             bounce_core::light::Light::Directional { direction, .. } => {
                 *direction = (turn * Vec3::from_array(*direction)).to_array();
             }
+            bounce_core::light::Light::Sky { .. } => {}
         });
         self.moves_done += 1;
         self.frames_since_move = 0;

@@ -15,6 +15,8 @@ pub fn nudge(light: &mut Light, delta: Vec3, scene_radius: f32) {
             let turned = (d + delta / scene_radius.max(1e-6)).normalize_or(d);
             *direction = turned.to_array();
         }
+        // Light from everywhere: nothing to move.
+        Light::Sky { .. } => {}
     }
 }
 
@@ -24,6 +26,11 @@ pub fn scale(light: &mut Light, factor: f32) {
         Light::Point { intensity, .. }
         | Light::Spot { intensity, .. }
         | Light::Directional { intensity, .. } => *intensity *= factor,
+        Light::Sky { color, sh, .. } => {
+            for c in color.iter_mut().chain(sh.iter_mut().flatten()) {
+                *c = c.map(|v| v * factor);
+            }
+        }
     }
 }
 
@@ -46,6 +53,10 @@ pub fn describe(light: &Light) -> String {
             intensity,
             ..
         } => format!("sun towards {} {intensity:.3} lx", v(direction)),
+        Light::Sky {
+            color: Some(color), ..
+        } => format!("sky {}", v(color)),
+        Light::Sky { .. } => "sky (SH environment)".to_string(),
     }
 }
 

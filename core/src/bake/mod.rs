@@ -606,8 +606,8 @@ fn bake_with(
     } = prepare(scene, options, &mut timer)?;
     let rows = vox.transport_layout();
     let n = rows.len();
-    let (f, tally) = timer.run(Stage::FormFactors, n as u64, || {
-        formfactor::form_factors(rays.tracer(), options.rays, options.seed, &advance)
+    let (f, tally, sky) = timer.run(Stage::FormFactors, n as u64, || {
+        formfactor::form_factors_sky(rays.tracer(), options.rays, options.seed, &advance)
     })?;
     let near_field = timer.run(Stage::NearField, n as u64, || {
         rays.near_field(surface.as_ref(), rows.voxel_size, 0..n, options, &advance)
@@ -658,6 +658,7 @@ fn bake_with(
         occupancy: surface.is_none().then_some(vox.occupied),
         surface,
         near_field,
+        sky: Some(sky),
         // The caller decides whether the file keeps the scene ([`crate::import::pack_glb`]).
         model: None,
     })

@@ -31,6 +31,7 @@ use crate::matrix::{DenseMatrix, EncodedMatrix};
 use crate::meta::StageTiming;
 use crate::nearfield::NearField;
 use crate::rays::RayTally;
+use crate::sky::SkyVisibility;
 use crate::transport;
 
 pub use crate::format::{
@@ -163,7 +164,7 @@ pub fn form_factor_shard(
     let n = vox.transport_layout().len();
     let rows = shard_rows(n, spec.index, spec.count);
     let traced = timer.run(Stage::FormFactors, rows.len() as u64, || {
-        formfactor::form_factor_rows_tallied(
+        formfactor::form_factor_rows_sky(
             rays.tracer(),
             rows.clone(),
             options.rays,
@@ -171,7 +172,7 @@ pub fn form_factor_shard(
             &|k| progress.advance(k),
         )
     });
-    let (f_rows, tally) = traced.map_err(BakeError::from)?;
+    let (f_rows, tally, sky_rows) = traced.map_err(BakeError::from)?;
     let voxel_size = vox.layout.voxel_size;
     let near_rows = timer.run(Stage::NearField, rows.len() as u64, || {
         rays.near_field(surface.as_ref(), voxel_size, rows.clone(), options, &|k| {
@@ -212,6 +213,7 @@ pub fn form_factor_shard(
         rows: f_rows,
         form_factor_rows: None,
         near_rows,
+        sky_rows,
         // The caller packs the model when the bake keeps it ([`crate::import::pack_glb`]).
         model: None,
     })
@@ -228,7 +230,9 @@ pub fn transport_shard(
     let mut timer = Timer::new(progress);
     let first = members[0].header.clone();
     let n = first.meta.patches;
-    let Assembled { rows: f, near, .. } = timer.run(Stage::ReadShards, n as u64, || {
+    let Assembled {
+        rows: f, near, sky, ..
+    } = timer.run(Stage::ReadShards, n as u64, || {
         assemble(&members, 1, false, progress)
     })?;
     let options = bake::options_of(&first.meta.settings, first.meta.keep_form_factors);
@@ -293,6 +297,7 @@ pub fn transport_shard(
         rows: t_rows,
         form_factor_rows,
         near_rows: near.map(|all| slice_rows(&all, rows.clone())),
+        sky_rows: sky.slice(rows.clone()),
         model,
     })
 }
@@ -308,12 +313,13 @@ pub fn merge(inputs: &[PathBuf], progress: &dyn Progress) -> Result<Baked, Shard
     let n = m0.patches;
     let options = bake::options_of(&m0.settings, m0.keep_form_factors);
     bake::check_codec_options(&options)?;
-    let (t, f, near_field, stats, rays, mut timings, grey_rel_l2) = match m0.phase {
+    let (t, f, near_field, sky, stats, rays, mut timings, grey_rel_l2) = match m0.phase {
         Phase::Transport => {
             let Assembled {
                 rows: t,
                 form_factors: f,
                 near,
+                sky,
             } = timer.run(Stage::ReadShards, n as u64, || {
                 assemble(&members, m0.channels, m0.keep_form_factors, progress)
             })?;
@@ -324,10 +330,12 @@ pub fn merge(inputs: &[PathBuf], progress: &dyn Progress) -> Result<Baked, Shard
             })?;
             let mut timings = m0.inherited_timings.clone();
             timings.extend(sum_timings(members.iter().map(|m| &m.header.meta.timings)));
-            (t, f, near, stats, m0.rays, timings, m0.grey_rel_l2)
+            (t, f, near, sky, stats, m0.rays, timings, m0.grey_rel_l2)
         }
         Phase::FormFactors => {
-            let Assembled { rows: f, near, .. } = timer.run(Stage::ReadShards, n as u64, || {
+            let Assembled {
+                rows: f, near, sky, ..
+            } = timer.run(Stage::ReadShards, n as u64, || {
                 assemble(&members, 1, false, progress)
             })?;
             let rows = first.transport_layout();
@@ -349,6 +357,7 @@ pub fn merge(inputs: &[PathBuf], progress: &dyn Progress) -> Result<Baked, Shard
                 t,
                 m0.keep_form_factors.then_some(f),
                 near,
+                sky,
                 stats,
                 rays,
                 timings,
@@ -386,6 +395,7 @@ pub fn merge(inputs: &[PathBuf], progress: &dyn Progress) -> Result<Baked, Shard
         transport,
         form_factors,
         near_field,
+        sky: Some(sky),
         occupancy: first.surface.is_none().then_some(first.occupancy),
         surface: first.surface,
         elements: first.elements,
@@ -579,6 +589,7 @@ fn assemble(
     let mut ff = form_factors.then(|| DenseMatrix::zeros(n, 1));
     // The reader requires NROW exactly when the bake has a near field: all or none have it.
     let mut near: Option<Vec<NearField>> = Some(Vec::with_capacity(members.len()));
+    let mut sky = Vec::with_capacity(members.len());
     for m in members {
         let read_err = |error| ShardError::Read {
             path: m.path.clone(),
@@ -604,6 +615,7 @@ fn assemble(
             parts.push(rows);
             parts
         });
+        sky.push(file.sky_rows);
         progress.advance(rows.len() as u64);
     }
     let near = match (
@@ -619,6 +631,7 @@ fn assemble(
         rows: out,
         form_factors: ff,
         near,
+        sky: SkyVisibility::concat(sky),
     })
 }
 
@@ -629,6 +642,8 @@ struct Assembled {
     form_factors: Option<DenseMatrix>,
     /// The whole near-field matrix, when the bake has one.
     near: Option<NearField>,
+    /// Every row's sky view.
+    sky: SkyVisibility,
 }
 
 /// Rows `rows` of every channel of `m` from `src` (channel-major, as a shard stores them). The

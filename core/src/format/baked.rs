@@ -39,6 +39,10 @@
 //! `NEAR` (version 4, surface geometry only, optional there): the near-field first bounce's
 //! matrix over the transport's rows and the `SURF` sample points; `super::near` has its layout.
 //!
+//! `SKYV` (version 5, flagged [`SECTION_OPTIONAL`]): each transport row's view of the sky, 9
+//! spherical-harmonic coefficients a row; `super::sky` has its layout. Files without it (every
+//! older one) read, with no sky view: a sky lights nothing in them.
+//!
 //! `MODL` (flagged [`SECTION_OPTIONAL`]): the scene the file was baked from, packed into one
 //! self-contained GLB 2.0 file ([`crate::import::pack_glb`]): every buffer and image inside its
 //! BIN chunk, the glTF JSON otherwise as the source had it. The section is exactly the GLB's
@@ -62,6 +66,8 @@ use super::container::{
     SECTION_OPTIONAL, Section, SectionKind,
 };
 use super::near::{decode_near, encode_near};
+use super::sky::{decode_sky, encode_sky};
+use crate::sky::SkyVisibility;
 
 /// Bytes of the `LAYT` fields before the patch records.
 pub const LAYOUT_HEADER_LEN: u64 = 32;
@@ -103,6 +109,9 @@ pub struct Baked {
     pub elements: Option<Elements>,
     /// The near-field first bounce (the `NEAR` section; surface geometry baked with a radius).
     pub near_field: Option<NearField>,
+    /// Each transport row's view of the sky (the `SKYV` section), from the form-factor rays
+    /// that escaped; absent in files from before it, where a sky adds nothing.
+    pub sky: Option<SkyVisibility>,
     /// The scene baked, as one self-contained GLB (the `MODL` section): what a viewer draws.
     /// Absent in files baked without it (`bounce bake --no-model`, or an older bounce).
     pub model: Option<Vec<u8>>,
@@ -167,6 +176,13 @@ impl Baked {
                 encode_near(SectionKind::NEAR, near, n, n, surface.per_patch)?,
             ));
         }
+        if let Some(sky) = &self.sky {
+            sections.push(Section {
+                kind: SectionKind::SKYV,
+                flags: SECTION_OPTIONAL,
+                pieces: vec![Cow::Owned(encode_sky(SectionKind::SKYV, sky, n)?)],
+            });
+        }
         if let Some(model) = &self.model {
             sections.push(model_section(model)?);
         }
@@ -188,6 +204,7 @@ impl Baked {
                 SectionKind::SURF,
                 SectionKind::ELEM,
                 SectionKind::NEAR,
+                SectionKind::SKYV,
             ]
             .contains(&e.kind);
             if !known && !e.is_optional() {
@@ -259,6 +276,16 @@ impl Baked {
                 s.per_patch,
             )?),
         };
+        let sky = match c.entry(SectionKind::SKYV) {
+            None => None,
+            Some(_) if c.header.format_version < 5 => {
+                return Err(FormatError::Sky(format!(
+                    "a version-{} file cannot hold a sky view",
+                    c.header.format_version
+                )));
+            }
+            Some(e) => Some(decode_sky(SectionKind::SKYV, c.section(e)?, n)?),
+        };
         let model = match c.entry(SectionKind::MODL) {
             Some(e) => {
                 let bytes = c.section(e)?;
@@ -276,6 +303,7 @@ impl Baked {
             surface,
             elements,
             near_field,
+            sky,
             model,
         })
     }

@@ -97,6 +97,7 @@ impl SectionKind {
     pub const SURF: SectionKind = SectionKind(*b"SURF");
     pub const ELEM: SectionKind = SectionKind(*b"ELEM");
     pub const NEAR: SectionKind = SectionKind(*b"NEAR");
+    pub const SKYV: SectionKind = SectionKind(*b"SKYV");
 }
 
 impl fmt::Display for SectionKind {

@@ -27,6 +27,7 @@ mod container;
 mod near;
 mod shard;
 mod shard_meta;
+mod sky;
 
 use std::path::PathBuf;
 
@@ -43,20 +44,23 @@ pub use container::{
 pub(crate) use shard::le_bytes as f32_le_bytes;
 pub use shard::{ROWS_HEADER_LEN, ShardFile, ShardHeader};
 pub use shard_meta::{FormFactorSummary, Phase, SHARD_EXTENSION, ShardMeta, ShardSpec, shard_rows};
+pub use sky::SKY_HEADER_LEN;
 
 /// The version this build writes. Version 2 added surface patches: the `SURF` section and the
 /// `geometry` setting in `META`. Version 3 added transport elements (the `ELEM` section), so a
 /// version-2 reader refuses such a file by its version rather than by a section it does not know.
 /// Version 4 added the near-field first bounce (the `NEAR` section), which changes what a relight
-/// computes, so an older reader must refuse the file rather than skip the section.
-pub const FORMAT_VERSION: u32 = 4;
+/// computes, so an older reader must refuse the file rather than skip the section. Version 5
+/// added each row's view of the sky (the `SKYV` section, flagged optional): a file without it
+/// (any older one) reads, and a sky then adds nothing to it.
+pub const FORMAT_VERSION: u32 = 5;
 /// The oldest version this build reads: a version-1 file is a voxel-face bake and is relit as
 /// one.
 pub const OLDEST_FORMAT_VERSION: u32 = 1;
 /// The bake-shard version this build writes, and the only one it reads. Shards are
 /// intermediate files of one bake, written and read by the same release, so there is no reason
-/// to read older ones.
-pub const SHARD_FORMAT_VERSION: u32 = 4;
+/// to read older ones. Version 5 added each shard's rows of the sky view (`SROW`).
+pub const SHARD_FORMAT_VERSION: u32 = 5;
 
 /// Everything that can go wrong reading or writing a baked file.
 ///
@@ -103,6 +107,9 @@ pub enum FormatError {
     /// The near-field matrix (`NEAR`, or a shard's `NROW`); the message names the section.
     #[error("{0}")]
     NearField(String),
+    /// The sky view (`SKYV`, or a shard's `SROW`); the message names the section.
+    #[error("{0}")]
+    Sky(String),
     #[error("file truncated: {what} ends at byte {end} but the file has {len} bytes")]
     Truncated { what: String, end: u64, len: u64 },
     #[error("file truncated: its header says it has {declared} bytes but it has {actual}")]

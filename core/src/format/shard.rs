@@ -21,6 +21,9 @@
 //!   near-field matrix, laid out as a baked file's `NEAR` over the shard's rows (columns over
 //!   the whole transport). Phase 1 traces them, phase 2 carries its own rows, the merge joins
 //!   them.
+//! - `SROW`: the shard's rows of the sky view, laid out as a baked file's `SKYV` over the
+//!   shard's rows. Phase 1 traces them with its rows of `F`, phase 2 carries its own rows, the
+//!   merge joins them.
 //! - `MODL` (flagged optional, when the bake keeps the model): the scene as one GLB, as in a
 //!   baked file. Phase 1 packs it, phase 2 passes it on, the merge puts it in the baked file.
 //!
@@ -45,7 +48,9 @@ use super::container::{
 };
 use super::near::{decode_near, encode_near};
 use super::shard_meta::{Phase, ShardMeta, shard_rows};
+use super::sky::{decode_sky, encode_sky};
 use crate::nearfield::NearField;
+use crate::sky::SkyVisibility;
 use crate::surface::SurfaceData;
 use crate::voxel::Geometry;
 
@@ -56,6 +61,7 @@ const SHRD: SectionKind = SectionKind(*b"SHRD");
 const ROWS: SectionKind = SectionKind(*b"ROWS");
 const FROW: SectionKind = SectionKind(*b"FROW");
 const NROW: SectionKind = SectionKind(*b"NROW");
+const SROW: SectionKind = SectionKind(*b"SROW");
 
 /// What a shard says about itself, without its rows: enough to check a set of shards before
 /// any row is read.
@@ -87,6 +93,8 @@ pub struct ShardFile {
     pub form_factor_rows: Option<Vec<f32>>,
     /// The same rows of the near-field matrix, when the bake has one.
     pub near_rows: Option<NearField>,
+    /// The same rows of the sky view.
+    pub sky_rows: SkyVisibility,
     /// The scene as one self-contained GLB, for the baked file's `MODL` section.
     pub model: Option<Vec<u8>>,
 }
@@ -158,6 +166,10 @@ impl ShardFile {
             (Some(_), _, _) => return Err(bad("near-field rows in a shard that has none")),
             (None, _, true) => return Err(bad("a shard of a near-field bake lacks its rows")),
         }
+        sections.push(owned(
+            SROW,
+            encode_sky(SROW, &self.sky_rows, h.meta.end_row - h.meta.first_row)?,
+        ));
         // Before the rows, which stay last as they are the bulk of the file.
         if let Some(model) = &self.model {
             sections.push(model_section(model)?);
@@ -204,12 +216,14 @@ impl ShardFile {
             (Some(_), _, _) => return Err(bad("near-field rows in a shard that has none")),
             (None, _, true) => return Err(FormatError::MissingSection { kind: NROW }),
         };
+        let sky_rows = decode_sky(SROW, section(&c, SROW)?, m.end_row - m.first_row)?;
         let model = model_of(&c)?;
         Ok(ShardFile {
             header,
             rows,
             form_factor_rows,
             near_rows,
+            sky_rows,
             model,
         })
     }
@@ -293,6 +307,7 @@ fn header_from(c: &Container<'_>) -> Result<ShardHeader, FormatError> {
             ROWS,
             FROW,
             NROW,
+            SROW,
         ]
         .contains(&e.kind);
         if e.kind == SectionKind::MODL {

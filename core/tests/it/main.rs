@@ -13,6 +13,7 @@ mod import;
 mod nearfield;
 mod pack;
 mod shard;
+mod sky;
 mod stress;
 mod surface;
 mod tracers;

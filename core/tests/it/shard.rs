@@ -80,6 +80,8 @@ fn assert_same_bake(one: &Baked, merged: &Baked, what: &str) {
     );
     assert_eq!(one.model, merged.model, "{what}: model");
     assert_eq!(one.near_field, merged.near_field, "{what}: near field");
+    assert!(one.sky.is_some(), "{what}: the bake keeps a sky view");
+    assert_eq!(one.sky, merged.sky, "{what}: sky view");
     let stages =
         |b: &Baked| -> Vec<String> { b.meta.timings.iter().map(|t| t.stage.clone()).collect() };
     assert!(

@@ -7,4 +7,5 @@ mod gpu_direct_surface;
 mod gpu_near_field;
 mod layout;
 mod relight;
+mod sky;
 mod stress;

@@ -96,6 +96,7 @@ impl Bounce for BounceService {
                 name: s.name.clone(),
                 patch_count: u32::try_from(s.layout.len()).unwrap_or(u32::MAX),
                 codec: s.codec.clone(),
+                sky_view: s.sky_view,
             })
             .collect();
         Ok(Response::new(proto::ListScenesResponse {

@@ -65,6 +65,8 @@ pub(super) struct SceneEntry {
     /// Why a GPU engine runs part of this scene on the CPU (a matrix or a triangle set over what
     /// the device holds), or null.
     fallback: Option<String>,
+    /// Whether a sky lights the scene: false for a file baked before the sky view (bake again).
+    sky_view: bool,
 }
 
 pub(super) async fn list_scenes(State(state): State<AppState>) -> Json<SceneList> {
@@ -78,6 +80,7 @@ pub(super) async fn list_scenes(State(state): State<AppState>) -> Json<SceneList
             codec: s.codec.clone(),
             has_model: s.model.is_some(),
             fallback: state.hub.scene_fallback(&s.name),
+            sky_view: s.sky_view,
         })
         .collect();
     Json(SceneList {
