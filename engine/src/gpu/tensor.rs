@@ -122,13 +122,14 @@ impl TensorKernel {
         encoder.clear_buffer(&io.tops, 0, None);
     }
 
-    /// The three dispatches for `sets` light sets over `rows` image rows of an `n`-column
-    /// matrix. Returns the x extent of the product's grid, which the pass's `Params.groups_x`
-    /// must carry (the packing kernels do not read it).
+    /// The product's grid for `sets` light sets over `rows` image rows, and its x extent, which
+    /// the pass's `Params.groups_x` must carry (the packing kernels do not read it).
     pub fn dispatch_size(device: &wgpu::Device, rows: u32, sets: u32) -> ([u32; 3], u32) {
         grid(device, rows.div_ceil(TILE_ROWS), sets, TILE_SETS)
     }
 
+    /// The three dispatches for `sets` light sets of an `n`-column matrix, the product on
+    /// `product_grid` (from [`TensorKernel::dispatch_size`]).
     pub fn dispatch(
         &self,
         cpass: &mut wgpu::ComputePass<'_>,
