@@ -78,6 +78,11 @@ pub fn run(args: &InspectArgs) -> Result<()> {
             "near_field_entries": baked.near_field.as_ref().map(|n| n.nnz()),
             "sky_view_rows": baked.sky.as_ref().map(|s| s.len()),
             "sky_view_escaped_share": sky_escaped,
+            "emitters": baked.emitters.as_ref().map(|e| e.groups.iter().map(|g| json!({
+                "material": g.name,
+                "color": g.color,
+                "strength": g.strength,
+            })).collect::<Vec<_>>()),
             "surface_area": m.stats.surface_area,
             "unassigned_area": m.stats.unassigned_area,
             "bounces": m.settings.bounces,
@@ -179,6 +184,31 @@ pub fn run(args: &InspectArgs) -> Result<()> {
         _ => println!(
             "  sky view      none (baked by an older bounce): a sky lights nothing here, bake \
              again"
+        ),
+    }
+    match &baked.emitters {
+        Some(e) if e.groups.is_empty() => println!("  emitters      none (no emissive surface)"),
+        Some(e) => {
+            let covered = (0..e.rows()).filter(|&r| !e.row(r).is_empty()).count();
+            let names: Vec<String> = e
+                .groups
+                .iter()
+                .map(|g| {
+                    format!(
+                        "'{}' ({:.3}, {:.3}, {:.3}) × {}",
+                        g.name, g.color[0], g.color[1], g.color[2], g.strength
+                    )
+                })
+                .collect();
+            println!(
+                "  emitters      {} over {covered} rows, a light set may change them: {}",
+                e.groups.len(),
+                names.join(", ")
+            );
+        }
+        None => println!(
+            "  emitters      none listed (voxel faces, or baked by an older bounce): emissive \
+             surfaces keep their baked light"
         ),
     }
     match &baked.model {

@@ -7,7 +7,6 @@ use std::path::PathBuf;
 use anyhow::{Context, Result, bail};
 use bounce_core::bake::{BakeOptions, CodecRequest, NoProgress, bake_scene, options_of, simplify};
 use bounce_core::codec;
-use bounce_core::direct::exitance_b0;
 use bounce_core::format::Baked;
 use bounce_core::import::import_path;
 use bounce_core::light::LightSet;
@@ -288,7 +287,17 @@ fn pointwise_source(
     let direct = engine
         .direct_on_rows(loaded, std::slice::from_ref(lights))?
         .remove(0);
-    let b0 = exitance_b0(rows, &direct);
+    let b0 = loaded.exitance(lights, &direct)?;
+    // The pointwise first bounce reads each triangle's own emission: the set's changes go there.
+    let changed;
+    let scene = if lights.emissive().next().is_some() {
+        let mut copy = scene.clone();
+        bounce_core::emitter::apply_to_scene(&mut copy, lights)?;
+        changed = copy;
+        &changed
+    } else {
+        scene
+    };
     let first = pointwise::first_bounce(scene, rows, pieces, lights, &b0, s.rays_per_patch, s.seed);
     let shift: Vec<[f32; 3]> = first
         .pointwise

@@ -38,7 +38,7 @@ fn bake_then_inspect_the_cornell_box() {
     assert!(summary.contains("patches"), "{summary}");
 
     let j = inspect_json(&file);
-    assert_eq!(j["format_version"], 5);
+    assert_eq!(j["format_version"], 6);
     assert_eq!(j["near_field_radius"], 1.0, "a near field by default");
     assert!(j["near_field_entries"].as_u64().unwrap() > 0);
     assert_eq!(j["geometry"], "surface", "surface patches are the default");
@@ -533,7 +533,6 @@ fn relight_the_cornell_box_on_both_engines() {
     }
 }
 
-/// A 1 × 1 plate facing up, two triangles, as glTF with an embedded buffer.
 /// A sky lights a new bake; an older file (the fuzz corpus' version-3 seed) reads and relights,
 /// gets nothing from the sky, and says why; a bad sky is refused naming its field.
 #[test]
@@ -594,6 +593,107 @@ fn a_sky_lights_new_files_and_old_ones_say_why_not() {
     );
 }
 
+/// The emissive Cornell box: `inspect` lists its lamp, a relight can dim and recolour it and
+/// `verify` takes the change to the reference; a change naming no emitter is refused naming the
+/// light and what the scene has; the version-3 seed lists none and says why.
+#[test]
+fn emissive_surfaces_change_at_run_time() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/cornell-box-emissive/CornellBox.glb");
+    let baked = dir.path().join("lamp.bounce");
+    let out = run(bounce()
+        .args(["bake", "--patches", "200", "--rays", "256"])
+        .args(["--codec", "dense-f32", "--quiet", "-o"])
+        .arg(&baked)
+        .arg(&scene));
+    assert!(out.status.success(), "{}", stderr(&out));
+    let j = inspect_json(&baked);
+    assert_eq!(j["emitters"][0]["material"], "Emitter_Light_temp");
+    assert_eq!(j["emitters"][0]["strength"], 100.0);
+    let text =
+        String::from_utf8_lossy(&run(bounce().arg("inspect").arg(&baked)).stdout).into_owned();
+    assert!(text.contains("emitters      1 over"), "{text}");
+
+    let write = |name: &str, json: &str| {
+        let path = dir.path().join(name);
+        std::fs::write(&path, json).unwrap();
+        path
+    };
+    let none = write("none.json", r#"{"lights": []}"#);
+    let half = write(
+        "half.json",
+        r#"{"lights": [{"type": "emissive", "material": "Emitter_Light_temp", "strength": 50}]}"#,
+    );
+    let out_json = dir.path().join("out.json");
+    let out = run(bounce()
+        .arg("relight")
+        .arg(&baked)
+        .args(["--engine", "cpu", "--lights"])
+        .arg(&none)
+        .arg("--lights")
+        .arg(&half)
+        .arg("--out")
+        .arg(&out_json));
+    assert!(out.status.success(), "{}", stderr(&out));
+    let v: Value = serde_json::from_slice(&std::fs::read(&out_json).unwrap()).unwrap();
+    let total = |set: usize| -> f64 {
+        v["sets"][set]["indirect"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .flat_map(|p| p.as_array().unwrap().iter().map(|x| x.as_f64().unwrap()))
+            .sum()
+    };
+    // Half the strength, half the light: the lamp is the box's only source.
+    assert!(total(0) > 0.0);
+    assert!(
+        (total(1) / total(0) - 0.5).abs() < 1e-4,
+        "{} {}",
+        total(1),
+        total(0)
+    );
+
+    let out = run(bounce()
+        .arg("verify")
+        .arg(&baked)
+        .arg(&scene)
+        .args(["--spp", "64", "--quiet", "--json", "--lights"])
+        .arg(&half));
+    assert!(out.status.success(), "{}", stderr(&out));
+
+    let wrong = write(
+        "wrong.json",
+        r#"{"lights": [{"type": "emissive", "material": "Lamp", "color": [1, 0, 0]}]}"#,
+    );
+    let out = run(bounce()
+        .arg("relight")
+        .arg(&baked)
+        .arg("--lights")
+        .arg(&wrong));
+    assert!(!out.status.success());
+    assert!(
+        stderr(&out).contains(
+            "lights[0].material: the scene has no emissive material 'Lamp' (its emitters: \
+             Emitter_Light_temp)"
+        ),
+        "{}",
+        stderr(&out)
+    );
+    let old =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../fuzz/corpus/baked_file/cornell-30.bounce");
+    let out = run(bounce().arg("relight").arg(&old).arg("--lights").arg(&half));
+    assert!(!out.status.success());
+    assert!(
+        stderr(&out).contains("this baked file lists no emitters"),
+        "{}",
+        stderr(&out)
+    );
+    let text = String::from_utf8_lossy(&run(bounce().arg("inspect").arg(&old)).stdout).into_owned();
+    assert!(text.contains("emitters      none listed"), "{text}");
+}
+
+/// A 1 × 1 plate facing up, two triangles, as glTF with an embedded buffer.
 fn single_plate_gltf() -> String {
     let positions: [[f32; 3]; 4] = [[0., 0., 0.], [0., 0., 1.], [1., 0., 1.], [1., 0., 0.]];
     let indices: [u16; 6] = [0, 1, 2, 0, 2, 3];

@@ -287,7 +287,7 @@ impl PreparedLight {
                 range,
                 Some((inner_cone_angle, outer_cone_angle)),
             ),
-            Light::Sky { .. } => return None,
+            Light::Sky { .. } | Light::Emissive { .. } => return None,
         };
         let radiant = Vec3::from(color) * intensity;
         if radiant.max_element() <= 0.0 {
@@ -689,6 +689,30 @@ pub fn exitance_b0(layout: &PatchLayout, e_direct: &[[f32; 3]]) -> Vec<[f32; 3]>
         .iter()
         .zip(e_direct)
         .map(|(p, e)| std::array::from_fn(|c| p.emission[c] + p.albedo[c] * e[c]))
+        .collect()
+}
+
+/// `B0` as [`exitance_b0`] gives it, with each patch's emission `emission[i]` in place of the
+/// layout's: a light set's emissive changes (`crate::emitter`).
+///
+/// # Panics
+/// If `emission` or `e_direct` does not have one entry per patch: a caller's bug.
+pub fn exitance_with(
+    layout: &PatchLayout,
+    emission: &[[f32; 3]],
+    e_direct: &[[f32; 3]],
+) -> Vec<[f32; 3]> {
+    assert_eq!(emission.len(), layout.len(), "one emission per patch");
+    assert_eq!(
+        e_direct.len(),
+        layout.len(),
+        "one direct irradiance per patch"
+    );
+    layout
+        .patches
+        .iter()
+        .zip(emission.iter().zip(e_direct))
+        .map(|(p, (l, e))| std::array::from_fn(|c| l[c] + p.albedo[c] * e[c]))
         .collect()
 }
 

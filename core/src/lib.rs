@@ -17,6 +17,7 @@ pub mod bake;
 pub mod codec;
 pub mod direct;
 pub mod element;
+pub mod emitter;
 pub mod extent;
 pub mod format;
 pub mod formfactor;

@@ -48,8 +48,17 @@ pub struct MaterialInfo {
     pub name: String,
     pub base_color_factor: [f32; 3],
     pub has_base_color_texture: bool,
+    /// Emissive factor × strength.
     pub emission: [f32; 3],
+    /// `KHR_materials_emissive_strength` (1 without it): `emission` over it is glTF's
+    /// `emissiveFactor`, which a session's emissive change keeps when it gives no colour.
+    #[serde(default = "unit_strength")]
+    pub emissive_strength: f32,
     pub double_sided: bool,
+}
+
+fn unit_strength() -> f32 {
+    1.0
 }
 
 /// What the importer read, dropped or could not use. Printed after an import and kept in the

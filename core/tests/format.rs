@@ -195,6 +195,7 @@ fn sample(channels: usize, with_form_factors: bool) -> Baked {
         elements: None,
         near_field: None,
         sky: None,
+        emitters: None,
         model: None,
     }
 }
@@ -397,7 +398,7 @@ fn layout_on_disk_matches_the_documentation() {
     let baked = sample(3, true);
     let b = baked.to_bytes().unwrap();
     assert_eq!(&b[..8], b"BOUNCE\0B");
-    assert_eq!(get_u32(&b, 8), 5);
+    assert_eq!(get_u32(&b, 8), 6);
     assert_eq!(get_u32(&b, 12), 5);
     assert_eq!(get_u64(&b, 16), b.len() as u64);
     let kinds: Vec<&[u8]> = (0..5).map(|i| &b[entry_at(i)..entry_at(i) + 4]).collect();
@@ -653,14 +654,14 @@ fn future_version() {
             FormatError::UnsupportedVersion {
                 found: 7,
                 oldest: 1,
-                supported: 5
+                supported: 6
             }
         ),
         "{err:?}"
     );
     assert_eq!(
         err.to_string(),
-        "unsupported format version 7 (this build reads versions 1 to 5); bake the scene again \
+        "unsupported format version 7 (this build reads versions 1 to 6); bake the scene again \
          with this bounce"
     );
 }
@@ -911,6 +912,58 @@ fn a_sky_view_round_trips_and_is_checked() {
         for cut in (0..bytes.len()).step_by(29) {
             assert!(Baked::from_bytes(&bytes[..cut]).is_err());
         }
+    }
+}
+
+#[test]
+fn emitters_round_trip_and_are_checked() {
+    use bounce_core::emitter::{EmitterEntry, EmitterGroup, Emitters};
+    let mut b = element_sample();
+    let rows = b.transport_layout().len();
+    let mut row_ptr = vec![0u32; rows + 1];
+    for p in row_ptr.iter_mut().skip(1) {
+        *p = 1;
+    }
+    b.emitters = Some(Emitters {
+        groups: vec![EmitterGroup {
+            name: "Lamp".into(),
+            color: [1.0, 0.5, 0.25],
+            strength: 8.0,
+        }],
+        row_ptr,
+        entries: vec![EmitterEntry {
+            group: 0,
+            weight: [0.5; 3],
+        }],
+    });
+    let bytes = b.to_bytes().expect("emitters encode");
+    assert_eq!(Baked::from_bytes(&bytes).unwrap(), b);
+    // Flagged optional: an older reader skips it and keeps the baked emission.
+    assert_eq!(get_u32(&bytes, entry_at(entry_of(&bytes, b"EMIT")) + 4), 1);
+    let (o, _) = section_of(&bytes, b"EMIT");
+    assert_eq!(get_u32(&bytes, o), 1);
+    assert_eq!(get_u32(&bytes, o + 4), rows as u32);
+    // A count that does not match the rows, and a version-5 file claiming the section.
+    let mut bad = bytes.clone();
+    put_u32(&mut bad, o + 4, rows as u32 + 1);
+    reseal(&mut bad);
+    let e = refuse(&bad);
+    assert!(matches!(e, FormatError::Emitters(_)), "{e:?}");
+    assert!(e.to_string().starts_with("section 'EMIT'"), "{e}");
+    let mut old = bytes.clone();
+    put_u32(&mut old, 8, 5);
+    reseal(&mut old);
+    assert!(
+        refuse(&old)
+            .to_string()
+            .contains("a version-5 file cannot hold emitters")
+    );
+    // The writer refuses weights over other rows, as the reader would.
+    let mut wrong = b.clone();
+    wrong.emitters.as_mut().unwrap().row_ptr.push(1);
+    assert!(wrong.to_bytes().is_err());
+    for cut in (0..bytes.len()).step_by(31) {
+        assert!(Baked::from_bytes(&bytes[..cut]).is_err());
     }
 }
 
@@ -1675,6 +1728,7 @@ fn arb_baked() -> impl Strategy<Value = Baked> {
                 elements: None,
                 near_field: None,
                 sky: None,
+                emitters: None,
                 model: None,
             })
     })

@@ -27,11 +27,13 @@ use std::time::Instant;
 
 use bounce_core::codec::{self, MatrixOp};
 use bounce_core::direct::{
-    DEFAULT_SAMPLES, ShadowScene, ShadowSource, direct_irradiance, direct_with_samples, exitance_b0,
+    DEFAULT_SAMPLES, ShadowScene, ShadowSource, direct_irradiance, direct_with_samples,
+    exitance_b0, exitance_with,
 };
 use bounce_core::element::Elements;
+use bounce_core::emitter::{Emitters, check_names};
 use bounce_core::format::Baked;
-use bounce_core::light::LightSet;
+use bounce_core::light::{LightError, LightSet};
 use bounce_core::nearfield::NearField;
 use bounce_core::patch::PatchLayout;
 use bounce_core::sky::SkyVisibility;
@@ -235,6 +237,7 @@ impl Engine {
             rows: baked.transport_layout().clone(),
             near,
             sky: baked.sky.clone(),
+            emitters: baked.emitters.clone(),
             stored_samples: baked.surface.as_ref().map(|s| s.per_patch),
             elements: baked.elements.clone(),
             direct,
@@ -263,15 +266,23 @@ impl Engine {
     ) -> Result<(Vec<Irradiance>, Timing), EngineError> {
         for (index, set) in lights.iter().enumerate() {
             set.validate()
+                .and_then(|()| match &scene.emitters {
+                    Some(e) => e.resolve(set).map(|_| ()),
+                    None => check_names(None, set),
+                })
                 .map_err(|error| EngineError::Lights { index, error })?;
         }
         let n = scene.rows.len();
         let start = Instant::now();
         let (direct, near) = self.direct(scene, lights, true)?;
-        let b0: Vec<[f32; 3]> = direct
-            .iter()
-            .flat_map(|e| exitance_b0(&scene.rows, e))
-            .collect();
+        let mut b0: Vec<[f32; 3]> = Vec::with_capacity(n * lights.len());
+        for (index, (set, e)) in lights.iter().zip(&direct).enumerate() {
+            b0.extend(
+                scene
+                    .exitance(set, e)
+                    .map_err(|error| EngineError::Lights { index, error })?,
+            );
+        }
         let direct_s = start.elapsed().as_secs_f64();
         let start = Instant::now();
         let mut indirect = vec![[0.0f32; 3]; b0.len()];
@@ -491,6 +502,8 @@ pub struct Scene {
     near: Option<NearRows>,
     /// Each row's view of the sky, when the file has one.
     sky: Option<SkyVisibility>,
+    /// The emissive materials and the rows they cover, when the file lists them.
+    emitters: Option<Emitters>,
     /// Sample points a surface bake stores per row.
     stored_samples: Option<u32>,
     elements: Option<Elements>,
@@ -512,6 +525,32 @@ impl Scene {
     /// before it) a sky adds nothing: bake the scene again.
     pub fn has_sky_view(&self) -> bool {
         self.sky.is_some()
+    }
+
+    /// The emissive materials a light set may change, by name; `None` for a file that lists
+    /// none (a voxel-face bake, or one from before format version 6).
+    pub fn emitter_names(&self) -> Option<Vec<String>> {
+        self.emitters.as_ref().map(Emitters::names)
+    }
+
+    /// `B0 = L_e + ρ ⊙ E_direct` on the rows for one light set, `L_e` as the set's emissive
+    /// changes leave it (`bounce_core::emitter`); refused where a change names no emitter.
+    pub fn exitance(
+        &self,
+        set: &LightSet,
+        direct: &[[f32; 3]],
+    ) -> Result<Vec<[f32; 3]>, LightError> {
+        let changed = match &self.emitters {
+            Some(e) => e.emission(self.rows.patches.iter().map(|p| p.emission), set)?,
+            None => {
+                check_names(None, set)?;
+                None
+            }
+        };
+        Ok(match changed {
+            Some(emission) => exitance_with(&self.rows, &emission, direct),
+            None => exitance_b0(&self.rows, direct),
+        })
     }
 
     /// Relight without the near-field first bounce from now on: how `bounce verify` shows what

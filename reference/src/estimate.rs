@@ -15,11 +15,21 @@
 //! escapes carries nothing, so the sky is counted once; and the first ray from `x` carries
 //! nothing either way, since light straight from the sky to `x` is `x`'s direct light, not
 //! indirect.
+//!
+//! Light that surfaces emit is sampled both ways and the two combined by multiple importance
+//! sampling (Veach's balance heuristic): at `x` and at every vertex whose next bounce the mode
+//! still counts, one point drawn on the emitting triangles (in proportion to their power,
+//! [`EmitterSampler`]) with a shadow ray; and where the path's own next ray meets an emitter,
+//! its emission. Each is weighted by its density over the sum of both, so emission is counted
+//! once. A small emitter (a lamp's shade) is then found by every vertex, not only by the few
+//! paths that hit it, and a point beside a large emitter keeps the cosine sampling that suits it.
+//! Emission is exitance `M` (Lambertian, radiance `M/π`), emitted on a one-sided triangle's
+//! front only.
 
 use bounce_core::meta::Bounces;
 use glam::Vec3;
 
-use crate::lights::{Illumination, Sky, Source};
+use crate::lights::{EmitterSampler, Illumination, Sky, Source};
 use crate::mesh::Mesh;
 use crate::rng::Pcg32;
 
@@ -42,7 +52,8 @@ pub(crate) fn sample(
         Bounces::K(k) => k,
         Bounces::All => MAX_BOUNCES,
     };
-    let mut total = Vec3::ZERO;
+    // Emitted light straight to `x` is its first bounce.
+    let mut total = emitted(mesh, lights, x, n, rng);
     let mut throughput = Vec3::ONE;
     let (mut x, mut n) = (x, n);
     for bounce in 0..max {
@@ -62,11 +73,30 @@ pub(crate) fn sample(
             break;
         };
         let y = origin + dir * hit.t;
+        // Emission met by the path, weighted against the vertex's own sample of the emitters.
+        if let Some(sampler) = &lights.emitters {
+            let m = lights.emission(hit.tri, tri.emission);
+            if m.max_element() > 0.0 {
+                let cos_p = dir.dot(tri.normal).abs();
+                let cos_x = dir.dot(n).max(0.0);
+                let light = sampler.chance(hit.tri) / f64::from(tri.area())
+                    * f64::from(hit.t * hit.t)
+                    / f64::from(cos_p).max(1e-12);
+                let bsdf = f64::from(cos_x) * std::f64::consts::FRAC_1_PI;
+                total += throughput * m * (bsdf / (bsdf + light)) as f32;
+            }
+        } else {
+            total += throughput * lights.emission(hit.tri, tri.emission);
+        }
         let mut e_direct = direct(mesh, &lights.sources, y, facing);
         if let Some(sky) = &lights.sky {
             e_direct += sky_direct(mesh, sky, y, facing, rng);
         }
-        total += throughput * (tri.emission + tri.albedo * e_direct);
+        // Emitted light reflected at `y` reaches `x` in one bounce more than `y`'s direct light.
+        if bounce + 1 < max {
+            e_direct += emitted(mesh, lights, y, facing, rng);
+        }
+        total += throughput * tri.albedo * e_direct;
         throughput *= tri.albedo;
         if matches!(bounces, Bounces::All) && bounce + 1 >= ROULETTE_AFTER {
             let survive = throughput.max_element().min(1.0);
@@ -92,6 +122,65 @@ pub(crate) fn direct(mesh: &Mesh, sources: &[Source], y: Vec3, n: Vec3) -> Vec3 
         .filter(|a| !mesh.occluded(origin, a.dir, a.distance))
         .map(|a| a.irradiance)
         .sum()
+}
+
+/// One estimate of the irradiance at `y` (normal `n`) from the emitting triangles: a point `p`
+/// on them, `M(p)/π · cos θ_y · cos θ_p / r²` over its density, if nothing lies between.
+pub(crate) fn emitted(
+    mesh: &Mesh,
+    lights: &Illumination,
+    y: Vec3,
+    n: Vec3,
+    rng: &mut Pcg32,
+) -> Vec3 {
+    let Some(sampler) = &lights.emitters else {
+        return Vec3::ZERO;
+    };
+    sample_emitter(mesh, lights, sampler, y, n, rng)
+}
+
+fn sample_emitter(
+    mesh: &Mesh,
+    lights: &Illumination,
+    sampler: &EmitterSampler,
+    y: Vec3,
+    n: Vec3,
+    rng: &mut Pcg32,
+) -> Vec3 {
+    let (index, chance) = sampler.pick(rng.next_f32());
+    let tri = &mesh.tris[index as usize];
+    // A uniform point on the triangle.
+    let (u1, u2) = (rng.next_f32().sqrt(), rng.next_f32());
+    let p = tri.p0 + tri.e1 * (u1 * (1.0 - u2)) + tri.e2 * (u1 * u2);
+    let d = p - y;
+    let r2 = d.length_squared();
+    if r2 <= 0.0 || !r2.is_finite() {
+        return Vec3::ZERO;
+    }
+    let dist = r2.sqrt();
+    let w = d / dist;
+    let cos_y = n.dot(w);
+    // The side of the emitter `y` sees: its front, or its back where it is double-sided.
+    let cos_p = match -tri.normal.dot(w) {
+        c if c > 0.0 => c,
+        c if tri.double_sided => -c,
+        _ => 0.0,
+    };
+    if cos_y <= 0.0 || cos_p <= 0.0 {
+        return Vec3::ZERO;
+    }
+    let origin = y + n * mesh.epsilon;
+    // Stop short of the emitter itself.
+    let reach = (p - origin).length() - 2.0 * mesh.epsilon;
+    if reach > 0.0 && mesh.occluded(origin, (p - origin) / (p - origin).length(), reach) {
+        return Vec3::ZERO;
+    }
+    // Densities over the solid angle at `y`: the point's, and cosine sampling's.
+    let light = chance / f64::from(tri.area()) * f64::from(r2) / f64::from(cos_p);
+    let bsdf = f64::from(cos_y) * std::f64::consts::FRAC_1_PI;
+    let m = lights.emission(index, tri.emission);
+    // Radiance M/π times cos θ_y over the density, weighted by light / (light + bsdf).
+    m * (std::f64::consts::FRAC_1_PI * f64::from(cos_y) / (light + bsdf)) as f32
 }
 
 /// One estimate of the sky's irradiance at `y` (normal `n`): `π L(ω)` along one cosine-weighted

@@ -44,6 +44,9 @@ pub enum ReferenceError {
     BadPoint { index: usize, reason: String },
     #[error("--spp must be at least 2 (a standard error needs two samples)")]
     TooFewSamples,
+    /// An emissive change names no emissive material of the scene.
+    #[error("lights[{index}].material: the scene has no emissive material '{material}'")]
+    UnknownEmitter { index: usize, material: String },
 }
 
 /// Where to estimate: a point on a surface and the side it faces.
@@ -83,6 +86,8 @@ impl Default for Options {
 /// The traced scene: build once, estimate many light configurations.
 pub struct Reference {
     mesh: Mesh,
+    /// The scene's materials: names, emission and strength, for emissive changes.
+    materials: Vec<bounce_core::scene::MaterialInfo>,
 }
 
 /// How [`Reference::snap_patches`] placed each point.
@@ -98,6 +103,7 @@ impl Reference {
     pub fn new(scene: &Scene) -> Result<Reference, ReferenceError> {
         Ok(Reference {
             mesh: Mesh::new(scene).ok_or(ReferenceError::EmptyScene)?,
+            materials: scene.materials.clone(),
         })
     }
 
@@ -200,7 +206,7 @@ impl Reference {
                 return Err(bad("normal is zero or not finite"));
             }
         }
-        let sources = Illumination::new(lights);
+        let sources = self.illumination(lights)?;
         Ok(points
             .par_iter()
             .enumerate()
@@ -281,7 +287,7 @@ impl Reference {
                 fallbacks += 1;
             }
         }
-        let sources = Illumination::new(lights);
+        let sources = self.illumination(lights)?;
         let estimates = sets
             .par_iter()
             .enumerate()
@@ -323,6 +329,69 @@ impl Reference {
                 sum.map(|v| v / set.len() as f64)
             })
             .collect()
+    }
+
+    /// The light set's sources, and the triangles' emission where it changes an emissive
+    /// material (the estimate sees them as area lights, met by the paths).
+    fn illumination(&self, lights: &LightSet) -> Result<Illumination, ReferenceError> {
+        let mut out = Illumination::new(lights);
+        let mut changed: Vec<Option<Vec3>> = vec![None; self.materials.len()];
+        for (index, light) in lights.lights.iter().enumerate() {
+            let bounce_core::light::Light::Emissive {
+                material,
+                color,
+                strength,
+                ..
+            } = light
+            else {
+                continue;
+            };
+            let mut found = false;
+            for (m, info) in self.materials.iter().enumerate() {
+                let baked = Vec3::from(info.emission);
+                if info.name != *material || baked.max_element() <= 0.0 {
+                    continue;
+                }
+                let s = if info.emissive_strength > 0.0 {
+                    info.emissive_strength
+                } else {
+                    1.0
+                };
+                let color = color.map_or(baked / s, Vec3::from);
+                changed[m] = Some(color * strength.unwrap_or(s));
+                found = true;
+            }
+            if !found {
+                return Err(ReferenceError::UnknownEmitter {
+                    index,
+                    material: material.clone(),
+                });
+            }
+        }
+        let changes = changed.iter().any(Option::is_some);
+        if changes {
+            out.emission = Some(
+                self.mesh
+                    .tris
+                    .iter()
+                    .map(|t| match changed.get(t.material as usize) {
+                        Some(Some(new)) => {
+                            let baked = Vec3::from(self.materials[t.material as usize].emission);
+                            lights::rescaled_emission(t.emission, baked, *new)
+                        }
+                        _ => t.emission,
+                    })
+                    .collect(),
+            );
+        }
+        out.emitters = lights::EmitterSampler::new(
+            self.mesh.tris.len(),
+            self.mesh.tris.iter().enumerate().map(|(i, t)| {
+                let i = i as u32;
+                (i, t.area(), out.emission(i, t.emission))
+            }),
+        );
+        Ok(out)
     }
 
     fn point(&self, sources: &Illumination, p: &Point, index: u64, options: &Options) -> Estimate {

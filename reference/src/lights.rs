@@ -11,6 +11,12 @@ use glam::Vec3;
 pub(crate) struct Illumination {
     pub sources: Vec<Source>,
     pub sky: Option<Sky>,
+    /// Per mesh triangle, its emission where the set changes an emissive material; `None`
+    /// where it changes none (each triangle's own then holds).
+    pub emission: Option<Vec<Vec3>>,
+    /// The emitting triangles, for next-event estimation towards them; `None` where nothing
+    /// emits (or for direct light alone, which emission is no part of).
+    pub emitters: Option<EmitterSampler>,
 }
 
 impl Illumination {
@@ -18,8 +24,100 @@ impl Illumination {
         Illumination {
             sources: lights.lights.iter().filter_map(Source::new).collect(),
             sky: lights.lights.iter().find_map(Sky::new),
+            emission: None,
+            emitters: None,
         }
     }
+
+    /// What triangle `index` (of the mesh, whose own emission is `own`) emits under this set.
+    #[inline]
+    pub fn emission(&self, index: u32, own: Vec3) -> Vec3 {
+        self.emission
+            .as_ref()
+            .and_then(|e| e.get(index as usize).copied())
+            .unwrap_or(own)
+    }
+}
+
+/// Emitting triangles picked in proportion to their power (area × the sum of their emission's
+/// channels), then a point uniformly on the one picked: the area light a path's vertex samples
+/// for the light that surfaces emit.
+pub(crate) struct EmitterSampler {
+    /// Mesh triangle indices.
+    pub tris: Vec<u32>,
+    /// Running sums of the weights, the last being their total.
+    cdf: Vec<f64>,
+    /// Per mesh triangle, the chance it is picked (0 for one that does not emit).
+    chance: Vec<f64>,
+}
+
+impl EmitterSampler {
+    /// The sampler over the mesh's `count` triangles, of which `tris` (index, area, emission)
+    /// may emit; `None` when none does.
+    pub fn new(
+        count: usize,
+        tris: impl Iterator<Item = (u32, f32, Vec3)>,
+    ) -> Option<EmitterSampler> {
+        let mut out = EmitterSampler {
+            tris: Vec::new(),
+            cdf: Vec::new(),
+            chance: vec![0.0; count],
+        };
+        let mut sum = 0.0f64;
+        let mut weights = Vec::new();
+        for (i, area, e) in tris {
+            let w = f64::from(area) * f64::from(e.x + e.y + e.z);
+            if w > 0.0 && w.is_finite() && (i as usize) < count {
+                sum += w;
+                out.tris.push(i);
+                out.cdf.push(sum);
+                weights.push(w);
+            }
+        }
+        for (&i, w) in out.tris.iter().zip(weights) {
+            out.chance[i as usize] = w / sum;
+        }
+        (!out.tris.is_empty()).then_some(out)
+    }
+
+    /// The chance triangle `index` is picked.
+    pub fn chance(&self, index: u32) -> f64 {
+        self.chance.get(index as usize).copied().unwrap_or(0.0)
+    }
+
+    /// A triangle for `u` in `[0, 1)` and the chance it had.
+    pub fn pick(&self, u: f32) -> (u32, f64) {
+        let total = *self.cdf.last().unwrap_or(&1.0);
+        let target = f64::from(u) * total;
+        let k = self
+            .cdf
+            .partition_point(|&c| c <= target)
+            .min(self.tris.len() - 1);
+        let below = if k == 0 { 0.0 } else { self.cdf[k - 1] };
+        (self.tris[k], (self.cdf[k] - below) / total)
+    }
+}
+
+/// A triangle's emission `own` when its material's (`baked`: emissive factor × strength) becomes
+/// `new`: each channel keeps its share of the material's (the emissive texture's average over
+/// the triangle), a channel the material did not emit in taking the others' mean share.
+pub(crate) fn rescaled_emission(own: Vec3, baked: Vec3, new: Vec3) -> Vec3 {
+    let mut shares = [0.0f32; 3];
+    let (mut sum, mut lit) = (0.0f32, 0);
+    for c in 0..3 {
+        if baked[c] > 0.0 {
+            shares[c] = own[c] / baked[c];
+            sum += shares[c];
+            lit += 1;
+        }
+    }
+    let mean = if lit > 0 { sum / lit as f32 } else { 0.0 };
+    for (c, share) in shares.iter_mut().enumerate() {
+        if baked[c] <= 0.0 {
+            *share = mean;
+        }
+    }
+    (Vec3::from(shares) * new).max(Vec3::ZERO)
 }
 
 /// The sky's radiance by direction: a uniform colour, or order-2 real spherical harmonics in
@@ -144,6 +242,9 @@ impl Source {
             },
             // Not a source a shadow ray can find: [`Sky`].
             Light::Sky { .. } => return None,
+            // Not a light but a change to the triangles' emission, which the mesh carries
+            // (`bounce_core::emitter::apply_to_scene`, applied before the mesh is built).
+            Light::Emissive { .. } => return None,
         };
         let power = match source {
             Source::Sun { irradiance, .. } => irradiance,

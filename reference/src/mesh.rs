@@ -18,6 +18,8 @@ pub(crate) struct Tri {
     pub albedo: Vec3,
     pub emission: Vec3,
     pub double_sided: bool,
+    /// Index into the scene's materials: which emissive changes apply to it.
+    pub material: u32,
 }
 
 impl Boundable for Tri {
@@ -28,6 +30,10 @@ impl Boundable for Tri {
 }
 
 impl Tri {
+    pub fn area(&self) -> f32 {
+        0.5 * self.e1.cross(self.e2).length()
+    }
+
     /// Möller–Trumbore: the distance along the ray if it crosses the triangle (either side) at
     /// `t` in `(t_min, t_max)`.
     #[inline]
@@ -86,6 +92,7 @@ impl Mesh {
                     albedo: t.albedo,
                     emission: t.emission,
                     double_sided: t.double_sided,
+                    material: t.material,
                 })
             })
             .collect();

@@ -64,14 +64,16 @@ fn points() -> Vec<Point> {
 
 /// Closed room, uniform albedo ρ and emitted exitance E, no lights: every surface receives
 /// `E (1 − ρ^k) / (1 − ρ)` with k bounces and `E / (1 − ρ)` with all of them
-/// (docs/design.md §1).
+/// (docs/design.md §1). Emission is sampled on the walls as well as met by the paths (multiple
+/// importance sampling), so even this room is noisy: the check is the mean within four standard
+/// errors, with those errors small.
 #[test]
 fn white_furnace() {
     let (rho, e) = (0.8f64, 2.0f64);
     let reference = Reference::new(&closed_box(rho as f32, e as f32)).unwrap();
     for k in [1, 3, 7] {
         let options = Options {
-            spp: 64,
+            spp: 16_384,
             bounces: Bounces::K(k),
             seed: 5,
         };
@@ -81,13 +83,12 @@ fn white_furnace() {
             .unwrap()
         {
             for c in 0..3 {
-                // Every path sees the same sum in a uniform closed room: no noise, only rounding.
+                let (m, s) = (est.mean[c], est.stderr[c]);
+                assert!(s > 0.0 && s < 0.01 * expected, "k = {k}: {s}");
                 assert!(
-                    (est.mean[c] - expected).abs() < 1e-4 * expected,
-                    "k = {k}: {} against {expected}",
-                    est.mean[c]
+                    (m - expected).abs() < 4.0 * s,
+                    "k = {k}: {m} ± {s} against {expected}"
                 );
-                assert!(est.stderr[c] < 1e-4 * expected);
             }
         }
     }

@@ -336,6 +336,15 @@ impl Hub {
             .ok_or_else(|| ServerError::UnknownScene(name.to_string()))
     }
 
+    /// Refuses lights whose emissive changes name no emissive material of scene `index`, as
+    /// the other light errors are refused: before anything is stored or solved.
+    fn check_emitters(&self, index: usize, lights: &LightSet) -> Result<(), ServerError> {
+        if let Some(info) = self.scene_at(index) {
+            bounce_core::emitter::check_names(info.emitters.as_deref(), lights)?;
+        }
+        Ok(())
+    }
+
     fn scene_at(&self, index: usize) -> Option<Arc<SceneInfo>> {
         self.inner
             .scenes
@@ -485,6 +494,7 @@ impl Hub {
         client: Option<IpAddr>,
     ) -> Result<Arc<Session>, ServerError> {
         let index = self.scene_index(scene)?;
+        self.check_emitters(index, &lights)?;
         // A soft cap (two creations racing may both pass it): what it bounds is memory and the
         // worker's batches, not an exact count.
         let held = self.session_count();
@@ -578,6 +588,7 @@ impl Hub {
         lights: LightSet,
     ) -> Result<LightsVersion, ServerError> {
         let session = self.session(id)?;
+        self.check_emitters(session.scene, &lights)?;
         let (reply, answer) = oneshot::channel();
         match session.offer_write(lights, reply) {
             Offered::Store(lights, replies) => {
@@ -690,6 +701,7 @@ impl Hub {
     /// next for that scene.
     pub async fn relight_once(&self, scene: &str, lights: LightSet) -> Result<Frame, ServerError> {
         let scene = self.scene_index(scene)?;
+        self.check_emitters(scene, &lights)?;
         let (reply, answer) = oneshot::channel();
         self.inner.worker.enqueue_once(OnceJob {
             scene,

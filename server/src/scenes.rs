@@ -27,6 +27,9 @@ pub struct SceneInfo {
     /// Whether the file has each row's view of the sky, without which a session's sky adds
     /// nothing (a file from before format version 5).
     pub sky_view: bool,
+    /// The emissive materials a light set may change, by name; `None` for a file baked before
+    /// emitters were kept (format version 6) or a voxel-face bake.
+    pub emitters: Option<Vec<String>>,
 }
 
 impl SceneInfo {
@@ -49,6 +52,7 @@ impl SceneInfo {
             layout: baked.layout.clone(),
             model,
             sky_view: baked.sky.is_some(),
+            emitters: baked.emitters.as_ref().map(|e| e.names()),
         }
     }
 

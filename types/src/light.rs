@@ -11,6 +11,15 @@
 //! environment given by its 9 order-2 spherical-harmonic radiance coefficients
 //! ([`crate::sh`], world axes). A set holds at most one sky.
 //!
+//! An **emissive** entry changes, for this light set only, the emission of the scene's emissive
+//! surfaces made of one glTF material, named as the file names it:
+//! `{"type": "emissive", "material": "Lamp", "color": [1, 0.2, 0.2], "strength": 40}`. Its
+//! emission becomes `color × strength` (glTF's `emissiveFactor` × `KHR_materials_emissive_strength`);
+//! either may be left out to keep the file's value, so `{"strength": 0}` switches a lamp off and
+//! keeps its colour for later. Whether the scene has such a material is the scene's business
+//! (a baked file lists its emitters): this module checks the values alone. A set changes a
+//! material at most once.
+//!
 //! This module owns the types, their JSON form and their validation ([`LightSet::from_json`],
 //! [`LightSet::validate`]): whatever reaches a light engine has passed these checks. What a light
 //! does to a surface is `bounce_core::direct`'s business.
@@ -27,7 +36,7 @@ pub struct LightSet {
     pub lights: Vec<Light>,
 }
 
-/// One light: punctual, or the sky.
+/// One light: punctual, the sky, or a change to an emissive material.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "type", rename_all = "lowercase", deny_unknown_fields)]
 pub enum Light {
@@ -77,6 +86,20 @@ pub enum Light {
         /// of [`crate::sh`].
         #[serde(default, skip_serializing_if = "Option::is_none")]
         sh: Option<Vec<[f32; 3]>>,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        name: Option<String>,
+    },
+    /// The scene's surfaces of one emissive glTF material, at a new colour or strength (or
+    /// both): their emission becomes `color × strength`, each defaulting to the file's.
+    Emissive {
+        /// The glTF material's name, as the baked file lists it among its emitters.
+        material: String,
+        /// Linear RGB, as glTF's `emissiveFactor`.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        color: Option<[f32; 3]>,
+        /// As `KHR_materials_emissive_strength`'s `emissiveStrength`.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        strength: Option<f32>,
         #[serde(default, skip_serializing_if = "Option::is_none")]
         name: Option<String>,
     },
@@ -197,6 +220,16 @@ impl LightSet {
             light.validate().map_err(|(field, reason)| {
                 LightError::invalid(format!("lights[{i}].{field}"), reason)
             })?;
+            if let Light::Emissive { material, .. } = light
+                && let Some(first) = self.lights[..i]
+                    .iter()
+                    .position(|l| matches!(l, Light::Emissive { material: m, .. } if m == material))
+            {
+                return Err(LightError::invalid(
+                    format!("lights[{i}].material"),
+                    format!("'{material}' is already changed by lights[{first}]"),
+                ));
+            }
             if matches!(light, Light::Sky { .. }) {
                 if let Some(first) = sky {
                     return Err(LightError::invalid(
@@ -208,6 +241,20 @@ impl LightSet {
             }
         }
         Ok(())
+    }
+
+    /// The set's changes to emissive materials: (material name, new colour, new strength), each
+    /// `None` where the file's value stays.
+    pub fn emissive(&self) -> impl Iterator<Item = (&str, Option<[f32; 3]>, Option<f32>)> {
+        self.lights.iter().filter_map(|l| match l {
+            Light::Emissive {
+                material,
+                color,
+                strength,
+                ..
+            } => Some((material.as_str(), *color, *strength)),
+            _ => None,
+        })
     }
 
     /// The set's sky as radiance coefficients ([`Light::sky_sh`]), if it has one.
@@ -239,7 +286,8 @@ impl Light {
             Light::Directional { name, .. }
             | Light::Point { name, .. }
             | Light::Spot { name, .. }
-            | Light::Sky { name, .. } => name,
+            | Light::Sky { name, .. }
+            | Light::Emissive { name, .. } => name,
         };
         if let Some(name) = name
             && name.len() > MAX_NAME_BYTES
@@ -293,6 +341,12 @@ impl Light {
                 check_cones(*inner_cone_angle, *outer_cone_angle)
             }
             Light::Sky { color, sh, .. } => check_sky(color.as_ref(), sh.as_deref()),
+            Light::Emissive {
+                material,
+                color,
+                strength,
+                ..
+            } => check_emissive(material, color.as_ref(), *strength),
         }
     }
 }
@@ -339,6 +393,45 @@ fn check_sky(color: Option<&[f32; 3]>, sh: Option<&[[f32; 3]]>) -> Result<(), Fi
             "color",
             "missing: a sky needs a uniform color [r, g, b] or 9 sh coefficients".to_string(),
         )),
+    }
+}
+
+/// An emissive change names a material and changes something about it.
+fn check_emissive(
+    material: &str,
+    color: Option<&[f32; 3]>,
+    strength: Option<f32>,
+) -> Result<(), FieldError> {
+    if material.is_empty() {
+        return Err((
+            "material",
+            "must name the emissive material to change".into(),
+        ));
+    }
+    if material.len() > MAX_NAME_BYTES {
+        return Err((
+            "material",
+            format!(
+                "{} bytes, more than the {MAX_NAME_BYTES} a name may hold",
+                material.len()
+            ),
+        ));
+    }
+    if color.is_none() && strength.is_none() {
+        return Err((
+            "color",
+            "missing: an emissive change needs a color [r, g, b], a strength, or both".into(),
+        ));
+    }
+    if let Some(c) = color {
+        check_color(c)?;
+    }
+    match strength {
+        Some(s) if !(s.is_finite() && s >= 0.0) => Err((
+            "strength",
+            format!("must be finite and non-negative (got {s})"),
+        )),
+        _ => Ok(()),
     }
 }
 
@@ -754,6 +847,68 @@ mod tests {
         assert_eq!(
             e.to_string(),
             "lights[2]: a light set holds at most one sky, and lights[0] is one"
+        );
+    }
+
+    #[test]
+    fn emissive_changes_read_and_bad_ones_are_refused() {
+        let set = LightSet::from_json(
+            r#"{"lights": [{"type":"emissive","material":"Lamp","strength":0},
+                           {"type":"emissive","material":"Screen","color":[1,0.2,0.2]}]}"#,
+        )
+        .unwrap();
+        let changes: Vec<_> = set.emissive().collect();
+        assert_eq!(
+            changes,
+            vec![
+                ("Lamp", None, Some(0.0)),
+                ("Screen", Some([1.0, 0.2, 0.2]), None)
+            ]
+        );
+        assert_refused(
+            1,
+            r#"{"type":"emissive","material":"Lamp"}"#,
+            "lights[1].color: missing: an emissive change needs a color [r, g, b], a strength, or both",
+        );
+        assert_refused(
+            1,
+            r#"{"type":"emissive","material":"","strength":1}"#,
+            "lights[1].material: must name the emissive material",
+        );
+        assert_refused(
+            0,
+            r#"{"type":"emissive","material":"Lamp","strength":-1}"#,
+            "lights[0].strength: must be finite and non-negative (got -1)",
+        );
+        assert_refused(
+            0,
+            r#"{"type":"emissive","material":"Lamp","color":[1,-1,0]}"#,
+            "lights[0].color: components must be finite and non-negative",
+        );
+        assert_refused(
+            0,
+            r#"{"type":"emissive","strength":1}"#,
+            "lights[0]: missing field `material`",
+        );
+        assert_refused(
+            0,
+            r#"{"type":"emissive","material":"Lamp","strength":1,"intensity":1}"#,
+            "lights[0]: unknown field `intensity`",
+        );
+        let long = "m".repeat(MAX_NAME_BYTES + 1);
+        assert_refused(
+            2,
+            &serde_json::json!({"type": "emissive", "material": long, "strength": 1}).to_string(),
+            "lights[2].material: 257 bytes",
+        );
+        let e = LightSet::from_json(
+            r#"{"lights": [{"type":"emissive","material":"Lamp","strength":1},
+                           {"type":"emissive","material":"Lamp","color":[1,0,0]}]}"#,
+        )
+        .unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "lights[1].material: 'Lamp' is already changed by lights[0]"
         );
     }
 

@@ -40,8 +40,13 @@ fn light(l: &proto::Light) -> Result<Light, FieldError> {
     if l.r#type == "sky" {
         return sky(l, name);
     }
+    if l.r#type == "emissive" {
+        return emissive(l, name);
+    }
     if matches!(l.r#type.as_str(), "point" | "directional" | "spot") {
         unused(l.sh.is_empty(), "sh", &l.r#type)?;
+        unused(l.material.is_none(), "material", &l.r#type)?;
+        unused(l.strength.is_none(), "strength", &l.r#type)?;
     }
     let intensity = l.intensity.ok_or(("intensity", "missing".to_string()))?;
     let color = match l.color.as_slice() {
@@ -84,7 +89,9 @@ fn light(l: &proto::Light) -> Result<Light, FieldError> {
         "" => Err(("type", "missing".to_string())),
         other => Err((
             "type",
-            format!("unknown light type {other:?} (expected point, directional, spot or sky)"),
+            format!(
+                "unknown light type {other:?} (expected point, directional, spot, sky or emissive)"
+            ),
         )),
     }
 }
@@ -114,7 +121,34 @@ fn sky(l: &proto::Light, name: Option<String>) -> Result<Light, FieldError> {
             ));
         }
     };
+    unused(l.material.is_none(), "material", "sky")?;
+    unused(l.strength.is_none(), "strength", "sky")?;
     Ok(Light::Sky { color, sh, name })
+}
+
+/// A change to an emissive material: its name, and a colour, a strength or both (which is
+/// [`LightSet::validate`]'s check).
+fn emissive(l: &proto::Light, name: Option<String>) -> Result<Light, FieldError> {
+    unused(l.position.is_empty(), "position", "emissive")?;
+    unused(l.direction.is_empty(), "direction", "emissive")?;
+    unused(l.intensity.is_none(), "intensity", "emissive")?;
+    unused(l.range.is_none(), "range", "emissive")?;
+    unused(l.sh.is_empty(), "sh", "emissive")?;
+    no_cones(l, "emissive")?;
+    let material = l
+        .material
+        .clone()
+        .ok_or(("material", "missing".to_string()))?;
+    let color = match l.color.as_slice() {
+        [] => None,
+        c => Some(vec3("color", c)?),
+    };
+    Ok(Light::Emissive {
+        material,
+        color,
+        strength: l.strength,
+        name,
+    })
 }
 
 fn vec3(field: &'static str, v: &[f32]) -> Result<[f32; 3], FieldError> {
@@ -131,7 +165,12 @@ fn unused(absent: bool, field: &'static str, kind: &str) -> Result<(), FieldErro
     if absent {
         Ok(())
     } else {
-        Err((field, format!("not used by a {kind} light")))
+        let article = if kind.starts_with(['a', 'e', 'i', 'o', 'u']) {
+            "an"
+        } else {
+            "a"
+        };
+        Err((field, format!("not used by {article} {kind} light")))
     }
 }
 
@@ -200,6 +239,19 @@ fn light_to_proto(l: &Light) -> proto::Light {
             r#type: "sky".into(),
             color: color.map(|c| c.to_vec()).unwrap_or_default(),
             sh: sh.iter().flatten().flatten().copied().collect(),
+            name: name.clone(),
+            ..Default::default()
+        },
+        Light::Emissive {
+            material,
+            color,
+            strength,
+            name,
+        } => proto::Light {
+            r#type: "emissive".into(),
+            material: Some(material.clone()),
+            color: color.map(|c| c.to_vec()).unwrap_or_default(),
+            strength: *strength,
             name: name.clone(),
             ..Default::default()
         },
@@ -312,6 +364,52 @@ mod tests {
                 .to_string()
                 .contains("at most one sky")
         );
+    }
+
+    fn emissive(material: Option<&str>, color: Vec<f32>, strength: Option<f32>) -> proto::Light {
+        proto::Light {
+            r#type: "emissive".into(),
+            material: material.map(str::to_owned),
+            color,
+            strength,
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn an_emissive_change_converts_like_its_json_and_back() {
+        let json = r#"{"lights": [{"type": "point", "position": [0, 1.5, 0], "intensity": 10},
+            {"type": "emissive", "material": "Lamp", "strength": 0},
+            {"type": "emissive", "material": "Screen", "color": [1, 0.2, 0.2], "strength": 3}]}"#;
+        let want = LightSet::from_json(json).unwrap();
+        let got = light_set(&[
+            point(),
+            emissive(Some("Lamp"), vec![], Some(0.0)),
+            emissive(Some("Screen"), vec![1.0, 0.2, 0.2], Some(3.0)),
+        ])
+        .unwrap();
+        assert_eq!(got, want);
+        assert_eq!(light_set(&to_proto(&got)).unwrap(), got);
+        assert_eq!(
+            refused(emissive(None, vec![], Some(1.0))),
+            "lights[1].material: missing"
+        );
+        assert!(
+            refused(emissive(Some("Lamp"), vec![], None))
+                .starts_with("lights[1].color: missing: an emissive change needs")
+        );
+        let mut l = emissive(Some("Lamp"), vec![], Some(1.0));
+        l.intensity = Some(2.0);
+        assert_eq!(
+            refused(l),
+            "lights[1].intensity: not used by an emissive light"
+        );
+        let mut l = point();
+        l.material = Some("Lamp".into());
+        assert_eq!(refused(l), "lights[1].material: not used by a point light");
+        let mut l = sky(vec![1.0; 3], vec![]);
+        l.strength = Some(1.0);
+        assert_eq!(refused(l), "lights[1].strength: not used by a sky light");
     }
 
     #[test]

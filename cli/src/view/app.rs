@@ -316,7 +316,7 @@ impl App {
             bounce_core::light::Light::Directional { direction, .. } => {
                 *direction = (turn * Vec3::from_array(*direction)).to_array();
             }
-            bounce_core::light::Light::Sky { .. } => {}
+            bounce_core::light::Light::Sky { .. } | bounce_core::light::Light::Emissive { .. } => {}
         });
         self.moves_done += 1;
         self.frames_since_move = 0;

@@ -15,8 +15,8 @@ pub fn nudge(light: &mut Light, delta: Vec3, scene_radius: f32) {
             let turned = (d + delta / scene_radius.max(1e-6)).normalize_or(d);
             *direction = turned.to_array();
         }
-        // Light from everywhere: nothing to move.
-        Light::Sky { .. } => {}
+        // Light from everywhere, or a material's surfaces: nothing to move.
+        Light::Sky { .. } | Light::Emissive { .. } => {}
     }
 }
 
@@ -31,6 +31,15 @@ pub fn scale(light: &mut Light, factor: f32) {
                 *c = c.map(|v| v * factor);
             }
         }
+        // A change names a strength, a colour or both (the light set's check): the strength
+        // where it has one, else the colour.
+        Light::Emissive {
+            color, strength, ..
+        } => match (strength, color) {
+            (Some(s), _) => *s *= factor,
+            (None, Some(c)) => *c = c.map(|v| v * factor),
+            (None, None) => {}
+        },
     }
 }
 
@@ -57,6 +66,21 @@ pub fn describe(light: &Light) -> String {
             color: Some(color), ..
         } => format!("sky {}", v(color)),
         Light::Sky { .. } => "sky (SH environment)".to_string(),
+        Light::Emissive {
+            material,
+            color,
+            strength,
+            ..
+        } => {
+            let mut out = format!("emissive '{material}'");
+            if let Some(c) = color {
+                out += &format!(" colour {}", v(c));
+            }
+            if let Some(s) = strength {
+                out += &format!(" strength {s:.3}");
+            }
+            out
+        }
     }
 }
 

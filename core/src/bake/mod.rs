@@ -13,6 +13,7 @@ use thiserror::Error;
 
 use crate::codec::error::{irradiance_errors, probe_light_sets};
 use crate::codec::{self, CodecError};
+use crate::emitter::Emitters;
 use crate::format::Baked;
 use crate::formfactor::{self, FormFactorError, FormFactorStats, RayScene, RowTracer};
 use crate::import::{self, ImportError};
@@ -339,6 +340,8 @@ pub(crate) struct Prepared {
     pub surface: Option<SurfaceData>,
     /// The tracer recorded in the settings: the BVH over triangles for surface geometry.
     pub tracer: Tracer,
+    /// The emissive materials and the rows they cover (surface geometry).
+    pub emitters: Option<Emitters>,
 }
 
 pub(crate) fn prepare(
@@ -362,12 +365,14 @@ pub(crate) fn prepare(
                 per_patch: options.direct_samples,
                 points: surface::sample_points(pieces, options.direct_samples, options.seed),
             };
+            let emitters = Emitters::of_pieces(scene, pieces);
             let rays = SurfaceScene::new(scene, mesh, vox.transport_layout(), pieces);
             Ok(Prepared {
                 vox,
                 rays: Rows::Surface(Box::new(rays)),
                 surface: Some(surface),
                 tracer: Tracer::Bvh,
+                emitters: Some(emitters),
             })
         }
         _ => {
@@ -380,6 +385,7 @@ pub(crate) fn prepare(
                 rays: Rows::Voxels(Box::new(rays)),
                 surface: None,
                 tracer,
+                emitters: None,
             })
         }
     }
@@ -603,6 +609,7 @@ fn bake_with(
         rays,
         surface,
         tracer,
+        emitters,
     } = prepare(scene, options, &mut timer)?;
     let rows = vox.transport_layout();
     let n = rows.len();
@@ -659,6 +666,7 @@ fn bake_with(
         surface,
         near_field,
         sky: Some(sky),
+        emitters,
         // The caller decides whether the file keeps the scene ([`crate::import::pack_glb`]).
         model: None,
     })

@@ -159,6 +159,7 @@ pub fn form_factor_shard(
         rays,
         surface,
         tracer,
+        emitters,
     } = bake::prepare(&scene, options, &mut timer)?;
     drop(scene);
     let n = vox.transport_layout().len();
@@ -209,6 +210,7 @@ pub fn form_factor_shard(
             layout: vox.layout,
             occupancy: vox.occupied,
             surface,
+            emitters,
         },
         rows: f_rows,
         form_factor_rows: None,
@@ -293,6 +295,7 @@ pub fn transport_shard(
             occupancy: first.occupancy,
             surface: first.surface,
             elements: first.elements,
+            emitters: first.emitters,
         },
         rows: t_rows,
         form_factor_rows,
@@ -396,6 +399,7 @@ pub fn merge(inputs: &[PathBuf], progress: &dyn Progress) -> Result<Baked, Shard
         form_factors,
         near_field,
         sky: Some(sky),
+        emitters: first.emitters,
         occupancy: first.surface.is_none().then_some(first.occupancy),
         surface: first.surface,
         elements: first.elements,
@@ -564,6 +568,7 @@ fn difference(a: &ShardHeader, b: &ShardHeader) -> Option<&'static str> {
         || x.dropped_patches != y.dropped_patches
         || a.surface != b.surface
         || a.elements != b.elements
+        || a.emitters != b.emitters
     {
         Some("voxelisations")
     } else if x.channels != y.channels {

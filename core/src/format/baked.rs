@@ -43,6 +43,10 @@
 //! spherical-harmonic coefficients a row; `super::sky` has its layout. Files without it (every
 //! older one) read, with no sky view: a sky lights nothing in them.
 //!
+//! `EMIT` (version 6, flagged [`SECTION_OPTIONAL`], surface geometry): the scene's emissive
+//! materials and each transport row's weights of them ([`crate::emitter`]); `super::emit` has its
+//! layout. Files without it keep their baked emission, which no light set can change.
+//!
 //! `MODL` (flagged [`SECTION_OPTIONAL`]): the scene the file was baked from, packed into one
 //! self-contained GLB 2.0 file ([`crate::import::pack_glb`]): every buffer and image inside its
 //! BIN chunk, the glTF JSON otherwise as the source had it. The section is exactly the GLB's
@@ -65,8 +69,10 @@ use super::container::{
     self, Assembled, Container, FieldReader, FileBytes, FileSummary, SECTION_ALIGN,
     SECTION_OPTIONAL, Section, SectionKind,
 };
+use super::emit::{decode_emitters, encode_emitters};
 use super::near::{decode_near, encode_near};
 use super::sky::{decode_sky, encode_sky};
+use crate::emitter::Emitters;
 use crate::sky::SkyVisibility;
 
 /// Bytes of the `LAYT` fields before the patch records.
@@ -112,6 +118,9 @@ pub struct Baked {
     /// Each transport row's view of the sky (the `SKYV` section), from the form-factor rays
     /// that escaped; absent in files from before it, where a sky adds nothing.
     pub sky: Option<SkyVisibility>,
+    /// The emissive materials and the rows they cover (the `EMIT` section; surface geometry),
+    /// so a light set can change them; absent in older files and voxel-face bakes.
+    pub emitters: Option<Emitters>,
     /// The scene baked, as one self-contained GLB (the `MODL` section): what a viewer draws.
     /// Absent in files baked without it (`bounce bake --no-model`, or an older bounce).
     pub model: Option<Vec<u8>>,
@@ -183,6 +192,13 @@ impl Baked {
                 pieces: vec![Cow::Owned(encode_sky(SectionKind::SKYV, sky, n)?)],
             });
         }
+        if let Some(emitters) = &self.emitters {
+            sections.push(Section {
+                kind: SectionKind::EMIT,
+                flags: SECTION_OPTIONAL,
+                pieces: vec![Cow::Owned(encode_emitters(SectionKind::EMIT, emitters, n)?)],
+            });
+        }
         if let Some(model) = &self.model {
             sections.push(model_section(model)?);
         }
@@ -205,6 +221,7 @@ impl Baked {
                 SectionKind::ELEM,
                 SectionKind::NEAR,
                 SectionKind::SKYV,
+                SectionKind::EMIT,
             ]
             .contains(&e.kind);
             if !known && !e.is_optional() {
@@ -286,6 +303,16 @@ impl Baked {
             }
             Some(e) => Some(decode_sky(SectionKind::SKYV, c.section(e)?, n)?),
         };
+        let emitters = match c.entry(SectionKind::EMIT) {
+            None => None,
+            Some(_) if c.header.format_version < 6 => {
+                return Err(FormatError::Emitters(format!(
+                    "a version-{} file cannot hold emitters",
+                    c.header.format_version
+                )));
+            }
+            Some(e) => Some(decode_emitters(SectionKind::EMIT, c.section(e)?, n)?),
+        };
         let model = match c.entry(SectionKind::MODL) {
             Some(e) => {
                 let bytes = c.section(e)?;
@@ -304,6 +331,7 @@ impl Baked {
             elements,
             near_field,
             sky,
+            emitters,
             model,
         })
     }

@@ -98,6 +98,7 @@ impl SectionKind {
     pub const ELEM: SectionKind = SectionKind(*b"ELEM");
     pub const NEAR: SectionKind = SectionKind(*b"NEAR");
     pub const SKYV: SectionKind = SectionKind(*b"SKYV");
+    pub const EMIT: SectionKind = SectionKind(*b"EMIT");
 }
 
 impl fmt::Display for SectionKind {

@@ -24,6 +24,7 @@
 
 mod baked;
 mod container;
+mod emit;
 mod near;
 mod shard;
 mod shard_meta;
@@ -52,15 +53,18 @@ pub use sky::SKY_HEADER_LEN;
 /// Version 4 added the near-field first bounce (the `NEAR` section), which changes what a relight
 /// computes, so an older reader must refuse the file rather than skip the section. Version 5
 /// added each row's view of the sky (the `SKYV` section, flagged optional): a file without it
-/// (any older one) reads, and a sky then adds nothing to it.
-pub const FORMAT_VERSION: u32 = 5;
+/// (any older one) reads, and a sky then adds nothing to it. Version 6 added the emissive
+/// materials and the rows they cover (the `EMIT` section, flagged optional): a file without it
+/// keeps its baked emission, and a light set cannot change it.
+pub const FORMAT_VERSION: u32 = 6;
 /// The oldest version this build reads: a version-1 file is a voxel-face bake and is relit as
 /// one.
 pub const OLDEST_FORMAT_VERSION: u32 = 1;
 /// The bake-shard version this build writes, and the only one it reads. Shards are
 /// intermediate files of one bake, written and read by the same release, so there is no reason
-/// to read older ones. Version 5 added each shard's rows of the sky view (`SROW`).
-pub const SHARD_FORMAT_VERSION: u32 = 5;
+/// to read older ones. Version 5 added each shard's rows of the sky view (`SROW`), version 6 the
+/// emitters (`SEMT`).
+pub const SHARD_FORMAT_VERSION: u32 = 6;
 
 /// Everything that can go wrong reading or writing a baked file.
 ///
@@ -110,6 +114,9 @@ pub enum FormatError {
     /// The sky view (`SKYV`, or a shard's `SROW`); the message names the section.
     #[error("{0}")]
     Sky(String),
+    /// The emitters (`EMIT`, or a shard's `SEMT`); the message names the section.
+    #[error("{0}")]
+    Emitters(String),
     #[error("file truncated: {what} ends at byte {end} but the file has {len} bytes")]
     Truncated { what: String, end: u64, len: u64 },
     #[error("file truncated: its header says it has {declared} bytes but it has {actual}")]

@@ -24,6 +24,8 @@
 //! - `SROW`: the shard's rows of the sky view, laid out as a baked file's `SKYV` over the
 //!   shard's rows. Phase 1 traces them with its rows of `F`, phase 2 carries its own rows, the
 //!   merge joins them.
+//! - `SEMT` (surface geometry): the bake's emitters, laid out as a baked file's `EMIT` over all
+//!   rows: every shard computes them from the same layout, and the merge takes the first's.
 //! - `MODL` (flagged optional, when the bake keeps the model): the scene as one GLB, as in a
 //!   baked file. Phase 1 packs it, phase 2 passes it on, the merge puts it in the baked file.
 //!
@@ -35,6 +37,7 @@ use std::borrow::Cow;
 use std::path::Path;
 
 use crate::element::Elements;
+use crate::emitter::Emitters;
 use crate::patch::PatchLayout;
 
 use super::FormatError;
@@ -46,6 +49,7 @@ use super::container::{
     self, Assembled, Container, FieldReader, FileBytes, Flavour, SECTION_ALIGN, SECTION_OPTIONAL,
     Section, SectionKind,
 };
+use super::emit::{decode_emitters, encode_emitters};
 use super::near::{decode_near, encode_near};
 use super::shard_meta::{Phase, ShardMeta, shard_rows};
 use super::sky::{decode_sky, encode_sky};
@@ -62,6 +66,7 @@ const ROWS: SectionKind = SectionKind(*b"ROWS");
 const FROW: SectionKind = SectionKind(*b"FROW");
 const NROW: SectionKind = SectionKind(*b"NROW");
 const SROW: SectionKind = SectionKind(*b"SROW");
+const SEMT: SectionKind = SectionKind(*b"SEMT");
 
 /// What a shard says about itself, without its rows: enough to check a set of shards before
 /// any row is read.
@@ -74,6 +79,8 @@ pub struct ShardHeader {
     pub surface: Option<SurfaceData>,
     /// The transport elements, when they are not the patches.
     pub elements: Option<Elements>,
+    /// The emissive materials and every transport row's weights of them (surface geometry).
+    pub emitters: Option<Emitters>,
 }
 
 impl ShardHeader {
@@ -149,6 +156,15 @@ impl ShardFile {
             sections.push(owned(
                 SectionKind::SURF,
                 encode_surface(surface, h.transport_layout())?,
+            ));
+        }
+        if let Some(emitters) = &h.emitters {
+            if h.meta.settings.geometry != Geometry::Surface {
+                return Err(bad("a voxel-face bake's shard holds emitters"));
+            }
+            sections.push(owned(
+                SEMT,
+                encode_emitters(SEMT, emitters, h.meta.patches)?,
             ));
         }
         match (&self.near_rows, &h.surface, wants_near_rows(&h.meta)) {
@@ -260,6 +276,7 @@ impl ShardHeader {
             SectionKind::OCCU,
             SectionKind::SURF,
             SectionKind::ELEM,
+            SEMT,
         ] {
             if let Some(e) = c.entry(kind)
                 && !c.section_crc_ok(e)?
@@ -308,6 +325,7 @@ fn header_from(c: &Container<'_>) -> Result<ShardHeader, FormatError> {
             FROW,
             NROW,
             SROW,
+            SEMT,
         ]
         .contains(&e.kind);
         if e.kind == SectionKind::MODL {
@@ -353,12 +371,20 @@ fn header_from(c: &Container<'_>) -> Result<ShardHeader, FormatError> {
             return Err(bad("a voxel-face bake's shard holds surface geometry"));
         }
     };
+    let emitters = match (c.entry(SEMT), meta.settings.geometry) {
+        (Some(e), Geometry::Surface) => Some(decode_emitters(SEMT, c.section(e)?, rows.len())?),
+        (Some(_), Geometry::VoxelFaces) => {
+            return Err(bad("a voxel-face bake's shard holds emitters"));
+        }
+        (None, _) => None,
+    };
     Ok(ShardHeader {
         meta,
         layout,
         occupancy,
         surface,
         elements,
+        emitters,
     })
 }
 

@@ -78,6 +78,7 @@ impl Materials {
                 base_color_factor: [r, g, b],
                 has_base_color_texture: base.is_some(),
                 emission: emission.into(),
+                emissive_strength: strength,
                 double_sided: m.double_sided(),
             });
             entries.push(Entry {
@@ -112,6 +113,7 @@ impl Materials {
                 base_color_factor: [1.0; 3],
                 has_base_color_texture: false,
                 emission: [0.0; 3],
+                emissive_strength: 1.0,
                 double_sided: false,
             });
             self.entries.push(Entry {

@@ -7,6 +7,7 @@ mod codec;
 mod codec_bc;
 mod codec_transform;
 mod direct;
+mod emitter;
 mod formfactor;
 mod furnace;
 mod import;

@@ -82,6 +82,11 @@ fn assert_same_bake(one: &Baked, merged: &Baked, what: &str) {
     assert_eq!(one.near_field, merged.near_field, "{what}: near field");
     assert!(one.sky.is_some(), "{what}: the bake keeps a sky view");
     assert_eq!(one.sky, merged.sky, "{what}: sky view");
+    assert!(
+        one.emitters.is_some(),
+        "{what}: the bake lists its emitters"
+    );
+    assert_eq!(one.emitters, merged.emitters, "{what}: emitters");
     let stages =
         |b: &Baked| -> Vec<String> { b.meta.timings.iter().map(|t| t.stage.clone()).collect() };
     assert!(
@@ -137,6 +142,22 @@ fn sharded_bakes_equal_the_one_process_bake() {
     let ff = phase1(&scene, &options(), 2, &dir.path().join("direct"));
     let merged = shard::merge(&ff, &NoProgress).unwrap();
     assert_same_bake(&one, &merged, "merge of phase-1 shards");
+}
+
+#[test]
+fn an_emissive_scene_shards_with_its_emitters() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/cornell-box-emissive/CornellBox.glb");
+    let one = bake_one(&scene, &options());
+    assert!(
+        one.emitters.as_ref().is_some_and(|e| !e.entries.is_empty()),
+        "the ceiling lamp covers rows"
+    );
+    let ff = phase1(&scene, &options(), 2, &dir.path().join("ff"));
+    let t = phase2(&ff, 3, &dir.path().join("t"));
+    let merged = shard::merge(&t, &NoProgress).unwrap();
+    assert_same_bake(&one, &merged, "the emissive box");
 }
 
 #[test]

@@ -1,6 +1,7 @@
 //! bounce-engine's integration tests, in one binary (one link, one shared GPU adapter).
 
 mod common;
+mod emissive;
 mod gpu;
 mod gpu_direct;
 mod gpu_direct_surface;

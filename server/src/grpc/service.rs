@@ -97,6 +97,7 @@ impl Bounce for BounceService {
                 patch_count: u32::try_from(s.layout.len()).unwrap_or(u32::MAX),
                 codec: s.codec.clone(),
                 sky_view: s.sky_view,
+                emitters: s.emitters.clone().unwrap_or_default(),
             })
             .collect();
         Ok(Response::new(proto::ListScenesResponse {

@@ -7,7 +7,7 @@
 //! | `GET /healthz` | 200 `ok` while the process serves |
 //! | `GET /readyz` | 200 when the hub is ready, 503 once it shuts down |
 //! | `GET /metrics` | the Prometheus text exposition |
-//! | `GET /v1/scenes` | `{"engine", "writes_need_token", "scenes": [{"name", "patch_count", "codec", "has_model", "fallback", "sky_view"}]}` (`fallback`: why a GPU engine runs part of the scene on the CPU, else null; `sky_view`: false for a file baked before the sky view, where a sky adds nothing) |
+//! | `GET /v1/scenes` | `{"engine", "writes_need_token", "scenes": [{"name", "patch_count", "codec", "has_model", "fallback", "sky_view", "emitters"}]}` (`fallback`: why a GPU engine runs part of the scene on the CPU, else null; `sky_view`: false for a file baked before the sky view, where a sky adds nothing; `emitters`: the emissive materials a light set may change) |
 //! | `GET /v1/scenes/{name}/layout` | the proto `Layout`'s fields as JSON |
 //! | `GET /v1/scenes/{name}/model` | the scene's model, one GLB (`model/gltf-binary`); 404 when it has none |
 //! | `GET /v1/sessions?scene=NAME&limit=N` | `{"sessions": [{"session_id", "scene", "lights_version", "viewers"}]}`, newest first |

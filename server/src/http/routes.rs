@@ -67,6 +67,9 @@ pub(super) struct SceneEntry {
     fallback: Option<String>,
     /// Whether a sky lights the scene: false for a file baked before the sky view (bake again).
     sky_view: bool,
+    /// The emissive materials a light set may change (`{"type": "emissive", "material": ...}`);
+    /// empty for a scene without any or a file baked before them (bake again).
+    emitters: Vec<String>,
 }
 
 pub(super) async fn list_scenes(State(state): State<AppState>) -> Json<SceneList> {
@@ -81,6 +84,7 @@ pub(super) async fn list_scenes(State(state): State<AppState>) -> Json<SceneList
             has_model: s.model.is_some(),
             fallback: state.hub.scene_fallback(&s.name),
             sky_view: s.sky_view,
+            emitters: s.emitters.clone().unwrap_or_default(),
         })
         .collect();
     Json(SceneList {

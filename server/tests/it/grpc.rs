@@ -233,6 +233,38 @@ async fn bad_input_is_refused_naming_the_field_and_the_server_keeps_serving() {
         Code::InvalidArgument,
         "lights[0].intensity",
     );
+    // An emissive change this scene has no material for, on every way lights arrive: refused
+    // before anything is stored or solved, naming what the scene has (the box emits nothing).
+    let lamp = PbLight {
+        r#type: "emissive".into(),
+        material: Some("Lamp".into()),
+        strength: Some(2.0),
+        ..Default::default()
+    };
+    let none = "lights[1].material: the scene has no emissive material 'Lamp' (it has none)";
+    assert_status(
+        c.set_lights(set(vec![point(1.0), lamp.clone()])).await,
+        Code::InvalidArgument,
+        none,
+    );
+    assert_status(
+        c.create_session(proto::CreateSessionRequest {
+            scene: SCENE.into(),
+            lights: vec![point(1.0), lamp.clone()],
+        })
+        .await,
+        Code::InvalidArgument,
+        none,
+    );
+    assert_status(
+        c.relight_once(proto::RelightOnceRequest {
+            scene: SCENE.into(),
+            lights: vec![point(1.0), lamp],
+        })
+        .await,
+        Code::InvalidArgument,
+        none,
+    );
     // Unknown names.
     assert_status(
         c.create_session(proto::CreateSessionRequest {

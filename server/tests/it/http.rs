@@ -102,12 +102,17 @@ async fn scenes_and_layout_match_grpc() {
         .scenes
         .iter()
         // `has_model` is HTTP's alone: the browser page is its client.
-        .map(|s| json!({"name": s.name, "patch_count": s.patch_count, "codec": s.codec, "has_model": true, "fallback": null, "sky_view": s.sky_view}))
+        .map(|s| json!({"name": s.name, "patch_count": s.patch_count, "codec": s.codec, "has_model": true, "fallback": null, "sky_view": s.sky_view, "emitters": s.emitters}))
         .collect();
     assert_eq!(scenes["scenes"], Value::Array(want));
     assert_eq!(
         scenes["scenes"][0]["sky_view"], true,
         "a new bake has a sky view"
+    );
+    assert_eq!(
+        scenes["scenes"][0]["emitters"],
+        json!([]),
+        "a new bake lists its emitters: the box has none"
     );
     assert_eq!(scenes["writes_need_token"], false);
 

@@ -49,6 +49,24 @@ export function buildLights(group, set, bounds) {
   }
 }
 
+// The scene's emissive materials as `set`'s emissive changes leave them: a change names a glTF
+// material and gives a new emissive factor (`color`), a new strength, or both; a material no
+// change names keeps the file's. `materials` holds {material, name, factor: [r, g, b], strength}
+// per converted emissive material. Emission is drawn as convertMaterial draws the file's: factor
+// × strength / π.
+export function applyEmissive(materials, set) {
+  const changes = new Map();
+  for (const l of set.lights) {
+    if (l.type === 'emissive') changes.set(l.material, l);
+  }
+  for (const e of materials) {
+    const change = changes.get(e.name);
+    const factor = change?.color ?? e.factor;
+    const strength = change?.strength ?? e.strength;
+    e.material.emissive.setRGB(factor[0], factor[1], factor[2]).multiplyScalar(strength / Math.PI);
+  }
+}
+
 function removeLight(group, light) {
   group.remove(light);
   if (light.target) group.remove(light.target);
@@ -124,6 +142,8 @@ export class Markers {
       child.material.dispose();
     }
     set.lights.forEach((l, index) => {
+      // A sky and an emissive change have no place to mark.
+      if (l.type !== 'directional' && !l.position) return;
       const m = new Mesh(this.geometry, new MeshBasicMaterial({ toneMapped: false }));
       const c = l.color ?? [1, 1, 1];
       const peak = Math.max(c[0], c[1], c[2], 1e-6);
@@ -173,7 +193,16 @@ export function moveLight(l, p, bounds) {
 }
 
 export function scaleLight(l, factor) {
-  l.intensity = Math.min(Math.max(l.intensity * factor, 0), 1e9);
+  const scale = (v) => Math.min(Math.max(v * factor, 0), 1e9);
+  if (l.type === 'emissive') {
+    // A change gives a strength, a colour or both (the server checks): the strength if it can.
+    if (l.strength !== undefined) l.strength = scale(l.strength);
+    else if (l.color) l.color = l.color.map(scale);
+  } else if (l.type === 'sky') {
+    if (l.color) l.color = l.color.map(scale);
+  } else {
+    l.intensity = scale(l.intensity);
+  }
 }
 
 // A light for a scene that has none of its own: a point light near the top of the middle,

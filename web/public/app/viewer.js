@@ -20,7 +20,16 @@ import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
 
 import { ApiError, getSession, layoutOf, listScenes, modelUrl, putLights } from './api.js';
 import { Connection } from './connection.js';
-import { Bounds, Markers, buildLights, defaultLights, markerPosition, moveLight, scaleLight } from './lights.js';
+import {
+  Bounds,
+  Markers,
+  applyEmissive,
+  buildLights,
+  defaultLights,
+  markerPosition,
+  moveLight,
+  scaleLight,
+} from './lights.js';
 import { Overlay } from './overlay.js';
 import {
   bindVolume,
@@ -178,6 +187,18 @@ export class Viewer {
       o.customDepthMaterial = shadowDepth.depth;
       o.customDistanceMaterial = shadowDepth.distance;
     });
+    // The emissive materials, by glTF name, with the file's factor and strength: what a
+    // session's emissive changes replace (applyEmissive).
+    this.emissive = [];
+    for (const [source, material] of converted) {
+      if (!source.emissive || source.emissive.getHex() === 0) continue;
+      this.emissive.push({
+        material,
+        name: source.name,
+        factor: source.emissive.toArray(),
+        strength: source.emissiveIntensity ?? 1,
+      });
+    }
     this.scene.add(model);
     model.updateMatrixWorld(true);
     this.bounds = new Bounds(new Box3().setFromObject(model));
@@ -333,6 +354,7 @@ export class Viewer {
 
   rebuildLights() {
     buildLights(this.lightGroup, this.lights, this.bounds);
+    applyEmissive(this.emissive ?? [], this.lights);
     this.markers.selected = this.selected;
     this.markers.update(this.lights);
   }

@@ -1,0 +1,447 @@
+//! Emissive surfaces as run-time lights: which transport rows each emissive glTF material
+//! covers, so a session can change a material's colour and strength and the change enters `B0`
+//! (docs/design.md §1: `B0 = L_e + ρ ⊙ E_direct`) on exactly the rows it covers.
+//!
+//! A row's baked emission is the area-weighted mean of its pieces' triangles' emission, and a
+//! triangle's emission is its material's `F = emissiveFactor × strength` times the emissive
+//! texture averaged over the triangle (`t`, per channel; 1 without a texture). So per row `r`
+//! and emissive material `g` the bake keeps the weight
+//!
+//! ```text
+//! w_rg = Σ_{pieces of r made of g} area · t  /  Σ_{pieces of r} area
+//! ```
+//!
+//! and `L_e,r = Σ_g w_rg ⊙ F_g` (plus nothing: a row's other pieces do not emit). A light set
+//! that sets `g` to `F'_g` changes the row to `L_e,r + Σ_g w_rg ⊙ (F'_g − F_g)`: linear in the
+//! change, exact for the rows' means, and zero work for rows no emitter covers. Where `F_g` has a
+//! zero channel the texture's share of that channel is unknown (glTF multiplies it away), and
+//! the other channels' mean stands for it: exact for untextured emitters, whose `t` is 1.
+//!
+//! Groups are materials, not names: two materials of one name are two groups, and a change by
+//! that name changes both. This module owns the weights, their checks and what a light set's
+//! changes make of them; the `EMIT` section's bytes are [`crate::format`]'s, and the light JSON is
+//! `bounce_types::light`'s.
+
+use crate::light::{Light, LightError, LightSet, MAX_NAME_BYTES};
+use glam::{DVec3, Vec3};
+
+use crate::patch::Pieces;
+use crate::scene::Scene;
+
+/// One emissive material of the scene.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EmitterGroup {
+    /// The glTF material's name (`material #i` for an unnamed one, as the importer names it).
+    pub name: String,
+    /// glTF's `emissiveFactor`.
+    pub color: [f32; 3],
+    /// `KHR_materials_emissive_strength` (1 without it).
+    pub strength: f32,
+}
+
+impl EmitterGroup {
+    /// The emission the bake used: `color × strength`.
+    pub fn emission(&self) -> Vec3 {
+        Vec3::from(self.color) * self.strength
+    }
+}
+
+/// One row's share of one group.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EmitterEntry {
+    pub group: u32,
+    /// `w_rg` per channel (module doc).
+    pub weight: [f32; 3],
+}
+
+/// The scene's emissive materials and, per transport row, the weights of those covering it
+/// (compressed rows: row `r` holds `entries[row_ptr[r]..row_ptr[r + 1]]`, groups ascending).
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Emitters {
+    pub groups: Vec<EmitterGroup>,
+    pub row_ptr: Vec<u32>,
+    pub entries: Vec<EmitterEntry>,
+}
+
+/// A triangle's emission over its material's, per channel: the emissive texture's average over
+/// the triangle. A channel the material does not emit in takes the others' mean (module doc).
+fn texture_share(tri_emission: Vec3, material: Vec3) -> DVec3 {
+    let (e, f) = (tri_emission.as_dvec3(), material.as_dvec3());
+    let mut share = [0.0f64; 3];
+    let mut lit = Vec::with_capacity(3);
+    for c in 0..3 {
+        if f[c] > 0.0 {
+            share[c] = (e[c] / f[c]).max(0.0);
+            lit.push(share[c]);
+        }
+    }
+    let mean = if lit.is_empty() {
+        0.0
+    } else {
+        lit.iter().sum::<f64>() / lit.len() as f64
+    };
+    for c in 0..3 {
+        if f[c] <= 0.0 {
+            share[c] = mean;
+        }
+    }
+    DVec3::from(share)
+}
+
+impl Emitters {
+    /// The weights of `scene`'s emissive materials over the rows whose pieces `pieces` holds.
+    /// Only materials that cover some row are groups; a scene without emissive surfaces has
+    /// none, and every row is empty.
+    pub fn of_pieces(scene: &Scene, pieces: &Pieces) -> Emitters {
+        let emissive: Vec<bool> = scene
+            .materials
+            .iter()
+            .map(|m| Vec3::from(m.emission).max_element() > 0.0)
+            .collect();
+        let mut group_of: Vec<Option<u32>> = vec![None; scene.materials.len()];
+        let mut groups = Vec::new();
+        let mut row_ptr = vec![0u32];
+        let mut entries = Vec::new();
+        let mut acc: Vec<(u32, DVec3)> = Vec::new();
+        for r in 0..pieces.patch_count() {
+            acc.clear();
+            let mut total = 0.0f64;
+            for p in pieces.of(r) {
+                let area = f64::from(p.area);
+                total += area;
+                let Some(tri) = scene.triangles.get(p.triangle as usize) else {
+                    continue;
+                };
+                let m = tri.material as usize;
+                if !emissive.get(m).copied().unwrap_or(false) {
+                    continue;
+                }
+                let info = &scene.materials[m];
+                let g = *group_of[m].get_or_insert_with(|| {
+                    let strength = info.emissive_strength;
+                    let color = if strength > 0.0 {
+                        (Vec3::from(info.emission) / strength).to_array()
+                    } else {
+                        info.emission
+                    };
+                    groups.push(EmitterGroup {
+                        name: info.name.clone(),
+                        color,
+                        strength: if strength > 0.0 { strength } else { 1.0 },
+                    });
+                    groups.len() as u32 - 1
+                });
+                let share = texture_share(tri.emission, Vec3::from(info.emission)) * area;
+                match acc.iter_mut().find(|(k, _)| *k == g) {
+                    Some((_, w)) => *w += share,
+                    None => acc.push((g, share)),
+                }
+            }
+            acc.sort_by_key(|&(g, _)| g);
+            if total > 0.0 {
+                for &(group, w) in &acc {
+                    entries.push(EmitterEntry {
+                        group,
+                        weight: (w / total).as_vec3().to_array(),
+                    });
+                }
+            }
+            row_ptr.push(entries.len() as u32);
+        }
+        Emitters {
+            groups,
+            row_ptr,
+            entries,
+        }
+    }
+
+    pub fn rows(&self) -> usize {
+        self.row_ptr.len().saturating_sub(1)
+    }
+
+    /// Row `r`'s entries.
+    pub fn row(&self, r: usize) -> &[EmitterEntry] {
+        &self.entries[self.row_ptr[r] as usize..self.row_ptr[r + 1] as usize]
+    }
+
+    /// Why these weights do not fit a transport of `rows` rows, if they do not: offsets in
+    /// order, groups in range and ascending within a row, weights finite and in `[0, 1]` (a
+    /// share of the row's area, up to rounding), groups named and emitting something.
+    pub fn check(&self, rows: usize) -> Result<(), String> {
+        for (i, g) in self.groups.iter().enumerate() {
+            if g.name.is_empty() || g.name.len() > MAX_NAME_BYTES {
+                return Err(format!("group {i}'s name has {} bytes", g.name.len()));
+            }
+            if !(g.color.iter().all(|c| c.is_finite() && *c >= 0.0)
+                && g.strength.is_finite()
+                && g.strength > 0.0
+                && g.emission().max_element() > 0.0
+                && g.emission().is_finite())
+            {
+                return Err(format!(
+                    "group {i} ('{}') emits nothing usable: color {:?}, strength {}",
+                    g.name, g.color, g.strength
+                ));
+            }
+        }
+        if self.rows() != rows {
+            return Err(format!(
+                "{} rows, but the transport has {rows}",
+                self.rows()
+            ));
+        }
+        if self.row_ptr.first() != Some(&0)
+            || self.row_ptr.last().copied() != Some(self.entries.len() as u32)
+        {
+            return Err(format!(
+                "the row offsets run from {:?} to {:?}, with {} entries",
+                self.row_ptr.first(),
+                self.row_ptr.last(),
+                self.entries.len()
+            ));
+        }
+        if let Some(r) = self.row_ptr.windows(2).position(|w| w[0] > w[1]) {
+            return Err(format!("row {r}'s offsets decrease"));
+        }
+        for r in 0..rows {
+            let row = self.row(r);
+            if let Some(w) = row.windows(2).find(|w| w[0].group >= w[1].group) {
+                return Err(format!(
+                    "row {r}'s groups are not strictly ascending ({} then {})",
+                    w[0].group, w[1].group
+                ));
+            }
+            for e in row {
+                if e.group as usize >= self.groups.len() {
+                    return Err(format!(
+                        "row {r} names group {}, past the {} there are",
+                        e.group,
+                        self.groups.len()
+                    ));
+                }
+                if !e
+                    .weight
+                    .iter()
+                    .all(|w| w.is_finite() && (0.0..=1.0 + 1e-4).contains(w))
+                {
+                    return Err(format!(
+                        "row {r} gives group {} the weight {:?}, not a share of its area",
+                        e.group, e.weight
+                    ));
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// The groups a light set's changes name, each with its new emission, or the first change
+    /// that names no group (the error's path is the light's, `lights[i].material`).
+    pub fn resolve(&self, set: &LightSet) -> Result<Vec<(usize, Vec3)>, LightError> {
+        let mut out = Vec::new();
+        for (i, light) in set.lights.iter().enumerate() {
+            let Light::Emissive {
+                material,
+                color,
+                strength,
+                ..
+            } = light
+            else {
+                continue;
+            };
+            let before = out.len();
+            for (g, group) in self.groups.iter().enumerate() {
+                if group.name == *material {
+                    let color = Vec3::from(color.unwrap_or(group.color));
+                    out.push((g, color * strength.unwrap_or(group.strength)));
+                }
+            }
+            if out.len() == before {
+                return Err(unknown_material(i, material, Some(self)));
+            }
+        }
+        Ok(out)
+    }
+
+    /// Each row's emission under `set`: `baked[r]` (the rows' baked `L_e`) changed by the set's
+    /// emissive changes, or `None` when the set changes nothing (the caller keeps `baked`).
+    /// Kept finite and non-negative, as direct light is.
+    pub fn emission(
+        &self,
+        baked: impl Iterator<Item = [f32; 3]>,
+        set: &LightSet,
+    ) -> Result<Option<Vec<[f32; 3]>>, LightError> {
+        let changes = self.resolve(set)?;
+        if changes.is_empty() {
+            return Ok(None);
+        }
+        let mut delta = vec![Vec3::ZERO; self.groups.len()];
+        for &(g, emission) in &changes {
+            delta[g] = emission - self.groups[g].emission();
+        }
+        Ok(Some(
+            baked
+                .enumerate()
+                .map(|(r, base)| {
+                    let mut e = Vec3::from(base);
+                    if r < self.rows() {
+                        for entry in self.row(r) {
+                            e += Vec3::from(entry.weight) * delta[entry.group as usize];
+                        }
+                    }
+                    e.clamp(Vec3::ZERO, Vec3::splat(f32::MAX)).to_array()
+                })
+                .collect(),
+        ))
+    }
+
+    /// The rows' concatenation (shards of one bake, in row order): the groups are every
+    /// shard's, which must agree.
+    pub fn concat(parts: impl IntoIterator<Item = Emitters>) -> Result<Emitters, String> {
+        let mut out: Option<Emitters> = None;
+        for p in parts {
+            match &mut out {
+                None => out = Some(p),
+                Some(o) => {
+                    if o.groups != p.groups {
+                        return Err("shards list different emissive materials".into());
+                    }
+                    let base = o.entries.len() as u32;
+                    o.row_ptr
+                        .extend(p.row_ptr.iter().skip(1).map(|&x| base + x));
+                    o.entries.extend(p.entries);
+                }
+            }
+        }
+        Ok(out.unwrap_or(Emitters {
+            row_ptr: vec![0],
+            ..Emitters::default()
+        }))
+    }
+}
+
+/// The error for an emissive change naming no emitter of the scene: `emitters` is `None` for a
+/// file that lists none (baked before emitters were kept).
+pub fn unknown_material(index: usize, material: &str, emitters: Option<&Emitters>) -> LightError {
+    let reason = match emitters {
+        None => "this baked file lists no emitters (it predates them: bake it again to change \
+                 emissive surfaces at run time)"
+            .to_string(),
+        Some(e) if e.groups.is_empty() => {
+            format!("the scene has no emissive material '{material}' (it has none)")
+        }
+        Some(e) => {
+            let mut names: Vec<&str> = e.groups.iter().map(|g| g.name.as_str()).collect();
+            names.dedup();
+            format!(
+                "the scene has no emissive material '{material}' (its emitters: {})",
+                names.join(", ")
+            )
+        }
+    };
+    LightError::Invalid {
+        path: format!("lights[{index}].material"),
+        reason,
+    }
+}
+
+impl Emitters {
+    /// The emissive materials' names, each once, in the order of the groups.
+    pub fn names(&self) -> Vec<String> {
+        let mut out: Vec<String> = Vec::with_capacity(self.groups.len());
+        for g in &self.groups {
+            if !out.contains(&g.name) {
+                out.push(g.name.clone());
+            }
+        }
+        out
+    }
+}
+
+/// Checks that every emissive change of `set` names one of a scene's emissive materials,
+/// `names` ([`Emitters::names`]; `None` for a file that lists none), as [`Emitters::resolve`]
+/// would: what a server checks when a session's lights are set, before any relight.
+pub fn check_names(names: Option<&[String]>, set: &LightSet) -> Result<(), LightError> {
+    for (i, light) in set.lights.iter().enumerate() {
+        let Light::Emissive { material, .. } = light else {
+            continue;
+        };
+        match names {
+            Some(names) if names.contains(material) => {}
+            Some(names) => {
+                let listed = Emitters {
+                    groups: names
+                        .iter()
+                        .map(|n| EmitterGroup {
+                            name: n.clone(),
+                            color: [1.0; 3],
+                            strength: 1.0,
+                        })
+                        .collect(),
+                    row_ptr: vec![0],
+                    entries: Vec::new(),
+                };
+                return Err(unknown_material(i, material, Some(&listed)));
+            }
+            None => return Err(unknown_material(i, material, None)),
+        }
+    }
+    Ok(())
+}
+
+/// `scene` with `set`'s emissive changes applied to its triangles, each keeping its texture's
+/// share ([`texture_share`]), as the reference path tracer needs them; refused as
+/// [`Emitters::resolve`] refuses, naming the emissive materials the scene has.
+pub fn apply_to_scene(scene: &mut Scene, set: &LightSet) -> Result<(), LightError> {
+    let mut new: Vec<Option<Vec3>> = vec![None; scene.materials.len()];
+    for (i, light) in set.lights.iter().enumerate() {
+        let Light::Emissive {
+            material,
+            color,
+            strength,
+            ..
+        } = light
+        else {
+            continue;
+        };
+        let mut found = false;
+        for (m, info) in scene.materials.iter().enumerate() {
+            let baked = Vec3::from(info.emission);
+            if info.name == *material && baked.max_element() > 0.0 {
+                let s = if info.emissive_strength > 0.0 {
+                    info.emissive_strength
+                } else {
+                    1.0
+                };
+                let c = color.map_or(baked / s, Vec3::from);
+                new[m] = Some(c * strength.unwrap_or(s));
+                found = true;
+            }
+        }
+        if !found {
+            let groups = scene
+                .materials
+                .iter()
+                .filter(|m| Vec3::from(m.emission).max_element() > 0.0)
+                .map(|m| EmitterGroup {
+                    name: m.name.clone(),
+                    color: m.emission,
+                    strength: 1.0,
+                })
+                .collect();
+            let listed = Emitters {
+                groups,
+                row_ptr: vec![0],
+                entries: Vec::new(),
+            };
+            return Err(unknown_material(i, material, Some(&listed)));
+        }
+    }
+    for tri in &mut scene.triangles {
+        if let Some(Some(f)) = new.get(tri.material as usize) {
+            let baked = Vec3::from(scene.materials[tri.material as usize].emission);
+            let share = texture_share(tri.emission, baked).as_vec3();
+            tri.emission = (share * *f).min(Vec3::splat(f32::MAX));
+        }
+    }
+    Ok(())
+}
