@@ -28,4 +28,7 @@ pub enum RenderError {
     Volume(String),
     #[error("reading the image back: {0}")]
     Readback(String),
+    /// A light set's emissive change names no emissive material of the scene drawn.
+    #[error("lights: {0}")]
+    Lights(#[from] bounce_core::light::LightError),
 }

@@ -1,7 +1,8 @@
 //! [`Stage`]: one scene resident on the GPU, ready to be drawn any number of times.
 //!
 //! The mesh and its albedo maps are uploaded once; lights and the irradiance volume are
-//! replaced when they change, in place where the sizes allow. Shadow maps are drawn again only
+//! replaced when they change, in place where the sizes allow; the vertices again only when a
+//! light set changes an emissive material's colour or strength. Shadow maps are drawn again only
 //! after the lights changed: the geometry is static, so a camera move costs one main pass.
 
 use bounce_client::{Face, Volume};
@@ -12,6 +13,7 @@ use glam::{Mat4, UVec3, Vec3};
 use wgpu::util::DeviceExt;
 
 use crate::error::RenderError;
+use crate::gpu_types::Vertex;
 use crate::lights::prepare_lights;
 use crate::mesh::{AlbedoMaps, mesh};
 use crate::resources::{DEPTH_FORMAT, MAX_SHADOW_VIEWS, Resources, SHADOW_SIZE, bind_group};
@@ -27,6 +29,12 @@ pub struct Stage {
     pub(crate) volume: VolumeGpu,
     pub(crate) main_group: wgpu::BindGroup,
     pub(crate) shadow_group: wgpu::BindGroup,
+    /// The vertices as uploaded, three a triangle in the scene's order, and the scene's
+    /// triangles and materials: what a light set's emissive changes rewrite.
+    cpu_vertices: Vec<Vertex>,
+    emissive_source: Scene,
+    /// The emissive changes the uploaded vertices carry.
+    emissive_applied: Vec<bounce_core::light::Light>,
     /// The lights changed since the shadow maps were last drawn.
     pub(crate) shadows_stale: bool,
 }
@@ -64,7 +72,7 @@ impl Stage {
         let vertices = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("vertices"),
             contents: bytemuck::cast_slice(&mesh.vertices),
-            usage: wgpu::BufferUsages::VERTEX,
+            usage: wgpu::BufferUsages::VERTEX | wgpu::BufferUsages::COPY_DST,
         });
         let globals = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("globals"),
@@ -87,6 +95,13 @@ impl Stage {
             main_group,
             shadow_group,
             shadows_stale: true,
+            cpu_vertices: mesh.vertices,
+            emissive_source: Scene {
+                triangles: scene.triangles.clone(),
+                materials: scene.materials.clone(),
+                ..Scene::default()
+            },
+            emissive_applied: Vec::new(),
         })
     }
 
@@ -110,9 +125,47 @@ impl Stage {
                 max,
             });
         }
+        self.set_emission(renderer, lights)?;
         self.lights = LightsGpu::new(renderer, &gpu_lights, &views);
         self.rebind(renderer);
         self.shadows_stale = true;
+        Ok(())
+    }
+
+    /// The surfaces' emission as `lights`' emissive changes leave it
+    /// (`bounce_core::emitter::apply_to_scene`), uploaded only when the changes differ from
+    /// those drawn: moving a light costs no vertex upload.
+    fn set_emission(
+        &mut self,
+        renderer: &Resources<'_>,
+        lights: &LightSet,
+    ) -> Result<(), RenderError> {
+        let changes: Vec<bounce_core::light::Light> = lights
+            .lights
+            .iter()
+            .filter(|l| matches!(l, bounce_core::light::Light::Emissive { .. }))
+            .cloned()
+            .collect();
+        if changes == self.emissive_applied {
+            return Ok(());
+        }
+        let mut scene = self.emissive_source.clone();
+        bounce_core::emitter::apply_to_scene(&mut scene, lights)?;
+        for (tri, vertices) in scene
+            .triangles
+            .iter()
+            .zip(self.cpu_vertices.chunks_exact_mut(3))
+        {
+            for v in vertices {
+                v.emission = tri.emission.to_array();
+            }
+        }
+        renderer.ctx.queue().write_buffer(
+            &self.vertices,
+            0,
+            bytemuck::cast_slice(&self.cpu_vertices),
+        );
+        self.emissive_applied = changes;
         Ok(())
     }
 

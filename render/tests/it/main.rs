@@ -625,3 +625,63 @@ fn albedo_maps_are_sampled_through_the_uvs() {
     }
     assert_eq!((white, black), (6, 6));
 }
+
+/// A light set's emissive change redraws the surfaces of that material: the emissive Cornell
+/// box's ceiling lamp (no other light, direct light and emission only) glows at the file's
+/// emission, goes dark at strength 0 and red with a red colour; nothing else changes.
+#[test]
+fn emissive_changes_redraw_the_lamp() {
+    let Some(ctx) = context() else { return };
+    let path =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/cornell-box-emissive/CornellBox.glb");
+    let scene = import_path_with(&path, &ImportOptions { shading: true }).unwrap();
+    let camera = Camera::framing(scene.bounds().unwrap());
+    // Indirect light is off: the volume is never read.
+    let v = volume(&spot());
+    let renderer = Renderer::new(ctx).unwrap();
+    let lamp = |color: Option<[f32; 3]>, strength: Option<f32>| LightSet {
+        lights: vec![Light::Emissive {
+            material: "Emitter_Light_temp".into(),
+            color,
+            strength,
+            name: None,
+        }],
+    };
+    let options = RenderOptions {
+        width: 96,
+        height: 72,
+        exposure: 1.0,
+        indirect: false,
+        direct: true,
+    };
+    let draw = |lights: &LightSet| {
+        renderer
+            .render_linear(&scene, &camera, lights, &v, &options)
+            .unwrap()
+            .pixels
+    };
+    let file = draw(&LightSet::default());
+    let off = draw(&lamp(None, Some(0.0)));
+    let red = draw(&lamp(Some([1.0, 0.0, 0.0]), None));
+    let glowing = file.iter().filter(|p| p[0] > 0.0).count();
+    assert!(glowing > 20, "the lamp is in view: {glowing} pixels");
+    for ((f, o), r) in file.iter().zip(&off).zip(&red) {
+        assert_eq!(o[..3], [0.0; 3], "off: no light anywhere");
+        assert_eq!(r[1..3], [0.0; 2], "red: no green or blue");
+        assert!((r[0] - f[0]).abs() <= 1e-5 * f[0].max(1.0), "{r:?} {f:?}");
+    }
+    // A change naming no material of the scene is refused.
+    let bad = LightSet {
+        lights: vec![Light::Emissive {
+            material: "Lamp".into(),
+            color: None,
+            strength: Some(1.0),
+            name: None,
+        }],
+    };
+    let err = renderer
+        .render_linear(&scene, &camera, &bad, &v, &options)
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("no emissive material 'Lamp'"), "{err}");
+}
