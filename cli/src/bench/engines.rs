@@ -537,7 +537,12 @@ fn tile_lights(b0: &[[f32; 3]], n: usize, size: usize, sets: usize) -> Vec<[f32;
 /// Direct light rows for every engine, on the file's own scene.
 fn direct_rows_all(args: &BenchEnginesArgs, baked: &Baked, sets: &[LightSet]) -> Result<Vec<Row>> {
     let cpu = Engine::new(EngineChoice::Cpu)?;
-    let reference = cpu.relight(&cpu.load(baked)?, sets)?;
+    let cpu_scene = cpu.load(baked)?;
+    let variants = light_variants(baked, sets);
+    let references = variants
+        .iter()
+        .map(|(_, sets)| cpu.relight(&cpu_scene, sets))
+        .collect::<Result<Vec<_>, _>>()?;
     let mut rows = Vec::new();
     for name in &args.engines {
         let engine = match Engine::new(name.parse()?) {
@@ -548,9 +553,58 @@ fn direct_rows_all(args: &BenchEnginesArgs, baked: &Baked, sets: &[LightSet]) ->
             }
         };
         let scene = engine.load(baked)?;
-        rows.extend(direct_rows(args, &engine, &scene, sets, &reference)?);
+        for ((suffix, sets), reference) in variants.iter().zip(&references) {
+            rows.extend(direct_rows(args, &engine, &scene, sets, reference, suffix)?);
+        }
     }
     Ok(rows)
+}
+
+/// The bench's light sets as they are, and, where the file can take them, with what a sky and
+/// the scene's emissive surfaces add on the host (issue 22): each set with a uniform sky (a file
+/// with a sky view), and each with every emissive material at half its strength (a file with
+/// emitters). Their rows are labelled `+ sky` and `+ emissive`, measured in the same run.
+fn light_variants(baked: &Baked, sets: &[LightSet]) -> Vec<(&'static str, Vec<LightSet>)> {
+    let with = |extra: &[Light]| -> Vec<LightSet> {
+        sets.iter()
+            .map(|s| {
+                let mut s = s.clone();
+                s.lights.extend_from_slice(extra);
+                s
+            })
+            .collect()
+    };
+    let mut out = vec![("", sets.to_vec())];
+    if baked.sky.is_some() {
+        let sky = Light::Sky {
+            color: Some([0.5, 0.6, 0.8]),
+            sh: None,
+            name: None,
+        };
+        out.push((" + sky", with(&[sky])));
+    }
+    if let Some(e) = baked.emitters.as_ref().filter(|e| !e.groups.is_empty()) {
+        let changes: Vec<Light> = e
+            .names()
+            .into_iter()
+            .map(|material| {
+                let strength = e
+                    .groups
+                    .iter()
+                    .find(|g| g.name == material)
+                    .map_or(1.0, |g| g.strength);
+                Light::Emissive {
+                    material,
+                    color: None,
+                    strength: Some(0.5 * strength),
+                    name: None,
+                }
+            })
+            .take(bounce_core::light::MAX_LIGHTS - 1)
+            .collect();
+        out.push((" + emissive", with(&changes)));
+    }
+    out
 }
 
 fn encode(
@@ -589,8 +643,9 @@ fn direct_rows(
     scene: &bounce_engine::Scene,
     sets: &[LightSet],
     reference: &[bounce_engine::Irradiance],
+    suffix: &str,
 ) -> Result<Vec<Row>> {
-    let label = format!("direct light ({})", engine.direct_engine(scene));
+    let label = format!("direct light ({}){suffix}", engine.direct_engine(scene));
     let mut rows = Vec::new();
     for &batch in &args.batches {
         let sets = &sets[..batch];
@@ -623,7 +678,7 @@ fn direct_rows(
             rel_l2,
             rel_max,
         });
-        report("direct light", rows.last());
+        report(&format!("direct light{suffix}"), rows.last());
     }
     Ok(rows)
 }
