@@ -591,6 +591,11 @@ fn solve_scene(
         panic!("injected fault: the engine worker panics in a batch of scene '{name}'");
     }
     let (targets, sets): (Vec<Target>, Vec<LightSet>) = items.into_iter().unzip();
+    let names = scene.emitter_names();
+    let sets: Vec<LightSet> = sets
+        .into_iter()
+        .map(|set| usable_lights(name, names.as_deref(), set))
+        .collect();
     let label = SceneLabel {
         scene: name.to_string(),
     };
@@ -655,6 +660,29 @@ fn solve_scene(
     }
 }
 
+/// `set` without the emissive changes that name no emissive material of the scene, each left
+/// out with a warning. Lights are checked against the scene when they are set, so this only
+/// happens to a session whose scene file was replaced by one without that material: it keeps
+/// being solved with its other lights rather than failing every batch it shares with others.
+fn usable_lights(scene: &str, emitters: Option<&[String]>, mut set: LightSet) -> LightSet {
+    set.lights.retain(|l| match l {
+        bounce_core::light::Light::Emissive { material, .. } => {
+            let known = emitters.is_some_and(|names| names.contains(material));
+            if !known {
+                warn!(
+                    scene,
+                    material = material.as_str(),
+                    "an emissive change names no emissive material of the scene as it is now \
+                     (the file was replaced?): left out"
+                );
+            }
+            known
+        }
+        _ => true,
+    });
+    set
+}
+
 fn deliver(target: Target, indirect: &[[f32; 3]], metrics: &Metrics) {
     match target {
         Target::Session {
@@ -680,5 +708,33 @@ fn deliver(target: Target, indirect: &[[f32; 3]], metrics: &Metrics) {
             }
             let _ = reply.send(frame);
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use bounce_core::light::Light;
+
+    #[test]
+    fn emissive_changes_the_scene_no_longer_has_are_left_out() {
+        let set = LightSet::from_json(
+            r#"{"lights": [{"type": "point", "position": [0, 1, 0], "intensity": 1},
+                           {"type": "emissive", "material": "Lamp", "strength": 0},
+                           {"type": "emissive", "material": "Screen", "strength": 2}]}"#,
+        )
+        .unwrap();
+        let names = vec!["Screen".to_string()];
+        let kept = usable_lights("s", Some(&names), set.clone());
+        assert_eq!(kept.lights.len(), 2);
+        assert!(
+            matches!(&kept.lights[1], Light::Emissive { material, .. } if material == "Screen")
+        );
+        assert!(kept.validate().is_ok());
+        // A file that lists no emitters keeps only the punctual light.
+        assert_eq!(usable_lights("s", None, set.clone()).lights.len(), 1);
+        // A set the scene takes whole is untouched.
+        let names = vec!["Lamp".to_string(), "Screen".to_string()];
+        assert_eq!(usable_lights("s", Some(&names), set.clone()), set);
     }
 }
