@@ -134,23 +134,34 @@ impl Stage {
 
     /// The surfaces' emission as `lights`' emissive changes leave it
     /// (`bounce_core::emitter::apply_to_scene`), uploaded only when the changes differ from
-    /// those drawn: moving a light costs no vertex upload.
+    /// those drawn: moving a light costs no vertex upload. A change naming no emissive material
+    /// of this scene is left out: the engine refuses such lights, and a viewer drawing a scene
+    /// other than the one a server relights draws what it can rather than stop.
     fn set_emission(
         &mut self,
         renderer: &Resources<'_>,
         lights: &LightSet,
     ) -> Result<(), RenderError> {
+        let materials = &self.emissive_source.materials;
         let changes: Vec<bounce_core::light::Light> = lights
             .lights
             .iter()
-            .filter(|l| matches!(l, bounce_core::light::Light::Emissive { .. }))
+            .filter(|l| match l {
+                bounce_core::light::Light::Emissive { material, .. } => materials
+                    .iter()
+                    .any(|m| m.name == *material && m.emission.iter().any(|&c| c > 0.0)),
+                _ => false,
+            })
             .cloned()
             .collect();
         if changes == self.emissive_applied {
             return Ok(());
         }
+        let known = LightSet {
+            lights: changes.clone(),
+        };
         let mut scene = self.emissive_source.clone();
-        bounce_core::emitter::apply_to_scene(&mut scene, lights)?;
+        bounce_core::emitter::apply_to_scene(&mut scene, &known)?;
         for (tri, vertices) in scene
             .triangles
             .iter()
