@@ -91,12 +91,18 @@ fn texture_share(tri_emission: Vec3, material: Vec3) -> DVec3 {
 impl Emitters {
     /// The weights of `scene`'s emissive materials over the rows whose pieces `pieces` holds.
     /// Only materials that cover some row are groups; a scene without emissive surfaces has
-    /// none, and every row is empty.
+    /// none, and every row is empty. A material whose name a light set could not give (empty,
+    /// or longer than a light's names may be) is no group: its surfaces keep their baked
+    /// emission, and the bake does not fail over a name.
     pub fn of_pieces(scene: &Scene, pieces: &Pieces) -> Emitters {
         let emissive: Vec<bool> = scene
             .materials
             .iter()
-            .map(|m| Vec3::from(m.emission).max_element() > 0.0)
+            .map(|m| {
+                Vec3::from(m.emission).max_element() > 0.0
+                    && !m.name.is_empty()
+                    && m.name.len() <= MAX_NAME_BYTES
+            })
             .collect();
         let mut group_of: Vec<Option<u32>> = vec![None; scene.materials.len()];
         let mut groups = Vec::new();
@@ -444,4 +450,82 @@ pub fn apply_to_scene(scene: &mut Scene, set: &LightSet) -> Result<(), LightErro
         }
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::patch::PieceTri;
+    use crate::scene::{MaterialInfo, Triangle};
+
+    fn material(name: &str, emission: [f32; 3]) -> MaterialInfo {
+        MaterialInfo {
+            name: name.into(),
+            base_color_factor: [0.5; 3],
+            has_base_color_texture: false,
+            emission,
+            emissive_strength: 2.0,
+            double_sided: false,
+        }
+    }
+
+    /// Three unit triangles in one row: a lamp, a material whose name is too long to address,
+    /// and a plain wall.
+    #[test]
+    fn weights_are_area_shares_and_unaddressable_names_are_no_group() {
+        let long = "n".repeat(MAX_NAME_BYTES + 1);
+        let tri = |material: u32, emission: Vec3| Triangle {
+            positions: [Vec3::ZERO, Vec3::X, Vec3::Y],
+            albedo: Vec3::splat(0.5),
+            emission,
+            double_sided: false,
+            material,
+        };
+        let scene = Scene {
+            triangles: vec![
+                tri(0, Vec3::new(4.0, 2.0, 0.0)),
+                tri(1, Vec3::ONE),
+                tri(2, Vec3::ZERO),
+            ],
+            materials: vec![
+                material("Lamp", [4.0, 2.0, 0.0]),
+                material(&long, [1.0; 3]),
+                material("Wall", [0.0; 3]),
+            ],
+            ..Scene::default()
+        };
+        let piece = |triangle: u32, area: f32| PieceTri {
+            corners: [Vec3::ZERO, Vec3::X, Vec3::Y],
+            normal: Vec3::Z,
+            area,
+            triangle,
+        };
+        let pieces = Pieces {
+            start: vec![0, 3],
+            tris: vec![piece(0, 1.0), piece(1, 1.0), piece(2, 2.0)],
+        };
+        let e = Emitters::of_pieces(&scene, &pieces);
+        e.check(1).unwrap();
+        assert_eq!(e.names(), vec!["Lamp".to_string()]);
+        assert_eq!(e.groups[0].color, [2.0, 1.0, 0.0]);
+        assert_eq!(e.groups[0].strength, 2.0);
+        // A quarter of the row's area; the blue channel the lamp does not emit takes the
+        // others' share.
+        assert_eq!(
+            e.row(0),
+            &[EmitterEntry {
+                group: 0,
+                weight: [0.25; 3]
+            }]
+        );
+        let set = LightSet::from_json(
+            r#"{"lights": [{"type": "emissive", "material": "Lamp", "color": [0, 0, 1]}]}"#,
+        )
+        .unwrap();
+        // The row's baked emission: the lamp's quarter and the unaddressable one's quarter.
+        let baked = [[1.25, 0.75, 0.25]];
+        let changed = e.emission(baked.into_iter(), &set).unwrap().unwrap();
+        // The lamp now emits (0, 0, 2) over its quarter; the other quarter is as baked.
+        assert_eq!(changed, vec![[0.25, 0.25, 0.75]]);
+    }
 }
