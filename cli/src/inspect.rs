@@ -83,6 +83,12 @@ pub fn run(args: &InspectArgs) -> Result<()> {
                 "color": g.color,
                 "strength": g.strength,
             })).collect::<Vec<_>>()),
+            "probes": baked.probes.as_ref().map(|p| json!({
+                "count": p.len(),
+                "spacing": p.spacing,
+                "rays_per_direction": p.rays,
+                "entries": p.nnz(),
+            })),
             "surface_area": m.stats.surface_area,
             "unassigned_area": m.stats.unassigned_area,
             "bounces": m.settings.bounces,
@@ -210,6 +216,16 @@ pub fn run(args: &InspectArgs) -> Result<()> {
             "  emitters      none listed (voxel faces, or baked by an older bounce): emissive \
              surfaces keep their baked light"
         ),
+    }
+    match &baked.probes {
+        Some(p) => println!(
+            "  probes        {} at spacing {} × 6 directions, {} rays each; gather {} entries",
+            p.len(),
+            p.spacing,
+            p.rays,
+            p.nnz()
+        ),
+        None => println!("  probes        none (bake with --probes to place them)"),
     }
     match &baked.model {
         Some(m) => println!(

@@ -84,10 +84,23 @@ pub fn run(args: &RelightArgs) -> Result<()> {
         eprintln!(
             "  {name}: direct mean {d_mean:.4} max {d_max:.4}, indirect mean {i_mean:.4} max {i_max:.4}"
         );
+        if !l.probes.is_empty() {
+            let (p_mean, p_max) = stats(&l.probes);
+            eprintln!(
+                "    {} probes × 6 directions: mean {p_mean:.4} max {p_max:.4}",
+                l.probes.len() / 6
+            );
+        }
     }
     if let (Some(path), Some(format)) = (&args.out, format) {
         let text = match format {
-            OutFormat::Json => to_json(&engine, scene.codec(), &names, &lit)?,
+            OutFormat::Json => to_json(
+                &engine,
+                scene.codec(),
+                scene.probe_positions(),
+                &names,
+                &lit,
+            )?,
             OutFormat::Csv => to_csv(&lit),
         };
         std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))?;
@@ -144,7 +157,13 @@ fn stats(v: &[[f32; 3]]) -> (f64, f64) {
     (sum / v.len().max(1) as f64, max)
 }
 
-fn to_json(engine: &Engine, codec: &str, names: &[String], lit: &[Irradiance]) -> Result<String> {
+fn to_json(
+    engine: &Engine,
+    codec: &str,
+    scene_probes: Option<&[[f32; 3]]>,
+    names: &[String],
+    lit: &[Irradiance],
+) -> Result<String> {
     let sets: Vec<serde_json::Value> = names
         .iter()
         .zip(lit)
@@ -153,6 +172,8 @@ fn to_json(engine: &Engine, codec: &str, names: &[String], lit: &[Irradiance]) -
                 "lights": name,
                 "direct": l.direct,
                 "indirect": l.indirect,
+                // Per probe its six directions (+X, −X, +Y, −Y, +Z, −Z); empty without probes.
+                "probes": l.probes.chunks(6).collect::<Vec<_>>(),
             })
         })
         .collect();
@@ -161,6 +182,7 @@ fn to_json(engine: &Engine, codec: &str, names: &[String], lit: &[Irradiance]) -
         "codec": codec,
         "patches": lit.first().map_or(0, |l| l.direct.len()),
         "units": "irradiance per patch, linear RGB (lux for photometric lights)",
+        "probe_positions": scene_probes,
         "sets": sets,
     }))?)
 }

@@ -5,7 +5,9 @@
 use std::path::PathBuf;
 
 use anyhow::{Context, Result, bail};
-use bounce_core::bake::{BakeOptions, CodecRequest, NoProgress, bake_scene, options_of, simplify};
+use bounce_core::bake::{
+    BakeOptions, CodecRequest, NoProgress, Progress, bake_scene, options_of, simplify,
+};
 use bounce_core::codec;
 use bounce_core::format::Baked;
 use bounce_core::import::import_path;
@@ -56,6 +58,10 @@ pub struct VerifyArgs {
     /// standard error, and the pipeline's values (compressed, exact, exact on the surfaces' B0).
     #[arg(long, value_name = "FILE.csv")]
     pub patches_out: Option<PathBuf>,
+    /// Reference sample paths per probe direction, for a file with probes (each probe is six
+    /// points, one a direction).
+    #[arg(long, value_name = "N", default_value_t = 1024)]
+    pub probe_spp: u32,
     /// No progress bars.
     #[arg(long, short)]
     pub quiet: bool,
@@ -231,12 +237,107 @@ pub fn run(args: &VerifyArgs) -> Result<()> {
         }
         std::fs::write(path, csv).with_context(|| format!("writing {}", path.display()))?;
     }
+    let probes = match &baked.probes {
+        Some(_) => Some(check_probes(&baked, &engine, &reference, &lights, args)?),
+        None => None,
+    };
     if args.json {
-        println!("{}", serde_json::to_string_pretty(&report)?);
+        let mut value = serde_json::to_value(&report)?;
+        if let (Some(p), Some(map)) = (&probes, value.as_object_mut()) {
+            map.insert("probes".into(), serde_json::to_value(p)?);
+        }
+        println!("{}", serde_json::to_string_pretty(&value)?);
     } else {
         print_table(&report);
+        if let Some(p) = &probes {
+            println!(
+                "probes: {} × 6 directions against the reference ({} paths a direction, {:.1} s): \
+                 rel L2 {:.2}% (the reference's noise {:.2}%), total {:.4} of the reference's",
+                p.probes,
+                p.spp,
+                p.seconds,
+                p.rel_l2 * 100.0,
+                p.noise * 100.0,
+                p.total
+            );
+        }
     }
     Ok(())
+}
+
+/// The file's probes against the reference.
+#[derive(Debug, serde::Serialize)]
+struct ProbeCheck {
+    probes: usize,
+    spp: u32,
+    seconds: f64,
+    /// Relative L2 over every probe direction and channel.
+    rel_l2: f64,
+    /// The reference's own standard error, relative to it the same way.
+    noise: f64,
+    /// Summed probe light over the reference's (green channel).
+    total: f64,
+}
+
+/// Each probe direction is a reference point at the probe with that axis as its normal. A
+/// probe gathers the surfaces' exitance, which holds their indirect light of the bake's
+/// bounces, so the reference carries one bounce more.
+fn check_probes(
+    baked: &Baked,
+    engine: &Engine,
+    reference: &Reference,
+    lights: &LightSet,
+    args: &VerifyArgs,
+) -> Result<ProbeCheck> {
+    let Some(probes) = &baked.probes else {
+        bail!("the file has no probes");
+    };
+    let scene = engine.load(baked)?;
+    let lit = engine
+        .relight(&scene, std::slice::from_ref(lights))?
+        .remove(0);
+    let points: Vec<bounce_reference::Point> = probes
+        .positions
+        .iter()
+        .flat_map(|&position| {
+            bounce_core::patch::Face::ALL.map(|f| bounce_reference::Point {
+                position,
+                normal: f.normal().to_array(),
+            })
+        })
+        .collect();
+    let options = Options {
+        spp: args.probe_spp,
+        bounces: match baked.meta.settings.bounces {
+            bounce_core::meta::Bounces::K(k) => bounce_core::meta::Bounces::K(k + 1),
+            all => all,
+        },
+        seed: args.seed,
+    };
+    let start = std::time::Instant::now();
+    let bar = TermProgress::new(args.quiet);
+    bar.begin(bounce_core::bake::Stage::Probes, points.len() as u64);
+    let estimates = reference.estimate(lights, &points, &options, &|n| bar.advance(n))?;
+    let seconds = start.elapsed().as_secs_f64();
+    bar.end(bounce_core::bake::Stage::Probes, seconds);
+    let (mut num, mut den, mut var) = (0.0f64, 0.0f64, 0.0f64);
+    for (g, e) in lit.probes.iter().zip(&estimates) {
+        for ((g, m), se) in g.iter().zip(e.mean).zip(e.stderr) {
+            num += (f64::from(*g) - m).powi(2);
+            den += m * m;
+            var += se * se;
+        }
+    }
+    let den = den.max(1e-300);
+    Ok(ProbeCheck {
+        probes: probes.len(),
+        spp: args.probe_spp,
+        seconds,
+        rel_l2: (num / den).sqrt(),
+        noise: (var / den).sqrt(),
+        total: lit.probes.iter().map(|g| f64::from(g[1])).sum::<f64>()
+            / estimates.iter().map(|e| e.mean[1]).sum::<f64>().max(1e-300),
+    })
 }
 
 /// A surface bake's exact `E_ind` (without the near field, `exact_e`) with its first bounce

@@ -30,6 +30,7 @@ pub mod nearfield;
 pub mod openness;
 pub mod patch;
 pub mod pointwise;
+pub mod probe;
 pub mod rays;
 pub mod scene;
 pub mod sky;

@@ -133,7 +133,7 @@ fn piece_cdf(pieces: &Pieces) -> Vec<f64> {
 
 /// Cosine-weighted direction about unit `n` from two uniform numbers (Malley's method).
 #[inline]
-fn cosine_direction(n: Vec3, u1: f32, u2: f32) -> Vec3 {
+pub(crate) fn cosine_direction(n: Vec3, u1: f32, u2: f32) -> Vec3 {
     let r = u1.sqrt();
     let phi = std::f32::consts::TAU * u2;
     let (t, b) = n.any_orthonormal_pair();
@@ -218,6 +218,11 @@ impl SurfaceScene {
             Some(j) => RayFate::Patch(j as usize),
             None => RayFate::Occluder,
         }
+    }
+
+    /// Where a ray from a point in free space ends (a probe's: no surface to push off from).
+    pub(crate) fn free_fate(&self, origin: Vec3, dir: Vec3) -> RayFate {
+        self.fate(origin, dir)
     }
 
     /// Where form-factor ray `k` of `row` lands (the same ray [`RowTracer::trace_row`] traces

@@ -196,6 +196,7 @@ fn sample(channels: usize, with_form_factors: bool) -> Baked {
         near_field: None,
         sky: None,
         emitters: None,
+        probes: None,
         model: None,
     }
 }
@@ -398,7 +399,7 @@ fn layout_on_disk_matches_the_documentation() {
     let baked = sample(3, true);
     let b = baked.to_bytes().unwrap();
     assert_eq!(&b[..8], b"BOUNCE\0B");
-    assert_eq!(get_u32(&b, 8), 6);
+    assert_eq!(get_u32(&b, 8), 7);
     assert_eq!(get_u32(&b, 12), 5);
     assert_eq!(get_u64(&b, 16), b.len() as u64);
     let kinds: Vec<&[u8]> = (0..5).map(|i| &b[entry_at(i)..entry_at(i) + 4]).collect();
@@ -645,23 +646,23 @@ fn bad_magic() {
 #[test]
 fn future_version() {
     let mut b = sample_bytes();
-    put_u32(&mut b, 8, 7);
+    put_u32(&mut b, 8, 8);
     reseal(&mut b);
     let err = refuse(&b);
     assert!(
         matches!(
             err,
             FormatError::UnsupportedVersion {
-                found: 7,
+                found: 8,
                 oldest: 1,
-                supported: 6
+                supported: 7
             }
         ),
         "{err:?}"
     );
     assert_eq!(
         err.to_string(),
-        "unsupported format version 7 (this build reads versions 1 to 6); bake the scene again \
+        "unsupported format version 8 (this build reads versions 1 to 7); bake the scene again \
          with this bounce"
     );
 }
@@ -961,6 +962,58 @@ fn emitters_round_trip_and_are_checked() {
     // The writer refuses weights over other rows, as the reader would.
     let mut wrong = b.clone();
     wrong.emitters.as_mut().unwrap().row_ptr.push(1);
+    assert!(wrong.to_bytes().is_err());
+    for cut in (0..bytes.len()).step_by(31) {
+        assert!(Baked::from_bytes(&bytes[..cut]).is_err());
+    }
+}
+
+#[test]
+fn probes_round_trip_and_are_checked() {
+    use bounce_core::probe::Probes;
+    let mut b = element_sample();
+    let rows = b.transport_layout().len() as u32;
+    // Two probes: the first's +X direction meets rows 0 and the last, the rest meet nothing.
+    let mut row_ptr = vec![0u32, 2];
+    row_ptr.extend([2u32; 11]);
+    b.probes = Some(Probes {
+        spacing: 0.5,
+        rays: 64,
+        positions: vec![[0.25, 0.5, 0.75], [1.0, 1.0, 1.0]],
+        row_ptr,
+        cols: vec![0, rows - 1],
+        values: vec![0.25, 0.5],
+    });
+    let bytes = b.to_bytes().expect("probes encode");
+    assert_eq!(Baked::from_bytes(&bytes).unwrap(), b);
+    // Flagged optional: an older reader skips it.
+    assert_eq!(get_u32(&bytes, entry_at(entry_of(&bytes, b"PROB")) + 4), 1);
+    let (o, _) = section_of(&bytes, b"PROB");
+    assert_eq!(get_u32(&bytes, o), 2);
+    assert_eq!(get_u32(&bytes, o + 4), rows);
+    // Another transport's rows, and a version-6 file claiming the section.
+    let mut bad = bytes.clone();
+    put_u32(&mut bad, o + 4, rows + 1);
+    reseal(&mut bad);
+    let e = refuse(&bad);
+    assert!(matches!(e, FormatError::Probes(_)), "{e:?}");
+    assert!(e.to_string().starts_with("section 'PROB'"), "{e}");
+    // A probe count the section cannot hold is refused before anything is allocated.
+    let mut huge = bytes.clone();
+    put_u32(&mut huge, o, u32::MAX / 8);
+    reseal(&mut huge);
+    assert!(matches!(refuse(&huge), FormatError::Probes(_)));
+    let mut old = bytes.clone();
+    put_u32(&mut old, 8, 6);
+    reseal(&mut old);
+    assert!(
+        refuse(&old)
+            .to_string()
+            .contains("a version-6 file cannot hold probes")
+    );
+    // The writer refuses a gather over rows the file does not have, as the reader would.
+    let mut wrong = b.clone();
+    wrong.probes.as_mut().unwrap().cols[1] = rows;
     assert!(wrong.to_bytes().is_err());
     for cut in (0..bytes.len()).step_by(31) {
         assert!(Baked::from_bytes(&bytes[..cut]).is_err());
@@ -1729,6 +1782,7 @@ fn arb_baked() -> impl Strategy<Value = Baked> {
                 near_field: None,
                 sky: None,
                 emitters: None,
+                probes: None,
                 model: None,
             })
     })

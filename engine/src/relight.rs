@@ -36,6 +36,7 @@ use bounce_core::format::Baked;
 use bounce_core::light::{LightError, LightSet};
 use bounce_core::nearfield::NearField;
 use bounce_core::patch::PatchLayout;
+use bounce_core::probe::Probes;
 use bounce_core::sky::SkyVisibility;
 
 use crate::EngineError;
@@ -238,6 +239,7 @@ impl Engine {
             near,
             sky: baked.sky.clone(),
             emitters: baked.emitters.clone(),
+            probes: baked.probes.clone(),
             stored_samples: baked.surface.as_ref().map(|s| s.per_patch),
             elements: baked.elements.clone(),
             direct,
@@ -304,17 +306,22 @@ impl Engine {
         }
         let out = direct
             .into_iter()
-            .zip(indirect.chunks(n.max(1)))
-            .map(|(direct, ind)| match &scene.elements {
-                // What a patch streams is its elements' light over its surface.
-                Some(e) => Irradiance {
-                    direct: e.restrict_sampled(&scene.layout, &direct),
-                    indirect: e.restrict(&scene.layout, ind),
-                },
-                None => Irradiance {
-                    direct,
-                    indirect: ind.to_vec(),
-                },
+            .zip(indirect.chunks(n.max(1)).zip(b0.chunks(n.max(1))))
+            .map(|(direct, (ind, b0))| {
+                let probes = scene.probe_irradiance(b0, ind);
+                match &scene.elements {
+                    // What a patch streams is its elements' light over its surface.
+                    Some(e) => Irradiance {
+                        direct: e.restrict_sampled(&scene.layout, &direct),
+                        indirect: e.restrict(&scene.layout, ind),
+                        probes,
+                    },
+                    None => Irradiance {
+                        direct,
+                        indirect: ind.to_vec(),
+                        probes,
+                    },
+                }
             })
             .collect();
         let indirect_s = start.elapsed().as_secs_f64();
@@ -490,6 +497,10 @@ pub struct Irradiance {
     pub direct: Vec<[f32; 3]>,
     /// `E_ind`: what the service streams.
     pub indirect: Vec<[f32; 3]>,
+    /// Irradiance at each probe direction (`6 · probe + direction`, [`bounce_core::probe`]):
+    /// what an object moving through the scene gathers from its surfaces. Empty for a file
+    /// without probes.
+    pub probes: Vec<[f32; 3]>,
 }
 
 /// A baked scene made ready on one engine.
@@ -504,6 +515,8 @@ pub struct Scene {
     sky: Option<SkyVisibility>,
     /// The emissive materials and the rows they cover, when the file lists them.
     emitters: Option<Emitters>,
+    /// Irradiance probes and their gather over the rows, when the file has them.
+    probes: Option<Probes>,
     /// Sample points a surface bake stores per row.
     stored_samples: Option<u32>,
     elements: Option<Elements>,
@@ -551,6 +564,29 @@ impl Scene {
             Some(emission) => exitance_with(&self.rows, &emission, direct),
             None => exitance_b0(&self.rows, direct),
         })
+    }
+
+    /// The probes' positions, when the file has probes.
+    pub fn probe_positions(&self) -> Option<&[[f32; 3]]> {
+        self.probes.as_ref().map(|p| p.positions.as_slice())
+    }
+
+    /// Irradiance at every probe direction from one set's `B0` and `E_ind` on the rows: the
+    /// probes gather the rows' exitance `B = B0 + ρ ⊙ E_ind`. Empty without probes. On the host
+    /// for both engines: the gather is sparse (a probe direction meets at most its rays' rows)
+    /// and small beside `T · B0`.
+    pub fn probe_irradiance(&self, b0: &[[f32; 3]], indirect: &[[f32; 3]]) -> Vec<[f32; 3]> {
+        let Some(probes) = &self.probes else {
+            return Vec::new();
+        };
+        let exitance: Vec<[f32; 3]> = self
+            .rows
+            .patches
+            .iter()
+            .zip(b0.iter().zip(indirect))
+            .map(|(p, (b, e))| std::array::from_fn(|c| b[c] + p.albedo[c] * e[c]))
+            .collect();
+        probes.irradiance(&exitance)
     }
 
     /// Relight without the near-field first bounce from now on: how `bounce verify` shows what

@@ -7,6 +7,7 @@ use bounce_core::bake::{BakeOptions, CodecRequest};
 use bounce_core::formfactor::MAX_RAYS;
 use bounce_core::meta::Bounces;
 use bounce_core::nearfield::{DEFAULT_NEAR_RADIUS, MAX_NEAR_RADIUS};
+use bounce_core::probe::ProbeOptions;
 use bounce_core::rays::Tracer;
 use bounce_core::surface::{DEFAULT_SURFACE_SAMPLES, MAX_SURFACE_SAMPLES};
 use bounce_core::voxel::{Geometry, PatchOrder, Resolution};
@@ -91,6 +92,17 @@ pub struct BakeArgs {
     /// 0 stores none.
     #[arg(long, value_name = "R", default_value_t = DEFAULT_NEAR_RADIUS)]
     pub near_field: f32,
+    /// Place irradiance probes for moving objects (surface geometry, one process): on a grid of
+    /// 2 voxels in the empty space near surfaces, each gathering the surfaces' light from six
+    /// directions (docs/design.md §2, "Probes"). --probe-spacing implies it.
+    #[arg(long)]
+    pub probes: bool,
+    /// The probes' grid spacing in scene units (default 2 voxels).
+    #[arg(long, value_name = "S")]
+    pub probe_spacing: Option<f32>,
+    /// Rays each probe direction gathers with.
+    #[arg(long, value_name = "R", default_value_t = bounce_core::probe::DEFAULT_PROBE_RAYS)]
+    pub probe_rays: u32,
     /// Ray tracer for voxel-face form factors: `grid` walks the voxel grid (exact for voxel
     /// patches), `bvh` uses an obvhs BVH over the patch quads. `bounce bench rays` compares
     /// them. Surface geometry always traces a BVH over the triangles.
@@ -155,6 +167,21 @@ impl BakeArgs {
                 self.near_field
             );
         }
+        if self.probes || self.probe_spacing.is_some() {
+            let probes = ProbeOptions {
+                spacing: self.probe_spacing,
+                rays: self.probe_rays,
+            };
+            if let Err(e) = probes.check() {
+                bail!("{e}");
+            }
+            if self.shard.is_some() {
+                bail!("a sharded bake places no probes yet: bake in one process for --probes");
+            }
+            if matches!(self.geometry, Geometry::VoxelFaces) {
+                bail!("--probes needs surface geometry, not --geometry voxel-faces");
+            }
+        }
         if !(0.0..=1.0).contains(&self.max_grey_error) {
             bail!(
                 "--max-grey-error must be from 0 to 1, got {}",
@@ -178,6 +205,10 @@ impl BakeArgs {
             direct_samples: self.direct_samples,
             max_grey_error: self.max_grey_error,
             near_radius: self.near_field,
+            probes: (self.probes || self.probe_spacing.is_some()).then_some(ProbeOptions {
+                spacing: self.probe_spacing,
+                rays: self.probe_rays,
+            }),
         })
     }
 }

@@ -22,6 +22,7 @@ pub use crate::meta::SourceInfo;
 use crate::meta::{BakeMeta, BakeSettings, BakeStats, Bounces, StageTiming};
 use crate::nearfield::{self, NearField};
 use crate::patch::PatchLayout;
+use crate::probe;
 use crate::rays::Tracer;
 use crate::scene::Scene;
 use crate::surface::{self, SurfaceData, SurfaceScene};
@@ -60,6 +61,9 @@ pub struct BakeOptions {
     /// How far from its origin a form-factor ray may land and count for the near-field first
     /// bounce ([`crate::nearfield`]), in voxels; 0 stores no near field (surface geometry only).
     pub near_radius: f32,
+    /// Irradiance probes for moving objects ([`crate::probe`]); `None` places none (surface
+    /// geometry only).
+    pub probes: Option<crate::probe::ProbeOptions>,
 }
 
 /// Which codec stores the transport.
@@ -90,6 +94,7 @@ impl Default for BakeOptions {
             direct_samples: crate::surface::DEFAULT_SURFACE_SAMPLES,
             max_grey_error: transport::DEFAULT_MAX_GREY_ERROR,
             near_radius: crate::nearfield::DEFAULT_NEAR_RADIUS,
+            probes: None,
         }
     }
 }
@@ -104,6 +109,8 @@ pub enum Stage {
     FormFactors,
     /// The near-field matrix: the form-factor rays that land close by, traced again that far.
     NearField,
+    /// Irradiance probes: placed, then gathered at (counted in probes).
+    Probes,
     Transport,
     Encode,
     /// A sharded bake's step reading (and checking) the shards it continues from.
@@ -118,6 +125,7 @@ impl Stage {
             Stage::RayScene => "ray scene",
             Stage::FormFactors => "form factors",
             Stage::NearField => "near field",
+            Stage::Probes => "probes",
             Stage::Transport => "transport",
             Stage::Encode => "encode",
             Stage::ReadShards => "read shards",
@@ -157,6 +165,8 @@ pub enum BakeError {
     Codec(#[from] CodecError),
     #[error("{0}")]
     Options(String),
+    #[error(transparent)]
+    Probes(#[from] probe::ProbeError),
     #[error(
         "no patch sees another: all {patches} patches (down to voxel size {voxel_size}) send \
          every ray into open space or onto occluders, so there is no indirect light to \
@@ -539,6 +549,8 @@ pub fn options_of(settings: &BakeSettings, keep_form_factors: bool) -> BakeOptio
         direct_samples: settings.direct_samples,
         max_grey_error: settings.max_grey_error,
         near_radius: settings.near_radius,
+        // Sharded bakes place none.
+        probes: None,
     }
 }
 
@@ -601,6 +613,9 @@ fn bake_with(
     options: &BakeOptions,
     mut timer: Timer<'_>,
 ) -> Result<Baked, BakeError> {
+    if let Some(p) = &options.probes {
+        p.check().map_err(BakeError::Options)?;
+    }
     let progress = timer.progress;
     let advance = |n: u64| progress.advance(n);
 
@@ -619,6 +634,19 @@ fn bake_with(
     let near_field = timer.run(Stage::NearField, n as u64, || {
         rays.near_field(surface.as_ref(), rows.voxel_size, 0..n, options, &advance)
     })?;
+    let probes = match (&options.probes, &rays) {
+        (None, _) => None,
+        (Some(p), Rows::Surface(scene)) => Some(timer.run(Stage::Probes, 0, || {
+            probe::bake_probes(rows, &vox.occupied, scene, p, options.seed, &advance)
+        })?),
+        (Some(_), Rows::Voxels(_)) => {
+            return Err(BakeError::Options(
+                "probes need surface geometry: bake without --geometry voxel-faces, or without \
+                 probes"
+                    .into(),
+            ));
+        }
+    };
     drop(rays);
     let ff = check_form_factors(&f, rows, options.geometry)?;
 
@@ -667,6 +695,7 @@ fn bake_with(
         near_field,
         sky: Some(sky),
         emitters,
+        probes,
         // The caller decides whether the file keeps the scene ([`crate::import::pack_glb`]).
         model: None,
     })

@@ -152,6 +152,14 @@ pub fn form_factor_shard(
 ) -> Result<ShardFile, ShardError> {
     // The merge encodes, but a codec it would refuse is better refused before the tracing.
     bake::check_codec_options(options)?;
+    if options.probes.is_some() {
+        // The probes' gathers need the whole scene's rows, which no shard has alone; a sharded
+        // bake could trace them in the merge, which does not load the scene yet.
+        return Err(BakeError::Options(
+            "a sharded bake places no probes yet: bake in one process for probes".into(),
+        )
+        .into());
+    }
     let mut timer = Timer::new(progress);
     let (scene, source) = bake::import_timed(path, &mut timer)?;
     let Prepared {
@@ -400,6 +408,8 @@ pub fn merge(inputs: &[PathBuf], progress: &dyn Progress) -> Result<Baked, Shard
         near_field,
         sky: Some(sky),
         emitters: first.emitters,
+        // A sharded bake places no probes (refused up front, see `form_factor_shard`).
+        probes: None,
         occupancy: first.surface.is_none().then_some(first.occupancy),
         surface: first.surface,
         elements: first.elements,

@@ -47,6 +47,10 @@
 //! materials and each transport row's weights of them ([`crate::emitter`]); `super::emit` has its
 //! layout. Files without it keep their baked emission, which no light set can change.
 //!
+//! `PROB` (version 7, flagged [`SECTION_OPTIONAL`], surface geometry baked with probes): the
+//! irradiance probes and their gather matrix over the transport's rows ([`crate::probe`]);
+//! `super::probe` has its layout. Files without it have no probes.
+//!
 //! `MODL` (flagged [`SECTION_OPTIONAL`]): the scene the file was baked from, packed into one
 //! self-contained GLB 2.0 file ([`crate::import::pack_glb`]): every buffer and image inside its
 //! BIN chunk, the glTF JSON otherwise as the source had it. The section is exactly the GLB's
@@ -71,8 +75,10 @@ use super::container::{
 };
 use super::emit::{decode_emitters, encode_emitters};
 use super::near::{decode_near, encode_near};
+use super::probe::{decode_probes, encode_probes};
 use super::sky::{decode_sky, encode_sky};
 use crate::emitter::Emitters;
+use crate::probe::Probes;
 use crate::sky::SkyVisibility;
 
 /// Bytes of the `LAYT` fields before the patch records.
@@ -121,6 +127,9 @@ pub struct Baked {
     /// The emissive materials and the rows they cover (the `EMIT` section; surface geometry),
     /// so a light set can change them; absent in older files and voxel-face bakes.
     pub emitters: Option<Emitters>,
+    /// Irradiance probes for moving objects and their gather matrix (the `PROB` section; surface
+    /// geometry baked with probes).
+    pub probes: Option<Probes>,
     /// The scene baked, as one self-contained GLB (the `MODL` section): what a viewer draws.
     /// Absent in files baked without it (`bounce bake --no-model`, or an older bounce).
     pub model: Option<Vec<u8>>,
@@ -199,6 +208,13 @@ impl Baked {
                 pieces: vec![Cow::Owned(encode_emitters(SectionKind::EMIT, emitters, n)?)],
             });
         }
+        if let Some(probes) = &self.probes {
+            sections.push(Section {
+                kind: SectionKind::PROB,
+                flags: SECTION_OPTIONAL,
+                pieces: vec![Cow::Owned(encode_probes(probes, n)?)],
+            });
+        }
         if let Some(model) = &self.model {
             sections.push(model_section(model)?);
         }
@@ -222,6 +238,7 @@ impl Baked {
                 SectionKind::NEAR,
                 SectionKind::SKYV,
                 SectionKind::EMIT,
+                SectionKind::PROB,
             ]
             .contains(&e.kind);
             if !known && !e.is_optional() {
@@ -313,6 +330,16 @@ impl Baked {
             }
             Some(e) => Some(decode_emitters(SectionKind::EMIT, c.section(e)?, n)?),
         };
+        let probes = match c.entry(SectionKind::PROB) {
+            None => None,
+            Some(_) if c.header.format_version < 7 => {
+                return Err(FormatError::Probes(format!(
+                    "a version-{} file cannot hold probes",
+                    c.header.format_version
+                )));
+            }
+            Some(e) => Some(decode_probes(c.section(e)?, n)?),
+        };
         let model = match c.entry(SectionKind::MODL) {
             Some(e) => {
                 let bytes = c.section(e)?;
@@ -332,6 +359,7 @@ impl Baked {
             near_field,
             sky,
             emitters,
+            probes,
             model,
         })
     }

@@ -99,6 +99,7 @@ impl SectionKind {
     pub const NEAR: SectionKind = SectionKind(*b"NEAR");
     pub const SKYV: SectionKind = SectionKind(*b"SKYV");
     pub const EMIT: SectionKind = SectionKind(*b"EMIT");
+    pub const PROB: SectionKind = SectionKind(*b"PROB");
 }
 
 impl fmt::Display for SectionKind {

@@ -26,6 +26,7 @@ mod baked;
 mod container;
 mod emit;
 mod near;
+mod probe;
 mod shard;
 mod shard_meta;
 mod sky;
@@ -42,6 +43,7 @@ pub use container::{
     ENTRY_LEN, FileSummary, HEADER_LEN, Header, MAGIC, SECTION_ALIGN, SECTION_OPTIONAL,
     SHARD_MAGIC, SectionEntry, SectionKind, SectionSummary,
 };
+pub use probe::PROBE_HEADER_LEN;
 pub(crate) use shard::le_bytes as f32_le_bytes;
 pub use shard::{ROWS_HEADER_LEN, ShardFile, ShardHeader};
 pub use shard_meta::{FormFactorSummary, Phase, SHARD_EXTENSION, ShardMeta, ShardSpec, shard_rows};
@@ -55,8 +57,9 @@ pub use sky::SKY_HEADER_LEN;
 /// added each row's view of the sky (the `SKYV` section, flagged optional): a file without it
 /// (any older one) reads, and a sky then adds nothing to it. Version 6 added the emissive
 /// materials and the rows they cover (the `EMIT` section, flagged optional): a file without it
-/// keeps its baked emission, and a light set cannot change it.
-pub const FORMAT_VERSION: u32 = 6;
+/// keeps its baked emission, and a light set cannot change it. Version 7 added irradiance
+/// probes (the `PROB` section, flagged optional): a file without them has none.
+pub const FORMAT_VERSION: u32 = 7;
 /// The oldest version this build reads: a version-1 file is a voxel-face bake and is relit as
 /// one.
 pub const OLDEST_FORMAT_VERSION: u32 = 1;
@@ -117,6 +120,9 @@ pub enum FormatError {
     /// The emitters (`EMIT`, or a shard's `SEMT`); the message names the section.
     #[error("{0}")]
     Emitters(String),
+    /// The irradiance probes (`PROB`).
+    #[error("{0}")]
+    Probes(String),
     #[error("file truncated: {what} ends at byte {end} but the file has {len} bytes")]
     Truncated { what: String, end: u64, len: u64 },
     #[error("file truncated: its header says it has {declared} bytes but it has {actual}")]

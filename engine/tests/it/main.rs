@@ -7,6 +7,7 @@ mod gpu_direct;
 mod gpu_direct_surface;
 mod gpu_near_field;
 mod layout;
+mod probes;
 mod relight;
 mod sky;
 mod stress;

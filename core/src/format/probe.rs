@@ -1,0 +1,158 @@
+//! The `PROB` section (version 7, optional): the bake's irradiance probes and their gather
+//! matrix ([`crate::probe::Probes`]).
+//!
+//! Probe count u32, row count u32 (the transport's), entry count u32, rays a direction u32,
+//! spacing f32, reserved u32 (0) (24 bytes); then per probe its position f32×3; then
+//! `6 · probes + 1` row offsets u32; then per entry its transport row u32; then per entry its
+//! value f32. Checked on reading as [`Probes::check`] checks, counts against the section's
+//! length before any allocation.
+
+use crate::probe::{DIRECTIONS, Probes};
+
+use super::FormatError;
+use super::container::{FieldReader, SectionKind};
+
+/// The section's fixed header, bytes.
+pub const PROBE_HEADER_LEN: usize = 24;
+
+fn bad(m: impl std::fmt::Display) -> FormatError {
+    FormatError::Probes(format!("section 'PROB': {m}"))
+}
+
+/// The section's bytes for a transport of `rows` rows, checked as a reader will check them.
+pub(crate) fn encode_probes(p: &Probes, rows: usize) -> Result<Vec<u8>, FormatError> {
+    p.check(rows).map_err(bad)?;
+    let count = |what, n: usize| {
+        u32::try_from(n).map_err(|_| FormatError::TooLarge {
+            what,
+            value: n as u64,
+            max: u64::from(u32::MAX),
+        })
+    };
+    let mut out =
+        Vec::with_capacity(PROBE_HEADER_LEN + p.len() * 12 + p.row_ptr.len() * 4 + p.nnz() * 8);
+    for v in [
+        count("probes", p.len())?,
+        count("probe rows", rows)?,
+        count("probe entries", p.nnz())?,
+        p.rays,
+    ] {
+        out.extend_from_slice(&v.to_le_bytes());
+    }
+    out.extend_from_slice(&p.spacing.to_le_bytes());
+    out.extend_from_slice(&0u32.to_le_bytes());
+    for v in p.positions.iter().flatten() {
+        out.extend_from_slice(&v.to_le_bytes());
+    }
+    for v in &p.row_ptr {
+        out.extend_from_slice(&v.to_le_bytes());
+    }
+    for v in &p.cols {
+        out.extend_from_slice(&v.to_le_bytes());
+    }
+    for v in &p.values {
+        out.extend_from_slice(&v.to_le_bytes());
+    }
+    Ok(out)
+}
+
+/// The probes of a `PROB` section over a transport of `rows` rows.
+pub(crate) fn decode_probes(bytes: &[u8], rows: usize) -> Result<Probes, FormatError> {
+    let kind = SectionKind::PROB;
+    let mut r = FieldReader::new(bytes, Some(kind));
+    let probes = r.u32("probe count")?;
+    let stored_rows = r.u32("row count")?;
+    let entries = r.u32("entry count")?;
+    let rays = r.u32("rays a direction")?;
+    let spacing = r.f32("probe spacing")?;
+    if r.u32("reserved")? != 0 {
+        return Err(FormatError::Reserved {
+            what: format!("section '{kind}'"),
+        });
+    }
+    if stored_rows as usize != rows {
+        return Err(bad(format!("{stored_rows} rows, expected {rows}")));
+    }
+    let gathers = u64::from(probes) * DIRECTIONS as u64;
+    // Only counts the section's length accounts for may size an allocation.
+    let need = u64::from(probes) * 12 + (gathers + 1) * 4 + u64::from(entries) * 8;
+    if need != r.remaining().len() as u64 {
+        return Err(bad(format!(
+            "{probes} probes and {entries} entries take {need} bytes after the header, the \
+             section holds {}",
+            r.remaining().len()
+        )));
+    }
+    let mut out = Probes {
+        spacing,
+        rays,
+        positions: Vec::with_capacity(probes as usize),
+        row_ptr: Vec::with_capacity(gathers as usize + 1),
+        cols: Vec::with_capacity(entries as usize),
+        values: Vec::with_capacity(entries as usize),
+    };
+    for _ in 0..probes {
+        out.positions.push(r.f32x3("probe position")?);
+    }
+    for _ in 0..=gathers {
+        out.row_ptr.push(r.u32("probe row offset")?);
+    }
+    for _ in 0..entries {
+        out.cols.push(r.u32("probe entry row")?);
+    }
+    for _ in 0..entries {
+        out.values.push(r.f32("probe entry value")?);
+    }
+    out.check(rows).map_err(bad)?;
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sample() -> Probes {
+        let mut row_ptr = vec![0, 2];
+        row_ptr.extend([3; 11]);
+        Probes {
+            spacing: 0.5,
+            rays: 8,
+            positions: vec![[1.0, 2.0, 3.0], [-1.0, 0.5, 0.0]],
+            row_ptr,
+            cols: vec![0, 3, 1],
+            values: vec![0.125, 0.5, 0.875],
+        }
+    }
+
+    #[test]
+    fn probes_round_trip() {
+        let p = sample();
+        let bytes = encode_probes(&p, 4).unwrap();
+        assert_eq!(bytes.len(), PROBE_HEADER_LEN + 2 * 12 + 13 * 4 + 3 * 8);
+        assert_eq!(decode_probes(&bytes, 4).unwrap(), p);
+    }
+
+    #[test]
+    fn a_damaged_section_is_refused() {
+        let bytes = encode_probes(&sample(), 4).unwrap();
+        assert!(decode_probes(&bytes, 5).is_err(), "another transport");
+        assert!(
+            decode_probes(&bytes[..bytes.len() - 4], 4).is_err(),
+            "short"
+        );
+        // A probe count the bytes cannot hold is refused before anything is allocated.
+        let mut huge = bytes.clone();
+        huge[0..4].copy_from_slice(&u32::MAX.to_le_bytes());
+        let e = decode_probes(&huge, 4).unwrap_err().to_string();
+        assert!(e.contains("take"), "{e}");
+        // A row past the transport's.
+        let mut past = bytes.clone();
+        let at = PROBE_HEADER_LEN + 2 * 12 + 13 * 4 + 4;
+        past[at..at + 4].copy_from_slice(&9u32.to_le_bytes());
+        let e = decode_probes(&past, 4).unwrap_err().to_string();
+        assert!(e.contains("past the last"), "{e}");
+        let mut reserved = bytes;
+        reserved[20] = 1;
+        assert!(decode_probes(&reserved, 4).is_err());
+    }
+}

@@ -1,0 +1,440 @@
+//! Irradiance probes for objects that move through a scene (docs/design.md §2, "Probes").
+//!
+//! Patches light the surfaces the bake saw. A hand, a controller or an avatar is not among
+//! them, yet it needs the same indirect light as the walls around it. So the bake places probes
+//! in the scene's empty space near its surfaces and records, per probe and per each of the six
+//! axis directions (the [`Face`] order, as the clients' six-direction volume), where
+//! cosine-weighted rays about that direction land: the share of the rays that meet each
+//! transport row. That is a sparse gather matrix `G` (row `6 · probe + direction`, columns the
+//! transport's rows), and a relight gives every probe direction the irradiance
+//!
+//! ```text
+//! E_probe = G · B,    B = B0 + ρ ⊙ E_ind
+//! ```
+//!
+//! from the rows' exitance: their emission and direct light reflected (`B0`), and the indirect
+//! light they reflect. A diffuse row of exitance `B` has radiance `B / π`, and cosine-weighted
+//! rays estimate `E = π · mean(L)`, so each ray that lands on row `j` adds `B_j / R`. Rows sum
+//! to at most 1 (escaped rays and back faces carry nothing), as the form factors' do.
+//!
+//! What this does not do: a probe sees no sky through the openings (a sky's light reaches it
+//! only off the surfaces), and probes are as fine as `spacing`: an object between them gets a
+//! blend of its neighbours (the client's job, trilinear over the grid or nearest).
+//!
+//! Placement is a regular grid of `spacing` over the voxel grid's box. A grid point is a probe
+//! when its voxel is empty, an occupied voxel lies within `spacing` of it (near surfaces: space
+//! far from every surface holds nothing to light), and a short sphere of test rays says it is
+//! inside the scene: few of them meet the back of a one-sided surface (it would be inside a
+//! wall or behind the level) and not most of them escape.
+
+use glam::Vec3;
+use rayon::prelude::*;
+
+use crate::patch::PatchLayout;
+use crate::rays::RayFate;
+use crate::surface::{SurfaceScene, cosine_direction};
+use bounce_types::face::Face;
+
+/// Directions per probe: the six axis directions, in [`Face`] order.
+pub const DIRECTIONS: usize = 6;
+/// Rays a probe direction gathers with unless a bake asks otherwise.
+pub const DEFAULT_PROBE_RAYS: u32 = 1024;
+/// The grid spacing in voxels unless a bake gives one in scene units.
+pub const DEFAULT_SPACING_VOXELS: f32 = 2.0;
+/// The most grid points a placement considers: a finer spacing is refused, not run for hours.
+pub const MAX_GRID_POINTS: u64 = 4_000_000;
+/// The most probes a file holds.
+pub const MAX_PROBES: usize = 1 << 18;
+/// The most rays a probe direction takes (the Sobol sequence's index range).
+pub const MAX_PROBE_RAYS: u32 = 1 << 16;
+/// Test rays that decide whether a grid point is inside the scene.
+const TEST_RAYS: u32 = 64;
+/// A point where more than this share of test rays meets the back of a one-sided surface is
+/// inside geometry or behind the level's walls.
+const MAX_BACK_SHARE: f32 = 0.1;
+/// A point where more than this share escapes is outside the scene.
+const MAX_ESCAPED_SHARE: f32 = 0.75;
+/// Sobol dimension sets: the gather's, and the test rays'.
+const GATHER_SET: u32 = 0;
+const TEST_SET: u32 = 1;
+
+/// How a bake places probes and gathers at them.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ProbeOptions {
+    /// Grid spacing in scene units; `None`: [`DEFAULT_SPACING_VOXELS`] voxels.
+    pub spacing: Option<f32>,
+    /// Rays per probe direction.
+    pub rays: u32,
+}
+
+impl Default for ProbeOptions {
+    fn default() -> Self {
+        ProbeOptions {
+            spacing: None,
+            rays: DEFAULT_PROBE_RAYS,
+        }
+    }
+}
+
+impl ProbeOptions {
+    /// Why these options cannot run, if they cannot.
+    pub fn check(&self) -> Result<(), String> {
+        if let Some(s) = self.spacing
+            && !(s.is_finite() && s > 0.0)
+        {
+            return Err(format!(
+                "--probe-spacing must be a positive length in scene units, not {s}"
+            ));
+        }
+        if self.rays == 0 || self.rays > MAX_PROBE_RAYS {
+            return Err(format!(
+                "--probe-rays must be 1 to {MAX_PROBE_RAYS}, not {}",
+                self.rays
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// The probes of a bake and their gather matrix `G` in CSR form.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Probes {
+    /// The grid spacing they were placed at, scene units.
+    pub spacing: f32,
+    /// Rays each direction gathered with.
+    pub rays: u32,
+    /// World positions, one per probe.
+    pub positions: Vec<[f32; 3]>,
+    /// `6 · probes + 1` offsets into `cols` and `values`, from 0, non-decreasing.
+    pub row_ptr: Vec<u32>,
+    /// Per entry, the transport row met: strictly ascending within a row.
+    pub cols: Vec<u32>,
+    /// Per entry, the share of the direction's rays that met that row.
+    pub values: Vec<f32>,
+}
+
+impl Probes {
+    pub fn len(&self) -> usize {
+        self.positions.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.positions.is_empty()
+    }
+
+    /// Entries of `G`.
+    pub fn nnz(&self) -> usize {
+        self.cols.len()
+    }
+
+    /// Why this does not fit a transport of `rows` rows, if it does not: positions finite,
+    /// offsets in order and in range, columns ascending and inside the rows, values finite and
+    /// positive, each direction's sum at most 1 (a little over for f32 rounding).
+    pub fn check(&self, rows: usize) -> Result<(), String> {
+        if !(self.spacing.is_finite() && self.spacing > 0.0) {
+            return Err(format!("spacing {} is not a positive length", self.spacing));
+        }
+        if self.rays == 0 || self.rays > MAX_PROBE_RAYS {
+            return Err(format!("{} rays a direction", self.rays));
+        }
+        if self.len() > MAX_PROBES {
+            return Err(format!("{} probes, the most is {MAX_PROBES}", self.len()));
+        }
+        if let Some(i) = self
+            .positions
+            .iter()
+            .position(|p| !p.iter().all(|v| v.is_finite()))
+        {
+            return Err(format!("probe {i}'s position is not finite"));
+        }
+        let gathers = self.len() * DIRECTIONS;
+        if self.row_ptr.len() != gathers + 1 {
+            return Err(format!(
+                "{} row offsets for {} probes (expected {})",
+                self.row_ptr.len(),
+                self.len(),
+                gathers + 1
+            ));
+        }
+        if self.row_ptr[0] != 0 || self.row_ptr[gathers] as usize != self.cols.len() {
+            return Err("row offsets do not span the entries".into());
+        }
+        if self.cols.len() != self.values.len() {
+            return Err("columns and values differ in count".into());
+        }
+        for r in 0..gathers {
+            let (lo, hi) = (self.row_ptr[r] as usize, self.row_ptr[r + 1] as usize);
+            if lo > hi || hi > self.cols.len() {
+                return Err(format!("gather row {r}'s offsets are out of order"));
+            }
+            let cols = &self.cols[lo..hi];
+            if cols.windows(2).any(|w| w[0] >= w[1]) {
+                return Err(format!("gather row {r}'s columns are not ascending"));
+            }
+            if cols.last().is_some_and(|&c| c as usize >= rows) {
+                return Err(format!(
+                    "gather row {r} names a transport row past the last ({rows})"
+                ));
+            }
+            let values = &self.values[lo..hi];
+            if values.iter().any(|v| !(v.is_finite() && *v > 0.0)) {
+                return Err(format!("gather row {r} has a value that is not positive"));
+            }
+            let sum: f64 = values.iter().map(|&v| f64::from(v)).sum();
+            if sum > 1.0 + 1e-4 {
+                return Err(format!("gather row {r} sums to {sum}, over 1"));
+            }
+        }
+        Ok(())
+    }
+
+    /// Irradiance at every probe direction (`6 · probe + direction`) from the rows' exitance
+    /// `B` (one value per transport row).
+    pub fn irradiance(&self, exitance: &[[f32; 3]]) -> Vec<[f32; 3]> {
+        (0..self.len() * DIRECTIONS)
+            .map(|r| {
+                let lo = self.row_ptr[r] as usize;
+                let hi = self.row_ptr[r + 1] as usize;
+                let mut e = [0.0f32; 3];
+                for (&c, &v) in self.cols[lo..hi].iter().zip(&self.values[lo..hi]) {
+                    for (e, b) in e.iter_mut().zip(exitance[c as usize]) {
+                        *e += v * b;
+                    }
+                }
+                // Kept finite as the rows' light is.
+                e.map(|v| v.min(f32::MAX))
+            })
+            .collect()
+    }
+}
+
+/// Why probes cannot be placed.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ProbeError {
+    #[error(
+        "--probe-spacing {spacing} puts {points} grid points over the scene, more than \
+         {MAX_GRID_POINTS}: choose a larger spacing"
+    )]
+    TooFine { spacing: f32, points: u64 },
+    #[error(
+        "{probes} probes at spacing {spacing}, more than a file holds ({MAX_PROBES}): choose a \
+         larger --probe-spacing"
+    )]
+    TooMany { spacing: f32, probes: usize },
+}
+
+/// Places probes over `layout`'s grid (the transport's, whose occupancy is `occupied`: linear
+/// voxel indices, ascending) and gathers at them through `scene`. Depends only on its inputs and
+/// `seed`, not on the thread count.
+pub fn bake_probes(
+    layout: &PatchLayout,
+    occupied: &[u64],
+    scene: &SurfaceScene,
+    options: &ProbeOptions,
+    seed: u64,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<Probes, ProbeError> {
+    let spacing = options
+        .spacing
+        .unwrap_or(layout.voxel_size * DEFAULT_SPACING_VOXELS);
+    let positions = place(layout, occupied, scene, spacing, seed)?;
+    let rows: Vec<Vec<(u32, f32)>> = (0..positions.len() * DIRECTIONS)
+        .into_par_iter()
+        .map(|r| {
+            let row = gather(
+                scene,
+                Vec3::from(positions[r / DIRECTIONS]),
+                r,
+                options.rays,
+                seed,
+            );
+            if r % DIRECTIONS == DIRECTIONS - 1 {
+                progress(1);
+            }
+            row
+        })
+        .collect();
+    let mut probes = Probes {
+        spacing,
+        rays: options.rays,
+        positions,
+        row_ptr: Vec::with_capacity(rows.len() + 1),
+        cols: Vec::new(),
+        values: Vec::new(),
+    };
+    probes.row_ptr.push(0);
+    for row in rows {
+        for (c, v) in row {
+            probes.cols.push(c);
+            probes.values.push(v);
+        }
+        probes.row_ptr.push(probes.cols.len() as u32);
+    }
+    Ok(probes)
+}
+
+/// Grid points over the layout's box at `spacing`, centred in it, that are probes.
+fn place(
+    layout: &PatchLayout,
+    occupied: &[u64],
+    scene: &SurfaceScene,
+    spacing: f32,
+    seed: u64,
+) -> Result<Vec<[f32; 3]>, ProbeError> {
+    let origin = Vec3::from(layout.origin);
+    let size = Vec3::from(layout.dims.map(|d| d as f32)) * layout.voxel_size;
+    let counts = [0, 1, 2].map(|a| ((size[a] / spacing).floor() as u64).max(1));
+    let points = counts.iter().product::<u64>();
+    if points > MAX_GRID_POINTS {
+        return Err(ProbeError::TooFine { spacing, points });
+    }
+    // Centre the grid in the box: the margin left over is split on both sides.
+    let first = Vec3::from(
+        [0, 1, 2].map(|a| origin[a] + (size[a] - (counts[a] - 1) as f32 * spacing) / 2.0),
+    );
+    let reach = (spacing / layout.voxel_size).ceil().max(1.0) as i64;
+    let kept: Vec<[f32; 3]> = (0..points)
+        .into_par_iter()
+        .filter_map(|i| {
+            let g = [
+                i % counts[0],
+                (i / counts[0]) % counts[1],
+                i / (counts[0] * counts[1]),
+            ];
+            let p = first + Vec3::from(g.map(|v| v as f32)) * spacing;
+            let cell = voxel_of(layout, p)?;
+            if is_occupied(layout, occupied, cell) || !near_surface(layout, occupied, cell, reach) {
+                return None;
+            }
+            inside(scene, p, i, seed).then_some(p.to_array())
+        })
+        .collect();
+    if kept.len() > MAX_PROBES {
+        return Err(ProbeError::TooMany {
+            spacing,
+            probes: kept.len(),
+        });
+    }
+    Ok(kept)
+}
+
+/// The voxel `p` lies in, if it lies in the grid.
+fn voxel_of(layout: &PatchLayout, p: Vec3) -> Option<[i64; 3]> {
+    let f = (p - Vec3::from(layout.origin)) / layout.voxel_size;
+    let c = [0, 1, 2].map(|a| f[a].floor() as i64);
+    (0..3)
+        .all(|a| c[a] >= 0 && c[a] < i64::from(layout.dims[a]))
+        .then_some(c)
+}
+
+fn is_occupied(layout: &PatchLayout, occupied: &[u64], c: [i64; 3]) -> bool {
+    let d = layout.dims.map(i64::from);
+    if (0..3).any(|a| c[a] < 0 || c[a] >= d[a]) {
+        return false;
+    }
+    let key = (c[0] + d[0] * (c[1] + d[1] * c[2])) as u64;
+    occupied.binary_search(&key).is_ok()
+}
+
+/// Whether an occupied voxel lies within `reach` voxels (along each axis) of `c`.
+fn near_surface(layout: &PatchLayout, occupied: &[u64], c: [i64; 3], reach: i64) -> bool {
+    (-reach..=reach).any(|dz| {
+        (-reach..=reach).any(|dy| {
+            (-reach..=reach)
+                .any(|dx| is_occupied(layout, occupied, [c[0] + dx, c[1] + dy, c[2] + dz]))
+        })
+    })
+}
+
+/// Whether grid point `p` (number `index`) is inside the scene: of [`TEST_RAYS`] rays spread
+/// over the sphere, few meet a back face and not most escape.
+fn inside(scene: &SurfaceScene, p: Vec3, index: u64, seed: u64) -> bool {
+    let s = crate::formfactor::row_seed(seed ^ 0x5052_4f42_4553, index as usize);
+    let (mut back, mut escaped) = (0u32, 0u32);
+    for k in 0..TEST_RAYS {
+        let [a, b, ..] = sobol_burley::sample_4d(k, TEST_SET, s);
+        // Uniform over the sphere.
+        let z = 1.0 - 2.0 * a;
+        let r = (1.0 - z * z).max(0.0).sqrt();
+        let phi = std::f32::consts::TAU * b;
+        let dir = Vec3::new(r * phi.cos(), r * phi.sin(), z);
+        match scene.free_fate(p, dir) {
+            RayFate::BackFace => back += 1,
+            RayFate::Escaped => escaped += 1,
+            RayFate::Patch(_) | RayFate::Occluder => {}
+        }
+    }
+    let n = TEST_RAYS as f32;
+    back as f32 <= MAX_BACK_SHARE * n && escaped as f32 <= MAX_ESCAPED_SHARE * n
+}
+
+/// Gather row `r` (probe `r / 6`, direction `r % 6`): each transport row met and its share of
+/// `rays` cosine-weighted rays about the direction, ascending by row.
+fn gather(scene: &SurfaceScene, p: Vec3, r: usize, rays: u32, seed: u64) -> Vec<(u32, f32)> {
+    let axis = Face::ALL[r % DIRECTIONS].normal();
+    let s = crate::formfactor::row_seed(seed ^ 0x4741_5448_4552, r);
+    let mut hits: Vec<u32> = Vec::new();
+    for k in 0..rays {
+        let [a, b, ..] = sobol_burley::sample_4d(k, GATHER_SET, s);
+        if let RayFate::Patch(j) = scene.free_fate(p, cosine_direction(axis, a, b)) {
+            hits.push(j as u32);
+        }
+    }
+    hits.sort_unstable();
+    let share = 1.0 / rays as f32;
+    let mut out: Vec<(u32, f32)> = Vec::new();
+    for j in hits {
+        match out.last_mut() {
+            Some((c, v)) if *c == j => *v += share,
+            _ => out.push((j, share)),
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn two() -> Probes {
+        Probes {
+            spacing: 1.0,
+            rays: 4,
+            positions: vec![[0.0; 3], [1.0, 0.0, 0.0]],
+            row_ptr: vec![0, 2, 2, 2, 2, 2, 2, 3, 3, 3, 3, 3, 3],
+            cols: vec![0, 2, 1],
+            values: vec![0.25, 0.5, 1.0],
+        }
+    }
+
+    #[test]
+    fn irradiance_is_the_gather_of_the_exitance() {
+        let p = two();
+        p.check(3).unwrap();
+        let e = p.irradiance(&[[4.0, 0.0, 1.0], [2.0, 2.0, 2.0], [1.0, 8.0, 0.0]]);
+        assert_eq!(e.len(), 12);
+        assert_eq!(e[0], [1.5, 4.0, 0.25]);
+        assert_eq!(e[1], [0.0; 3]);
+        assert_eq!(e[6], [2.0, 2.0, 2.0]);
+    }
+
+    #[test]
+    fn check_refuses_what_a_reader_must_not_trust() {
+        assert!(two().check(2).unwrap_err().contains("past the last"));
+        let mut p = two();
+        p.values[2] = 1.5;
+        assert!(p.check(3).unwrap_err().contains("over 1"));
+        let mut p = two();
+        p.cols.swap(0, 1);
+        assert!(p.check(3).unwrap_err().contains("ascending"));
+        let mut p = two();
+        p.row_ptr.pop();
+        assert!(p.check(3).unwrap_err().contains("row offsets"));
+        let mut p = two();
+        p.positions[1][2] = f32::NAN;
+        assert!(p.check(3).unwrap_err().contains("not finite"));
+        let mut p = two();
+        p.values[0] = 0.0;
+        assert!(p.check(3).unwrap_err().contains("not positive"));
+    }
+}

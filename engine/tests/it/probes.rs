@@ -1,0 +1,202 @@
+//! Irradiance probes through the engine, on a real bake of the Cornell box: probes sit inside
+//! the box, their light matches the reference path tracer at the same points and directions,
+//! it is exactly linear in the light, and both engines give the same probes.
+
+use std::path::Path;
+use std::sync::OnceLock;
+
+use bounce_core::bake::{BakeOptions, NoProgress, bake_file};
+use bounce_core::format::Baked;
+use bounce_core::import::import_path;
+use bounce_core::light::{Light, LightSet};
+use bounce_core::meta::Bounces;
+use bounce_core::patch::Face;
+use bounce_core::probe::{DIRECTIONS, ProbeOptions};
+use bounce_core::voxel::Resolution;
+use bounce_engine::{Engine, EngineChoice};
+use bounce_reference::{Options, Point, Reference};
+
+fn scene_path() -> std::path::PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/cornell-box/scene.gltf")
+}
+
+/// The box at about 1,000 patches, three bounces, probes at the default spacing (2 voxels).
+fn baked() -> &'static Baked {
+    static BAKED: OnceLock<Baked> = OnceLock::new();
+    BAKED.get_or_init(|| {
+        let options = BakeOptions {
+            resolution: Resolution::TargetPatches(1000),
+            rays: 1024,
+            bounces: Bounces::K(3),
+            probes: Some(ProbeOptions::default()),
+            ..BakeOptions::default()
+        };
+        bake_file(&scene_path(), &options, &NoProgress).unwrap()
+    })
+}
+
+/// The point light the README's Cornell box figures use, scaled by `k`.
+fn point(k: f32) -> LightSet {
+    LightSet {
+        lights: vec![Light::Point {
+            position: [0.0, 1.5, 0.0],
+            color: [1.0, 1.0, 1.0],
+            intensity: 10.0 * k,
+            range: None,
+            name: None,
+        }],
+    }
+}
+
+/// The box's interior: the bounds of its triangles.
+fn bounds() -> ([f32; 3], [f32; 3]) {
+    let scene = import_path(&scene_path()).unwrap();
+    let mut lo = [f32::INFINITY; 3];
+    let mut hi = [f32::NEG_INFINITY; 3];
+    for p in scene.triangles.iter().flat_map(|t| t.positions) {
+        for a in 0..3 {
+            lo[a] = lo[a].min(p[a]);
+            hi[a] = hi[a].max(p[a]);
+        }
+    }
+    (lo, hi)
+}
+
+#[test]
+fn probes_fill_the_box_and_only_the_box() {
+    let probes = baked().probes.as_ref().expect("baked with probes");
+    probes.check(baked().transport_layout().len()).unwrap();
+    let (lo, hi) = bounds();
+    // The box is about 2 units a side and the voxels about a tenth of that at 1,000 patches:
+    // a 2-voxel grid holds some 100 points, most of them inside it (60 measured).
+    assert!(probes.len() > 30, "{} probes", probes.len());
+    for p in &probes.positions {
+        for a in 0..3 {
+            assert!(
+                p[a] > lo[a] && p[a] < hi[a],
+                "probe {p:?} outside the box {lo:?}..{hi:?}"
+            );
+        }
+    }
+    // Inside a box open at most on one side, most of each direction's rays meet a wall.
+    let mean_sum: f64 = (0..probes.len() * DIRECTIONS)
+        .map(|r| {
+            let (a, b) = (probes.row_ptr[r] as usize, probes.row_ptr[r + 1] as usize);
+            probes.values[a..b]
+                .iter()
+                .map(|&v| f64::from(v))
+                .sum::<f64>()
+        })
+        .sum::<f64>()
+        / (probes.len() * DIRECTIONS) as f64;
+    assert!(mean_sum > 0.7, "mean gather sum {mean_sum}");
+}
+
+/// Probe irradiance against the reference at the same points, each direction a point whose
+/// normal is that axis, with one bounce more than the bake's (a probe gathers the surfaces'
+/// exitance, which holds their indirect light of three bounces). The bound is issue 22's target
+/// for probes in the Cornell box (10% relative L2).
+#[test]
+fn probes_match_the_reference() {
+    let baked = baked();
+    let engine = Engine::new(EngineChoice::Cpu).unwrap();
+    let scene = engine.load(baked).unwrap();
+    let set = point(1.0);
+    let lit = engine
+        .relight(&scene, std::slice::from_ref(&set))
+        .unwrap()
+        .remove(0);
+    let probes = baked.probes.as_ref().unwrap();
+    assert_eq!(lit.probes.len(), probes.len() * DIRECTIONS);
+    // Every second probe keeps the reference's time in bounds.
+    let chosen: Vec<usize> = (0..probes.len()).step_by(2).collect();
+    let points: Vec<Point> = chosen
+        .iter()
+        .flat_map(|&i| {
+            Face::ALL.map(|f| Point {
+                position: probes.positions[i],
+                normal: f.normal().to_array(),
+            })
+        })
+        .collect();
+    let reference = Reference::new(&import_path(&scene_path()).unwrap()).unwrap();
+    let options = Options {
+        spp: 4096,
+        bounces: Bounces::K(4),
+        seed: 7,
+    };
+    let estimates = reference
+        .estimate(&set, &points, &options, &|_| {})
+        .unwrap();
+    let got: Vec<[f32; 3]> = chosen
+        .iter()
+        .flat_map(|&i| lit.probes[i * DIRECTIONS..(i + 1) * DIRECTIONS].to_vec())
+        .collect();
+    let (mut num, mut den, mut var) = (0.0f64, 0.0f64, 0.0f64);
+    for (g, e) in got.iter().zip(&estimates) {
+        for ((g, m), se) in g.iter().zip(e.mean).zip(e.stderr) {
+            num += (f64::from(*g) - m).powi(2);
+            den += m * m;
+            var += se * se;
+        }
+    }
+    let err = (num / den).sqrt();
+    let noise = (var / den).sqrt();
+    let total = got.iter().map(|g| f64::from(g[1])).sum::<f64>()
+        / estimates.iter().map(|e| e.mean[1]).sum::<f64>();
+    eprintln!(
+        "probes: {} of {} against the reference: rel L2 {:.2}% (its noise {:.2}%), total {:.4} \
+         of the reference's",
+        chosen.len(),
+        probes.len(),
+        err * 100.0,
+        noise * 100.0,
+        total
+    );
+    assert!(noise < 0.03, "reference noise {noise}");
+    assert!(err < 0.10, "probe error {err}");
+}
+
+/// No light, no probe light; twice the light, twice the probe light (the gather is linear).
+#[test]
+fn probe_light_is_linear_in_the_light() {
+    let engine = Engine::new(EngineChoice::Cpu).unwrap();
+    let scene = engine.load(baked()).unwrap();
+    let lit = engine
+        .relight(
+            &scene,
+            &[LightSet { lights: vec![] }, point(1.0), point(2.0)],
+        )
+        .unwrap();
+    assert!(lit[0].probes.iter().flatten().all(|&v| v == 0.0));
+    assert!(lit[1].probes.iter().flatten().any(|&v| v > 0.0));
+    for (a, b) in lit[1]
+        .probes
+        .iter()
+        .flatten()
+        .zip(lit[2].probes.iter().flatten())
+    {
+        assert!((2.0 * a - b).abs() <= 1e-5 * b.abs().max(1e-6), "{a} {b}");
+    }
+}
+
+/// The GPU engine's probes: the same gather over its own `B0` and `T · B0`.
+#[test]
+fn gpu_probes_match_the_cpu() {
+    let Some(gpu) = crate::relight::gpu_engine() else {
+        return;
+    };
+    let cpu = Engine::new(EngineChoice::Cpu).unwrap();
+    let sets = [point(1.0), point(0.5)];
+    let a = cpu.relight(&cpu.load(baked()).unwrap(), &sets).unwrap();
+    let b = gpu.relight(&gpu.load(baked()).unwrap(), &sets).unwrap();
+    for (x, y) in a.iter().zip(&b) {
+        let (mut num, mut den) = (0.0f64, 0.0f64);
+        for (p, q) in x.probes.iter().flatten().zip(y.probes.iter().flatten()) {
+            num += (f64::from(*p) - f64::from(*q)).powi(2);
+            den += f64::from(*p).powi(2);
+        }
+        let d = (num / den).sqrt();
+        assert!(d < 2e-3, "GPU probes differ from the CPU's by {d}");
+    }
+}
