@@ -1499,3 +1499,73 @@ fn bench_tradeoff_puts_both_geometries_on_one_table() {
     }
     assert!(std::fs::read_to_string(&plot).unwrap().contains("<svg"));
 }
+
+/// A bake with probes: `inspect` lists them, `relight --out X.json` gives their light per
+/// direction, `verify` checks them against the reference; probe options that cannot run are
+/// refused before any work, naming the flag.
+#[test]
+fn probes_bake_relight_and_verify() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("p.bounce");
+    let lights = dir.path().join("point.json");
+    std::fs::write(
+        &lights,
+        r#"{"lights":[{"type":"point","position":[0,1.5,0],"intensity":10}]}"#,
+    )
+    .unwrap();
+    let out = run(bounce()
+        .arg("bake")
+        .arg(cornell())
+        .args(["--patches", "300", "--rays", "256", "--codec", "dense-f32"])
+        .args(["--probes", "--probe-rays", "256", "-o"])
+        .arg(&file));
+    assert!(out.status.success(), "{}", stderr(&out));
+    let j = inspect_json(&file);
+    let count = j["probes"]["count"].as_u64().unwrap();
+    assert!(count > 0, "{j}");
+    assert_eq!(j["probes"]["rays_per_direction"], 256);
+    let json = dir.path().join("r.json");
+    let out = run(bounce()
+        .arg("relight")
+        .arg(&file)
+        .arg("--lights")
+        .arg(&lights)
+        .args(["--engine", "cpu", "--out"])
+        .arg(&json));
+    assert!(out.status.success(), "{}", stderr(&out));
+    let r: Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert_eq!(r["probe_positions"].as_array().unwrap().len() as u64, count);
+    let probes = r["sets"][0]["probes"].as_array().unwrap();
+    assert_eq!(probes.len() as u64, count);
+    assert_eq!(probes[0].as_array().unwrap().len(), 6);
+    let out = run(bounce()
+        .arg("verify")
+        .arg(&file)
+        .arg(cornell())
+        .arg("--lights")
+        .arg(&lights)
+        .args(["--spp", "16", "--probe-spp", "64", "--json", "--quiet"]));
+    assert!(out.status.success(), "{}", stderr(&out));
+    let v: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["probes"]["probes"].as_u64(), Some(count));
+    let err = v["probes"]["rel_l2"].as_f64().unwrap();
+    assert!(err.is_finite() && err < 0.5, "{v}");
+    for (args, says) in [
+        (&["--probe-spacing=-1"][..], "--probe-spacing"),
+        (&["--probes", "--probe-rays", "0"][..], "--probe-rays"),
+        (
+            &["--probes", "--geometry", "voxel-faces"][..],
+            "surface geometry",
+        ),
+    ] {
+        let out = run(bounce()
+            .arg("bake")
+            .arg(cornell())
+            .args(args)
+            .arg("-o")
+            .arg(dir.path().join("no.bounce")));
+        assert!(!out.status.success());
+        assert!(stderr(&out).contains(says), "{args:?}: {}", stderr(&out));
+        assert!(!dir.path().join("no.bounce").exists());
+    }
+}

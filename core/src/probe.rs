@@ -22,10 +22,10 @@
 //! blend of its neighbours (the client's job, trilinear over the grid or nearest).
 //!
 //! Placement is a regular grid of `spacing` over the voxel grid's box. A grid point is a probe
-//! when its voxel is empty, an occupied voxel lies within `spacing` of it (near surfaces: space
-//! far from every surface holds nothing to light), and a short sphere of test rays says it is
-//! inside the scene: few of them meet the back of a one-sided surface (it would be inside a
-//! wall or behind the level) and not most of them escape.
+//! when its voxel is empty, an occupied voxel lies within `spacing` of it, at most 8 voxels (near
+//! surfaces: space far from every surface holds nothing to light), and a short sphere of test
+//! rays says it is inside the scene: few of them meet the back of a one-sided surface (it would
+//! be inside a wall or behind the level) and not most of them escape.
 
 use glam::Vec3;
 use rayon::prelude::*;
@@ -54,6 +54,8 @@ const TEST_RAYS: u32 = 64;
 const MAX_BACK_SHARE: f32 = 0.1;
 /// A point where more than this share escapes is outside the scene.
 const MAX_ESCAPED_SHARE: f32 = 0.75;
+/// The farthest, in voxels, a probe may be from every occupied voxel.
+const MAX_REACH: f32 = 8.0;
 /// Sobol dimension sets: the gather's, and the test rays'.
 const GATHER_SET: u32 = 0;
 const TEST_SET: u32 = 1;
@@ -284,7 +286,7 @@ fn place(
     let origin = Vec3::from(layout.origin);
     let size = Vec3::from(layout.dims.map(|d| d as f32)) * layout.voxel_size;
     let counts = [0, 1, 2].map(|a| ((size[a] / spacing).floor() as u64).max(1));
-    let points = counts.iter().product::<u64>();
+    let points = counts.iter().fold(1u64, |a, &b| a.saturating_mul(b));
     if points > MAX_GRID_POINTS {
         return Err(ProbeError::TooFine { spacing, points });
     }
@@ -292,7 +294,9 @@ fn place(
     let first = Vec3::from(
         [0, 1, 2].map(|a| origin[a] + (size[a] - (counts[a] - 1) as f32 * spacing) / 2.0),
     );
-    let reach = (spacing / layout.voxel_size).ceil().max(1.0) as i64;
+    // Capped so that a spacing of many voxels does not make each point scan a large cube: past
+    // 8 voxels "near surfaces" means within 8 voxels.
+    let reach = (spacing / layout.voxel_size).ceil().clamp(1.0, MAX_REACH) as i64;
     let kept: Vec<[f32; 3]> = (0..points)
         .into_par_iter()
         .filter_map(|i| {
