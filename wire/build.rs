@@ -17,6 +17,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .codec_path("crate::codec::StrictCodec")
         // Frames are encoded once and shared by every viewer: `Bytes` clones are reference counts.
         .bytes(".bounce.v1.Frame.data")
+        .bytes(".bounce.v1.Frame.probes")
         .compile_fds(fds)?;
     Ok(())
 }

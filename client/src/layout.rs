@@ -35,6 +35,9 @@ pub struct Layout {
     voxel_size: f32,
     dims: UVec3,
     patches: Vec<PatchFace>,
+    /// Where the scene's irradiance probes are: probe `k` of every probe frame (six values,
+    /// one a face direction, from `6 · k`). Empty for a scene without probes.
+    probes: Vec<Vec3>,
 }
 
 #[derive(Debug, Clone, PartialEq, Error)]
@@ -69,6 +72,8 @@ pub enum LayoutError {
         voxel: [u32; 3],
         face: Face,
     },
+    #[error("layout probe_positions: {0}")]
+    Probes(String),
 }
 
 impl Layout {
@@ -114,7 +119,34 @@ impl Layout {
             voxel_size,
             dims,
             patches,
+            probes: Vec::new(),
         })
+    }
+
+    /// This layout with its probes, from the wire's flat `x, y, z` list.
+    pub fn with_probes(mut self, flat: &[f32]) -> Result<Layout, LayoutError> {
+        if !flat.len().is_multiple_of(3) {
+            return Err(LayoutError::Probes(format!(
+                "{} numbers, not three a probe",
+                flat.len()
+            )));
+        }
+        if let Some(i) = flat.iter().position(|v| !v.is_finite()) {
+            return Err(LayoutError::Probes(format!(
+                "probe {}'s position is not finite",
+                i / 3
+            )));
+        }
+        self.probes = flat
+            .chunks_exact(3)
+            .map(|p| Vec3::new(p[0], p[1], p[2]))
+            .collect();
+        Ok(self)
+    }
+
+    /// Where the scene's irradiance probes are, in the order of the probe frames.
+    pub fn probes(&self) -> &[Vec3] {
+        &self.probes
     }
 
     /// From the gRPC answer.
@@ -128,7 +160,8 @@ impl Layout {
             u64::from(l.patch_count),
             &l.voxels,
             faces,
-        )
+        )?
+        .with_probes(&l.probe_positions)
     }
 
     /// From `GET /v1/scenes/{name}/layout`: the proto's fields as JSON, faces as codes or as the
@@ -144,7 +177,8 @@ impl Layout {
             w.patch_count,
             &w.voxels,
             w.faces.into_iter(),
-        )
+        )?
+        .with_probes(&w.probe_positions)
     }
 
     fn from_wire(
@@ -243,6 +277,9 @@ struct JsonLayout {
     patch_count: u64,
     voxels: Vec<u32>,
     faces: Vec<WireFace>,
+    /// Absent from servers before probes.
+    #[serde(default)]
+    probe_positions: Vec<f32>,
 }
 
 /// A face as a wire carries it: the code, or (proto JSON mapping) the enum value's name.
@@ -293,7 +330,35 @@ mod tests {
             patch_count: 3,
             voxels: vec![0, 0, 0, 0, 0, 0, 3, 3, 3],
             faces: vec![0, 2, 5],
+            probe_positions: vec![],
         }
+    }
+
+    #[test]
+    fn probes_read_from_both_wires_and_are_checked() {
+        let mut p = proto_layout();
+        p.probe_positions = vec![0.5, 1.0, 1.5, -0.5, 0.0, 0.25];
+        let l = Layout::from_proto(&p).unwrap();
+        assert_eq!(
+            l.probes(),
+            &[Vec3::new(0.5, 1.0, 1.5), Vec3::new(-0.5, 0.0, 0.25)]
+        );
+        let json = br#"{"scene":"box","origin":[-1,0,-1],"voxel_size":0.5,"dims":[4,4,4],
+            "patch_count":3,"voxels":[0,0,0,0,0,0,3,3,3],"faces":[0,2,5],
+            "probe_positions":[0.5,1,1.5,-0.5,0,0.25]}"#;
+        assert_eq!(Layout::from_json(json).unwrap(), l);
+        // A server from before probes sends none.
+        assert!(
+            Layout::from_proto(&proto_layout())
+                .unwrap()
+                .probes()
+                .is_empty()
+        );
+        refused(|l| l.probe_positions = vec![1.0, 2.0], "probe_positions");
+        refused(
+            |l| l.probe_positions = vec![1.0, f32::INFINITY, 0.0],
+            "not finite",
+        );
     }
 
     #[test]

@@ -803,6 +803,8 @@ pub fn layout_from_baked(name: &str, layout: &PatchLayout) -> Result<Layout, Ren
         layout.voxel_size,
         layout.dims,
         layout.patches.iter().map(|p| (p.voxel, p.face)),
+        // The renderer draws no probe-lit object yet.
+        &[],
     );
     Layout::from_proto(&wire).map_err(|e| RenderError::Volume(e.to_string()))
 }

@@ -30,6 +30,8 @@ pub struct SceneInfo {
     /// The emissive materials a light set may change, by name; `None` for a file baked before
     /// emitters were kept (format version 6) or a voxel-face bake.
     pub emitters: Option<Vec<String>>,
+    /// Where the scene's irradiance probes are; empty for a file baked without them.
+    pub probes: Vec<[f32; 3]>,
 }
 
 impl SceneInfo {
@@ -53,6 +55,11 @@ impl SceneInfo {
             model,
             sky_view: baked.sky.is_some(),
             emitters: baked.emitters.as_ref().map(|e| e.names()),
+            probes: baked
+                .probes
+                .as_ref()
+                .map(|p| p.positions.clone())
+                .unwrap_or_default(),
         }
     }
 
@@ -65,6 +72,7 @@ impl SceneInfo {
             l.voxel_size,
             l.dims,
             l.patches.iter().map(|p| (p.voxel, p.face)),
+            &self.probes,
         )
     }
 }

@@ -628,7 +628,7 @@ fn solve_scene(
                     "solved"
                 );
                 for (target, irr) in batch_targets.into_iter().zip(lit) {
-                    deliver(target, &irr.indirect, metrics);
+                    deliver(target, &irr.indirect, &irr.probes, metrics);
                 }
             }
             Err(source) => {
@@ -683,14 +683,28 @@ fn usable_lights(scene: &str, emitters: Option<&[String]>, mut set: LightSet) ->
     set
 }
 
-fn deliver(target: Target, indirect: &[[f32; 3]], metrics: &Metrics) {
+/// A patch frame, with its probe frame beside it when the scene has probes.
+fn frame(
+    sequence: u64,
+    version: u64,
+    indirect: &[[f32; 3]],
+    probes: &[[f32; 3]],
+) -> Result<Frame, bounce_wire::frame::FrameError> {
+    let frame = Frame::encode(sequence, version, indirect)?;
+    if probes.is_empty() {
+        return Ok(frame);
+    }
+    Ok(frame.with_probes(Frame::encode_probes(sequence, version, probes)?))
+}
+
+fn deliver(target: Target, indirect: &[[f32; 3]], probes: &[[f32; 3]], metrics: &Metrics) {
     match target {
         Target::Session {
             session,
             version,
             since,
             resolve,
-        } => match Frame::encode(session.next_sequence(), version, indirect) {
+        } => match frame(session.next_sequence(), version, indirect, probes) {
             Ok(frame) => {
                 metrics.count_frame_flags(frame.header.flags);
                 if session.publish(frame, resolve) && !resolve {
@@ -702,7 +716,7 @@ fn deliver(target: Target, indirect: &[[f32; 3]], metrics: &Metrics) {
             Err(e) => error!(session = %session.id, error = %e, "encoding a frame"),
         },
         Target::Once(reply) => {
-            let frame = Frame::encode(0, 0, indirect).map_err(ServerError::from);
+            let frame = frame(0, 0, indirect, probes).map_err(ServerError::from);
             if let Ok(f) = &frame {
                 metrics.count_frame_flags(f.header.flags);
             }

@@ -14,6 +14,13 @@
 //! | 24     | 8    | lights version the frame answers                                 |
 //! | 32     | 4·n  | per patch one RGB9E5 word (see [`rgb9e5`])                       |
 //!
+//! A scene baked with irradiance probes also has **probe frames**: the same layout under the magic
+//! `BNCP`, the count then being the probe directions (six a probe, in the face-code order, probe
+//! after probe) and the payload their irradiance. A probe frame travels beside its patch frame
+//! with the same sequence and lights version ([`Frame::probes`]): in gRPC's `Frame.probes`, and on
+//! a WebSocket that asked for them as the binary message after the patch frame. A reader of patch
+//! frames refuses it by its magic, so a client that knows nothing of probes never mistakes one.
+//!
 //! RGB9E5 is a GPU texture format (`GL_RGB9_E5`, `Rgb9e5Ufloat` in wgpu), so a client can upload
 //! the payload as it is. The u64 fields sit 8-byte aligned and the payload 4-byte aligned.
 
@@ -24,6 +31,8 @@ pub use rgb9e5::{RGB9E5_MAX, decode_rgb9e5, encode_rgb9e5};
 
 /// `BNCF`: bounce frame.
 pub const MAGIC: [u8; 4] = *b"BNCF";
+/// `BNCP`: bounce probe frame.
+pub const PROBE_MAGIC: [u8; 4] = *b"BNCP";
 pub const FORMAT_VERSION: u16 = 1;
 /// The only encoding so far; an f16 one could follow under another number.
 pub const ENCODING_RGB9E5: u16 = 1;
@@ -48,6 +57,8 @@ pub struct FrameHeader {
 pub struct Frame {
     pub header: FrameHeader,
     bytes: Bytes,
+    /// The probe frame that goes with this patch frame, if the scene has probes.
+    probes: Option<Box<Frame>>,
 }
 
 #[derive(Debug, Clone, PartialEq, Eq, Error)]
@@ -73,6 +84,24 @@ impl Frame {
         lights_version: u64,
         irradiance: &[[f32; 3]],
     ) -> Result<Frame, FrameError> {
+        Frame::encode_as(MAGIC, sequence, lights_version, irradiance)
+    }
+
+    /// Packs probe irradiance (one RGB triple a probe direction) as a probe frame (`BNCP`).
+    pub fn encode_probes(
+        sequence: u64,
+        lights_version: u64,
+        irradiance: &[[f32; 3]],
+    ) -> Result<Frame, FrameError> {
+        Frame::encode_as(PROBE_MAGIC, sequence, lights_version, irradiance)
+    }
+
+    fn encode_as(
+        magic: [u8; 4],
+        sequence: u64,
+        lights_version: u64,
+        irradiance: &[[f32; 3]],
+    ) -> Result<Frame, FrameError> {
         let patch_count = u32::try_from(irradiance.len())
             .map_err(|_| FrameError::TooManyPatches(irradiance.len()))?;
         let mut flags = 0;
@@ -89,17 +118,43 @@ impl Frame {
             sequence,
             lights_version,
         };
-        write_header(&header, &mut out[..HEADER_LEN]);
+        write_header(magic, &header, &mut out[..HEADER_LEN]);
         Ok(Frame {
             header,
             bytes: Bytes::from(out),
+            probes: None,
         })
     }
 
-    /// Reads a frame's bytes, checking the header against the length.
+    /// Reads a patch frame's bytes, checking the header against the length.
     pub fn parse(bytes: Bytes) -> Result<Frame, FrameError> {
-        let header = read_header(&bytes)?;
-        Ok(Frame { header, bytes })
+        let header = read_header(MAGIC, &bytes)?;
+        Ok(Frame {
+            header,
+            bytes,
+            probes: None,
+        })
+    }
+
+    /// Reads a probe frame's bytes (`BNCP`), checking the header against the length.
+    pub fn parse_probes(bytes: Bytes) -> Result<Frame, FrameError> {
+        let header = read_header(PROBE_MAGIC, &bytes)?;
+        Ok(Frame {
+            header,
+            bytes,
+            probes: None,
+        })
+    }
+
+    /// This patch frame with its probe frame beside it.
+    pub fn with_probes(mut self, probes: Frame) -> Frame {
+        self.probes = Some(Box::new(probes));
+        self
+    }
+
+    /// The probe frame beside this patch frame, if the scene has probes.
+    pub fn probes(&self) -> Option<&Frame> {
+        self.probes.as_deref()
     }
 
     /// The whole frame, header and payload.
@@ -120,8 +175,8 @@ impl Frame {
     }
 }
 
-fn write_header(h: &FrameHeader, out: &mut [u8]) {
-    out[0..4].copy_from_slice(&MAGIC);
+fn write_header(magic: [u8; 4], h: &FrameHeader, out: &mut [u8]) {
+    out[0..4].copy_from_slice(&magic);
     out[4..6].copy_from_slice(&FORMAT_VERSION.to_le_bytes());
     out[6..8].copy_from_slice(&ENCODING_RGB9E5.to_le_bytes());
     out[8..12].copy_from_slice(&h.flags.to_le_bytes());
@@ -130,7 +185,7 @@ fn write_header(h: &FrameHeader, out: &mut [u8]) {
     out[24..32].copy_from_slice(&h.lights_version.to_le_bytes());
 }
 
-fn read_header(b: &[u8]) -> Result<FrameHeader, FrameError> {
+fn read_header(expected: [u8; 4], b: &[u8]) -> Result<FrameHeader, FrameError> {
     let Some(head) = b.get(..HEADER_LEN) else {
         return Err(FrameError::Short(b.len()));
     };
@@ -138,7 +193,7 @@ fn read_header(b: &[u8]) -> Result<FrameHeader, FrameError> {
     let u32_at = |o: usize| u32::from_le_bytes([head[o], head[o + 1], head[o + 2], head[o + 3]]);
     let u64_at = |o: usize| u64::from(u32_at(o)) | (u64::from(u32_at(o + 4)) << 32);
     let magic = [head[0], head[1], head[2], head[3]];
-    if magic != MAGIC {
+    if magic != expected {
         return Err(FrameError::Magic(magic));
     }
     if u16_at(4) != FORMAT_VERSION {
@@ -256,6 +311,27 @@ mod tests {
                 bound(rgb)
             );
         }
+    }
+
+    #[test]
+    fn probe_frames_are_their_own_kind() {
+        let probes = Frame::encode_probes(3, 2, &[[1.0, 2.0, 4.0]; 12]).unwrap();
+        assert_eq!(&probes.bytes()[..4], b"BNCP");
+        assert_eq!(probes.header.patch_count, 12);
+        let back = Frame::parse_probes(probes.bytes().clone()).unwrap();
+        assert_eq!(back.irradiance(), vec![[1.0, 2.0, 4.0]; 12]);
+        // A patch-frame reader refuses a probe frame by its magic, and the other way round.
+        assert_eq!(
+            Frame::parse(probes.bytes().clone()),
+            Err(FrameError::Magic(*b"BNCP"))
+        );
+        let patches = Frame::encode(3, 2, &[[0.5; 3]; 4]).unwrap();
+        assert!(Frame::parse_probes(patches.bytes().clone()).is_err());
+        // The patch frame's bytes do not change when probes go beside it.
+        let both = patches.clone().with_probes(probes.clone());
+        assert_eq!(both.bytes(), patches.bytes());
+        assert_eq!(both.probes(), Some(&probes));
+        assert_eq!(patches.probes(), None);
     }
 
     #[test]

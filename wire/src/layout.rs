@@ -7,13 +7,14 @@ use bounce_types::face::Face;
 use crate::proto;
 
 /// The layout of `scene`: patch `i` of every frame is the `i`-th of `patches` (its voxel and the
-/// face of that voxel it stands for).
+/// face of that voxel it stands for); probe `k` of every probe frame is at `probes[k]`.
 pub fn to_proto(
     scene: &str,
     origin: [f32; 3],
     voxel_size: f32,
     dims: [u32; 3],
     patches: impl ExactSizeIterator<Item = ([u32; 3], Face)> + Clone,
+    probes: &[[f32; 3]],
 ) -> proto::Layout {
     proto::Layout {
         scene: scene.to_owned(),
@@ -25,6 +26,7 @@ pub fn to_proto(
         voxels: patches.clone().flat_map(|(voxel, _)| voxel).collect(),
         // The proto enum's numbers are the face codes.
         faces: patches.map(|(_, face)| i32::from(face.code())).collect(),
+        probe_positions: probes.iter().flatten().copied().collect(),
     }
 }
 
@@ -41,6 +43,7 @@ mod tests {
             0.25,
             [4, 4, 4],
             patches.into_iter(),
+            &[[1.0, 2.0, 3.0]],
         );
         assert_eq!(l.scene, "box");
         assert_eq!(l.patch_count, 2);
@@ -51,5 +54,6 @@ mod tests {
         );
         assert_eq!(l.origin, vec![0.5, 0.0, -1.0]);
         assert_eq!(l.dims, vec![4, 4, 4]);
+        assert_eq!(l.probe_positions, vec![1.0, 2.0, 3.0]);
     }
 }

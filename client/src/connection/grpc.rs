@@ -179,7 +179,7 @@ impl Frames {
         else {
             return Ok(None);
         };
-        let frame = Frame::parse(message.data)?;
+        let mut frame = Frame::parse(message.data)?;
         // The message repeats the header's numbers; a server whose two disagree is broken, and
         // ordering by either would be a guess.
         if frame.header.sequence != message.sequence
@@ -192,6 +192,21 @@ impl Frames {
                 frame.header.sequence,
                 frame.header.lights_version
             )));
+        }
+        if !message.probes.is_empty() {
+            let probes = Frame::parse_probes(message.probes)?;
+            if (probes.header.sequence, probes.header.lights_version)
+                != (frame.header.sequence, frame.header.lights_version)
+            {
+                return Err(ClientError::Protocol(format!(
+                    "probe frame answers sequence {} / lights version {}, its patch frame {} / {}",
+                    probes.header.sequence,
+                    probes.header.lights_version,
+                    frame.header.sequence,
+                    frame.header.lights_version
+                )));
+            }
+            frame = frame.with_probes(probes);
         }
         Ok(Some(frame))
     }

@@ -78,6 +78,10 @@ fn to_proto(session_id: &str, frame: &Frame) -> proto::Frame {
         sequence: frame.header.sequence,
         lights_version: frame.header.lights_version,
         data: frame.bytes().clone(),
+        probes: frame
+            .probes()
+            .map(|p| p.bytes().clone())
+            .unwrap_or_default(),
     }
 }
 

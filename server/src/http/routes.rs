@@ -144,6 +144,8 @@ pub(super) struct Layout {
     voxels: Vec<u32>,
     /// Each patch's face code (0..5: +X, −X, +Y, −Y, +Z, −Z).
     faces: Vec<i32>,
+    /// x, y, z of each irradiance probe, flat; empty without probes.
+    probe_positions: Vec<f32>,
 }
 
 impl From<proto::Layout> for Layout {
@@ -156,6 +158,7 @@ impl From<proto::Layout> for Layout {
             patch_count: l.patch_count,
             voxels: l.voxels,
             faces: l.faces,
+            probe_positions: l.probe_positions,
         }
     }
 }

@@ -4,7 +4,10 @@
 //! Server → client: first a text `{"type": "hello", "session_id", "scene", "lights_version",
 //! "patch_count"}`, then every frame as a binary message holding exactly [`Frame::bytes`] (the
 //! layout gRPC's `Frame.data` carries), through a [`Viewer`]: the newest frame at once, then each
-//! newer one; a slow reader skips to the newest, never gets an older one.
+//! newer one; a slow reader skips to the newest, never gets an older one. The hello also says
+//! `probe_count`; a client that upgrades with `?probes=1` and a scene with probes gets, after
+//! each frame, its probe frame (`BNCP`, `bounce_wire::frame`) as a second binary message. Without
+//! the query a client gets patch frames only, as before probes.
 //!
 //! Client → server, text: `{"type": "set_lights", "lights": [...], "token": "T"}` (the token is
 //! optional where the upgrade request presented one) answered by `{"type": "lights",
@@ -18,9 +21,9 @@ use tokio::time::Instant;
 
 use axum::extract::ws::rejection::WebSocketUpgradeRejection;
 use axum::extract::ws::{CloseFrame, Message, WebSocket, WebSocketUpgrade};
-use axum::extract::{Path, State};
+use axum::extract::{Path, Query, State};
 use axum::response::Response;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use tokio::sync::watch;
 use tracing::debug;
 
@@ -51,8 +54,18 @@ pub(crate) async fn upgrade(
     State(state): State<AppState>,
     Path(id): Path<String>,
     Token(token): Token,
+    Query(options): Query<WsQuery>,
     upgrade: Result<WebSocketUpgrade, WebSocketUpgradeRejection>,
 ) -> Result<Response, ApiError> {
+    let probes = match options.probes.as_deref() {
+        None | Some("0" | "false") => false,
+        Some("1" | "true") => true,
+        Some(other) => {
+            return Err(ApiError::from(ServerError::Invalid(format!(
+                "probes={other}: give probes=1 (or true) to receive probe frames"
+            ))));
+        }
+    };
     let viewer = state.hub.viewer(&id, Transport::Websocket)?;
     let upgrade = upgrade.map_err(|r| ApiError::from_rejection(r.status(), r.body_text()))?;
     let connection = Connection {
@@ -60,6 +73,7 @@ pub(crate) async fn upgrade(
         hub: state.hub,
         viewer,
         token,
+        probes,
     };
     // Held for the socket's life, so shutdown waits for its close frame.
     let tracked = state.sockets.token();
@@ -73,6 +87,12 @@ pub(crate) async fn upgrade(
         }))
 }
 
+/// The upgrade's query besides the token: whether the client takes probe frames.
+#[derive(Deserialize)]
+pub(crate) struct WsQuery {
+    probes: Option<String>,
+}
+
 #[derive(Serialize)]
 #[serde(tag = "type", rename_all = "snake_case")]
 enum ServerMessage<'a> {
@@ -81,6 +101,8 @@ enum ServerMessage<'a> {
         scene: &'a str,
         lights_version: u64,
         patch_count: usize,
+        /// Probes of the scene (six values each in a probe frame); 0 without.
+        probe_count: usize,
     },
     Lights {
         lights_version: u64,
@@ -116,6 +138,8 @@ struct Connection {
     viewer: Viewer,
     /// What the upgrade request presented.
     token: Option<String>,
+    /// Whether the client asked for probe frames.
+    probes: bool,
     shutdown: watch::Receiver<bool>,
 }
 
@@ -157,12 +181,16 @@ impl Connection {
     async fn serve(&mut self, socket: &mut WebSocket) -> End {
         let session = std::sync::Arc::clone(self.viewer.session());
         let scene = self.hub.scene_of(&session);
-        let patch_count = self.hub.scene(&scene).map_or(0, |s| s.layout.len());
+        let (patch_count, probe_count) = self
+            .hub
+            .scene(&scene)
+            .map_or((0, 0), |s| (s.layout.len(), s.probes.len()));
         let hello = ServerMessage::Hello {
             session_id: &session.id,
             scene: &scene,
             lights_version: session.lights_version(),
             patch_count,
+            probe_count,
         };
         if let Err(end) = self.send(socket, hello.to_message()).await {
             return end;
@@ -197,7 +225,17 @@ impl Connection {
                     Message::Ping(Default::default())
                 }
                 Event::Frame(None) => return End::ShuttingDown,
-                Event::Frame(Some(frame)) => frame_message(&frame),
+                Event::Frame(Some(frame)) => {
+                    if let (true, Some(probes)) = (self.probes, frame.probes()) {
+                        // The patch frame first, its probe frame right after it.
+                        if let Err(end) = self.send(socket, frame_message(&frame)).await {
+                            return end;
+                        }
+                        frame_message(probes)
+                    } else {
+                        frame_message(&frame)
+                    }
+                }
                 Event::Message(None) => return End::ClientGone,
                 Event::Message(Some(Err(e))) => return read_error(e),
                 Event::Message(Some(Ok(Message::Text(text)))) => {

@@ -25,7 +25,8 @@ pub const SCENE: &str = "cornell-box";
 /// Long enough for a loaded CI machine, short enough to fail rather than hang.
 pub const PATIENCE: Duration = Duration::from_secs(60);
 
-/// A directory holding `cornell-box.bounce`, baked once per test binary at about 300 patches.
+/// A directory holding `cornell-box.bounce`, baked once per test binary at about 300 patches,
+/// with probes.
 pub fn scenes_dir() -> PathBuf {
     // In cargo's target tmp directory, written afresh on each run (so it is always this build's
     // format): a temporary directory held in a static is never dropped, and would stay in /tmp.
@@ -33,7 +34,19 @@ pub fn scenes_dir() -> PathBuf {
     DIR.get_or_init(|| {
         let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("server-it-scenes");
         std::fs::create_dir_all(&dir).expect("creating the scenes directory");
-        let mut baked = bounce_testkit::fixtures::baked_cornell_box(300);
+        // As the testkit's box, with irradiance probes, so every test runs against a scene that
+        // has them (a client that did not ask for probe frames must not see one).
+        let options = BakeOptions {
+            resolution: Resolution::TargetPatches(300),
+            rays: 512,
+            probes: Some(bounce_core::probe::ProbeOptions {
+                spacing: None,
+                rays: 256,
+            }),
+            ..BakeOptions::default()
+        };
+        let mut baked = bake_file(&bounce_testkit::cornell_gltf(), &options, &NoProgress)
+            .expect("baking the Cornell box");
         // As `bounce bake` keeps it: the browser page's model.
         baked.model = Some(
             bounce_core::import::pack_glb(&bounce_testkit::cornell_gltf())

@@ -395,6 +395,64 @@ async fn relight_once_matches_the_engine_within_rgb9e5() {
     server.stop().await;
 }
 
+/// A scene with probes: the layout says where they are, and every frame carries their light
+/// beside the patches' (the same sequence and version), as the engine computes it within
+/// RGB9E5's step.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn frames_carry_probe_light_beside_the_patches() {
+    let server = TestServer::start().await;
+    let mut c = server.client().await;
+    let probes = baked().probes.expect("the test scene has probes");
+    let layout = c
+        .get_layout(proto::GetLayoutRequest {
+            scene: SCENE.into(),
+        })
+        .await
+        .expect("layout")
+        .into_inner();
+    let flat: Vec<f32> = probes.positions.iter().flatten().copied().collect();
+    assert_eq!(layout.probe_positions, flat);
+
+    let (id, version) = create_session(&mut c, vec![point(3.0)]).await;
+    let mut stream = subscribe(&mut c, &id).await;
+    let frame = loop {
+        let f = tokio::time::timeout(PATIENCE, stream.message())
+            .await
+            .expect("a frame in time")
+            .expect("stream")
+            .expect("a frame");
+        if f.lights_version >= version {
+            break f;
+        }
+    };
+    let probe_frame = Frame::parse_probes(frame.probes.clone()).expect("probe frame");
+    assert_eq!(probe_frame.header.sequence, frame.sequence);
+    assert_eq!(probe_frame.header.lights_version, frame.lights_version);
+    let got = probe_frame.irradiance();
+    assert_eq!(got.len(), 6 * probes.len());
+
+    let engine = Engine::new(EngineChoice::Cpu).expect("cpu engine");
+    let scene = engine.load(&baked()).expect("load");
+    let set = bounce_server::lights::light_set(&[point(3.0)]).expect("lights");
+    let want = engine
+        .relight(&scene, &[set])
+        .expect("relight")
+        .remove(0)
+        .probes;
+    assert!(want.iter().any(|w| w[1] > 0.0), "the probes saw no light");
+    for (g, w) in got.iter().zip(&want) {
+        let max = w.iter().fold(0.0f64, |m, &x| m.max(f64::from(x)));
+        let bound = max / 511.0 + 2f64.powi(-25) + 1e-5 * max;
+        for k in 0..3 {
+            assert!(
+                (f64::from(g[k]) - f64::from(w[k])).abs() <= bound,
+                "{g:?} vs {w:?}"
+            );
+        }
+    }
+    server.stop().await;
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn relight_stream_takes_lights_and_returns_frames() {
     let server = TestServer::start().await;

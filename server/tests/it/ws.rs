@@ -30,10 +30,14 @@ async fn hello_frames_and_control_messages() {
     let id = server.http_session(&http, 5.0).await;
     let mut ws = WsClient::connect(&server.ws_url(&id, None)).await;
     let patches = server.hub.scene(SCENE).expect("scene").layout.len();
+    let probes = server.hub.scene(SCENE).expect("scene").probes.len();
+    assert!(probes > 0, "the test scene has probes");
+    // No probe frame comes unless asked for: every binary message below parses as a patch
+    // frame (`WsClient::next` would panic on a probe frame).
     assert_eq!(
         ws.hello,
         json!({"type": "hello", "session_id": id, "scene": SCENE, "lights_version": 1,
-               "patch_count": patches})
+               "patch_count": patches, "probe_count": probes})
     );
     let WsEvent::Frame(first) = ws.next().await else {
         panic!("expected the first frame");
@@ -69,6 +73,50 @@ async fn hello_frames_and_control_messages() {
     let last = ws.last.as_ref().expect("a frame");
     assert_eq!(f.lights_version, 2);
     assert_eq!(&f.data, last.bytes());
+    server.stop().await;
+}
+
+/// `?probes=1`: each patch frame is followed by its probe frame, the same one gRPC carries.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn probe_frames_follow_their_patch_frames_when_asked_for() {
+    let server = TestServer::start().await;
+    let http = client();
+    let id = server.http_session(&http, 5.0).await;
+    let probes = server.hub.scene(SCENE).expect("scene").probes.len();
+    let url = format!("{}?probes=1", server.ws_url(&id, None));
+    let (mut stream, _) = tokio_tungstenite::connect_async(&url)
+        .await
+        .expect("WebSocket connect");
+    let mut binary = Vec::new();
+    while binary.len() < 2 {
+        let message = tokio::time::timeout(PATIENCE, stream.next())
+            .await
+            .expect("a message in time")
+            .expect("open")
+            .expect("a message");
+        match message {
+            WsMessage::Text(t) => {
+                let hello: Value = serde_json::from_str(t.as_str()).expect("JSON");
+                assert_eq!(hello["probe_count"], json!(probes));
+            }
+            WsMessage::Binary(b) => binary.push(b),
+            _ => {}
+        }
+    }
+    let patch = Frame::parse(binary[0].clone()).expect("a patch frame first");
+    let probe = Frame::parse_probes(binary[1].clone()).expect("then its probe frame");
+    assert_eq!(probe.header.sequence, patch.header.sequence);
+    assert_eq!(probe.header.lights_version, patch.header.lights_version);
+    assert_eq!(probe.header.patch_count as usize, 6 * probes);
+    // The same bytes as gRPC's probe frame.
+    let mut grpc = server.client().await;
+    let mut frames = subscribe(&mut grpc, &id).await;
+    let f = frames.message().await.expect("frame").expect("a frame");
+    assert_eq!(f.sequence, patch.header.sequence);
+    assert_eq!(&f.probes, probe.bytes());
+    // Anything but 1/true/0/false is refused before the upgrade.
+    let bad = format!("{}?probes=yes", server.ws_url(&id, None));
+    assert!(tokio_tungstenite::connect_async(&bad).await.is_err());
     server.stop().await;
 }
 
