@@ -26,6 +26,8 @@ pub struct Answer {
     pub lights_version: u64,
     /// The frame sequence (per server run), or the in-process solve count.
     pub sequence: u64,
+    /// Irradiance at the layout's probes (`6 · probe + direction`), when the scene has them.
+    pub probes: Option<Vec<[f32; 3]>>,
 }
 
 /// A change `send` was given, answered with the lights version it got.
@@ -104,6 +106,7 @@ impl Source {
                 Ok(Some(Answer {
                     lights_version: frame.header.lights_version,
                     sequence: frame.header.sequence,
+                    probes: frame.probes().map(|p| p.irradiance()),
                 }))
             }
             Source::Local(l) => {
@@ -114,12 +117,13 @@ impl Source {
                 match newest {
                     None => Ok(None),
                     Some(Err(e)) => bail!("relighting in process: {e}"),
-                    Some(Ok((tag, indirect))) => {
+                    Some(Ok((tag, indirect, probes))) => {
                         l.solves += 1;
                         volume.apply_irradiance(&indirect)?;
                         Ok(Some(Answer {
                             lights_version: tag,
                             sequence: l.solves,
+                            probes: (!probes.is_empty()).then_some(probes),
                         }))
                     }
                 }
@@ -311,8 +315,9 @@ async fn writer(
     }
 }
 
-/// A tagged light change's indirect irradiance per patch, or why it could not be solved.
-type Solved = Result<(u64, Vec<[f32; 3]>), String>;
+/// A tagged light change's indirect irradiance per patch and irradiance per probe direction,
+/// or why it could not be solved.
+type Solved = Result<(u64, Vec<[f32; 3]>, Vec<[f32; 3]>), String>;
 
 /// A baked file relit by an engine on a thread of its own.
 pub struct Local {
@@ -331,7 +336,12 @@ impl Local {
             .file_stem()
             .map(|s| s.to_string_lossy().into_owned())
             .unwrap_or_default();
-        let layout = layout_from_baked(&name, &baked.layout)?;
+        let probes: Vec<f32> = baked
+            .probes
+            .iter()
+            .flat_map(|p| p.positions.iter().flatten().copied())
+            .collect();
+        let layout = layout_from_baked(&name, &baked.layout)?.with_probes(&probes)?;
         let (requests, rx) = mpsc::channel::<(u64, LightSet)>();
         let (tx, results) = mpsc::channel();
         let describe = std::sync::Arc::new(std::sync::Mutex::new("loading".to_string()));
@@ -366,7 +376,7 @@ impl Local {
                         .and_then(|lit| {
                             lit.into_iter()
                                 .next()
-                                .map(|l| (tag, l.indirect))
+                                .map(|l| (tag, l.indirect, l.probes))
                                 .ok_or_else(|| "the engine answered no light set".to_string())
                         });
                     if tx.send(answer).is_err() {

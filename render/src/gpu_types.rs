@@ -47,3 +47,17 @@ pub struct Vertex {
 
 pub const WRAP_REPEAT_U: u32 = 1;
 pub const WRAP_REPEAT_V: u32 = 2;
+
+/// `Object` in `shade.wgsl`: the probe-lit sphere ([`crate::ProbeSphere`]), drawn from a unit
+/// sphere's vertices as instance 1.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Pod, Zeroable)]
+pub struct Object {
+    pub centre: [f32; 3],
+    pub radius: f32,
+    /// Linear RGB.
+    pub albedo: [f32; 3],
+    pub pad: u32,
+    /// The ambient cube, +X, −X, +Y, −Y, +Z, −Z (rgb, w unused).
+    pub cube: [[f32; 4]; 6],
+}

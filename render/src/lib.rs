@@ -12,7 +12,9 @@
 //! the GPU; [`Renderer::draw`] records it into any target (a window's surface texture or an
 //! offscreen image), so the window and `bounce render` run the same code. A stage is built from
 //! the renderer's [`Resources`] (device, layouts, samplers), not from the code that draws it.
-//! [`Overlay`] draws the viewer's text on top.
+//! [`Overlay`] draws the viewer's text on top. A stage may also draw one object that is none of
+//! the scene's surfaces, a [`ProbeSphere`] lit by the irradiance probes' [`ambient_cube`]
+//! (`object.rs`), as an object moving through the scene would be.
 //!
 //! Not here: relighting (`bounce_engine`), the volume's contents (`bounce_client`), windows,
 //! input and file formats (the CLI's viewer and `render` command).
@@ -23,13 +25,17 @@ mod gpu_types;
 mod lights;
 mod math;
 mod mesh;
+mod object;
 mod overlay;
 mod renderer;
 mod resources;
 mod stage;
 
 pub use camera::Camera;
-pub use gpu_types::{FLAG_LINEAR, FLAG_NO_EMISSION, Globals, Vertex, WRAP_REPEAT_U, WRAP_REPEAT_V};
+pub use gpu_types::{
+    FLAG_LINEAR, FLAG_NO_EMISSION, Globals, Object, Vertex, WRAP_REPEAT_U, WRAP_REPEAT_V,
+};
+pub use object::{BLEND_PROBES, ProbeSphere, ambient_cube, cube_irradiance};
 pub use overlay::{OVERLAY_SHADER, Overlay, OverlayParams};
 pub use renderer::{
     IMAGE_FORMAT, Image, LINEAR_FORMAT, LinearImage, MAX_SHADOW_VIEWS, MAX_SIDE, RenderError,

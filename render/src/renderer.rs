@@ -14,6 +14,7 @@ use wgpu::util::DeviceExt;
 use crate::camera::Camera;
 pub use crate::error::{MAX_SIDE, RenderError};
 use crate::gpu_types::{FLAG_LINEAR, FLAG_NO_EMISSION, Globals, Vertex};
+use crate::object::unit_sphere;
 use crate::resources::{DEPTH_FORMAT, bind_group};
 pub use crate::resources::{MAX_SHADOW_VIEWS, Resources};
 use crate::stage::{Stage, VolumeGpu};
@@ -96,6 +97,9 @@ pub struct Renderer<'a> {
     module: wgpu::ShaderModule,
     mains: Vec<(wgpu::TextureFormat, wgpu::RenderPipeline)>,
     shadow: wgpu::RenderPipeline,
+    /// A unit sphere's triangles, drawn as the probe-lit object ([`Stage::set_probe_sphere`]).
+    sphere: wgpu::Buffer,
+    sphere_count: u32,
 }
 
 impl<'a> std::ops::Deref for Renderer<'a> {
@@ -224,6 +228,21 @@ impl<'a> Renderer<'a> {
             mipmap_filter: wgpu::MipmapFilterMode::Linear,
             ..Default::default()
         });
+        let sphere: Vec<Vertex> = unit_sphere(16, 32)
+            .into_iter()
+            .map(|p| Vertex {
+                position: p,
+                normal: p,
+                albedo: [1.0; 3],
+                ..Vertex::default()
+            })
+            .collect();
+        let sphere_count = sphere.len() as u32;
+        let sphere = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("probe sphere"),
+            contents: bytemuck::cast_slice(&sphere),
+            usage: wgpu::BufferUsages::VERTEX,
+        });
         Ok(Renderer {
             resources: Resources {
                 ctx,
@@ -235,6 +254,8 @@ impl<'a> Renderer<'a> {
             module,
             mains,
             shadow,
+            sphere,
+            sphere_count,
         })
     }
 
@@ -264,7 +285,8 @@ impl<'a> Renderer<'a> {
     }
 
     /// Records one image of `stage` from `camera` into `target`: the shadow maps first if the
-    /// lights changed since they were drawn, then the scene.
+    /// lights changed since they were drawn, then the scene, then the stage's probe-lit sphere
+    /// if it has one.
     pub fn draw(
         &self,
         stage: &mut Stage,
@@ -358,6 +380,11 @@ impl<'a> Renderer<'a> {
         pass.set_bind_group(0, &stage.main_group, &[]);
         pass.set_vertex_buffer(0, stage.vertices.slice(..));
         pass.draw(0..stage.vertex_count, 0..1);
+        if stage.sphere.is_some() {
+            // Instance 1 is the object (`vs_main`).
+            pass.set_vertex_buffer(0, self.sphere.slice(..));
+            pass.draw(0..self.sphere_count, 1..2);
+        }
         Ok(())
     }
 
@@ -708,6 +735,15 @@ fn main_layout_entries() -> Vec<wgpu::BindGroupLayoutEntry> {
             S::FRAGMENT,
             wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Comparison),
         ),
+        entry(
+            5,
+            S::VERTEX | S::FRAGMENT,
+            wgpu::BindingType::Buffer {
+                ty: wgpu::BufferBindingType::Uniform,
+                has_dynamic_offset: false,
+                min_binding_size: None,
+            },
+        ),
     ];
     for binding in 6..12 {
         entries.push(entry(
@@ -803,7 +839,7 @@ pub fn layout_from_baked(name: &str, layout: &PatchLayout) -> Result<Layout, Ren
         layout.voxel_size,
         layout.dims,
         layout.patches.iter().map(|p| (p.voxel, p.face)),
-        // The renderer draws no probe-lit object yet.
+        // Probe positions are the caller's to add (`Layout::with_probes`).
         &[],
     );
     Layout::from_proto(&wire).map_err(|e| RenderError::Volume(e.to_string()))

@@ -3,8 +3,12 @@
 // of `Volume::sample`), and the tonemap (or linear radiance, for a float target). The light model
 // (`GpuLight`, `KIND_*`, `light_sample`) is the engine's `light.wgsl`
 // (engine/src/gpu/shaders/light.wgsl), prepended to this file (`renderer::shade_source`), so a
-// pixel is lit with the same code as the engine's patches. The Rust mirror of `Globals` lives in
-// render/src/gpu_types.rs; a naga test checks that the layouts agree.
+// pixel is lit with the same code as the engine's patches. The Rust mirrors of `Globals` and
+// `Object` live in render/src/gpu_types.rs; a naga test checks that the layouts agree.
+//
+// The probe-lit test object (render/src/object.rs) is drawn by the same entry points: a unit
+// sphere's vertices as instance 1, placed by `object`, lit by its ambient cube instead of the
+// volume.
 
 const MIN_COVERAGE: f32 = 0.00390625; // 1/256, client::volume::MIN_COVERAGE
 const PI: f32 = 3.14159265358979;
@@ -28,7 +32,18 @@ struct Globals {
     pad1: u32,
 }
 
+// The probe-lit sphere: centre, radius, albedo, and the ambient cube blended from the probes
+// (+X, −X, +Y, −Y, +Z, −Z).
+struct Object {
+    centre: vec3<f32>,
+    radius: f32,
+    albedo: vec3<f32>,
+    pad: u32,
+    cube: array<vec4<f32>, 6>,
+}
+
 @group(0) @binding(0) var<uniform> g: Globals;
+@group(0) @binding(5) var<uniform> object: Object;
 @group(0) @binding(1) var<storage, read> lights: array<GpuLight>;
 @group(0) @binding(2) var<storage, read> views: array<mat4x4<f32>>;
 @group(0) @binding(3) var shadow_maps: texture_depth_2d_array;
@@ -115,6 +130,15 @@ fn sample_volume(p: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
     return vec3<f32>(0.0);
 }
 
+// The ambient cube's irradiance for unit normal `n` (object::cube_irradiance): each axis's
+// side by the sign of n's component, weighted by the component squared.
+fn cube_irradiance(n: vec3<f32>) -> vec3<f32> {
+    let n2 = n * n;
+    return n2.x * object.cube[select(0u, 1u, n.x < 0.0)].rgb
+        + n2.y * object.cube[select(2u, 3u, n.y < 0.0)].rgb
+        + n2.z * object.cube[select(4u, 5u, n.z < 0.0)].rgb;
+}
+
 // 1 where the light reaches `p` according to its shadow map, 0 where something is in front;
 // outside every map's frustum, lit.
 fn shadow(light: GpuLight, p: vec3<f32>, n: vec3<f32>) -> f32 {
@@ -163,12 +187,13 @@ struct VertexOut {
     @location(4) uv: vec2<f32>,
     @location(5) @interpolate(flat) layer: u32,
     @location(6) @interpolate(flat) wrap: u32,
+    // 1 for the probe-lit sphere.
+    @location(7) @interpolate(flat) object: u32,
 }
 
 @vertex
-fn vs_main(v: VertexIn) -> VertexOut {
+fn vs_main(v: VertexIn, @builtin(instance_index) instance: u32) -> VertexOut {
     var out: VertexOut;
-    out.clip = g.view_proj * vec4<f32>(v.position, 1.0);
     out.world = v.position;
     out.normal = v.normal;
     out.albedo = v.albedo;
@@ -176,6 +201,16 @@ fn vs_main(v: VertexIn) -> VertexOut {
     out.uv = v.uv;
     out.layer = v.layer;
     out.wrap = v.wrap;
+    out.object = 0u;
+    if instance == 1u {
+        // The unit sphere's position is its normal; the uv and layer stay 0 (white).
+        out.world = object.centre + object.radius * v.position;
+        out.normal = v.position;
+        out.albedo = object.albedo;
+        out.emission = vec3<f32>(0.0);
+        out.object = 1u;
+    }
+    out.clip = g.view_proj * vec4<f32>(out.world, 1.0);
     return out;
 }
 
@@ -184,7 +219,7 @@ fn fs_main(frag: VertexOut, @builtin(front_facing) front: bool) -> @location(0) 
     // The side the camera sees is the side that is lit and sampled: walls whose winding faces
     // away from the viewer still shade as seen.
     var n = normalize(frag.normal);
-    if !front {
+    if !front && frag.object == 0u {
         n = -n;
     }
     // The volume is read with the triangle's own normal on the seen side: the side whose patch
@@ -206,7 +241,11 @@ fn fs_main(frag: VertexOut, @builtin(front_facing) front: bool) -> @location(0) 
         }
     }
     if g.indirect != 0u {
-        e += sample_volume(frag.world, ng);
+        if frag.object != 0u {
+            e += cube_irradiance(n);
+        } else {
+            e += sample_volume(frag.world, ng);
+        }
     }
     // The map is sRGB-encoded, so the sample is linear; the white layer leaves the tint.
     // The array's sampler repeats; a layer that clamps to its edge keeps its coordinates half a

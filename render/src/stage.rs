@@ -13,9 +13,10 @@ use glam::{Mat4, UVec3, Vec3};
 use wgpu::util::DeviceExt;
 
 use crate::error::RenderError;
-use crate::gpu_types::Vertex;
+use crate::gpu_types::{Object, Vertex};
 use crate::lights::prepare_lights;
 use crate::mesh::{AlbedoMaps, mesh};
+use crate::object::ProbeSphere;
 use crate::resources::{DEPTH_FORMAT, MAX_SHADOW_VIEWS, Resources, SHADOW_SIZE, bind_group};
 
 /// A scene's GPU resources: see the module doc.
@@ -24,6 +25,10 @@ pub struct Stage {
     pub(crate) vertices: wgpu::Buffer,
     pub(crate) vertex_count: u32,
     pub(crate) globals: wgpu::Buffer,
+    /// `Object` for the probe-lit sphere.
+    object: wgpu::Buffer,
+    /// The probe-lit sphere drawn after the scene, if any.
+    pub(crate) sphere: Option<ProbeSphere>,
     albedo: wgpu::TextureView,
     pub(crate) lights: LightsGpu,
     pub(crate) volume: VolumeGpu,
@@ -80,15 +85,24 @@ impl Stage {
             usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
+        let object = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("object"),
+            size: std::mem::size_of::<Object>() as u64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
         let albedo = upload_maps(renderer, &mesh.maps)?;
         let lights = LightsGpu::new(renderer, &[], &[]);
         let volume = VolumeGpu::new(renderer, volume);
-        let (main_group, shadow_group) = groups(renderer, &globals, &albedo, &lights, &volume);
+        let (main_group, shadow_group) =
+            groups(renderer, [&globals, &object], &albedo, &lights, &volume);
         Ok(Stage {
             bounds,
             vertices,
             vertex_count: mesh.vertices.len() as u32,
             globals,
+            object,
+            sphere: None,
             albedo,
             lights,
             volume,
@@ -194,10 +208,27 @@ impl Stage {
         }
     }
 
+    /// The probe-lit sphere drawn after the scene from now on (its position and ambient cube
+    /// as given), or none.
+    pub fn set_probe_sphere(&mut self, renderer: &Resources<'_>, sphere: Option<ProbeSphere>) {
+        if let Some(s) = &sphere {
+            renderer
+                .ctx
+                .queue()
+                .write_buffer(&self.object, 0, bytemuck::bytes_of(&s.gpu()));
+        }
+        self.sphere = sphere;
+    }
+
+    /// The probe-lit sphere drawn after the scene, if any.
+    pub fn probe_sphere(&self) -> Option<&ProbeSphere> {
+        self.sphere.as_ref()
+    }
+
     fn rebind(&mut self, renderer: &Resources<'_>) {
         (self.main_group, self.shadow_group) = groups(
             renderer,
-            &self.globals,
+            [&self.globals, &self.object],
             &self.albedo,
             &self.lights,
             &self.volume,
@@ -418,9 +449,10 @@ fn upload_maps(
     }))
 }
 
+/// The main and shadow bind groups; `uniforms` are `Globals` and `Object`.
 fn groups(
     renderer: &Resources<'_>,
-    globals: &wgpu::Buffer,
+    [globals, object]: [&wgpu::Buffer; 2],
     albedo: &wgpu::TextureView,
     lights: &LightsGpu,
     volume: &VolumeGpu,
@@ -432,6 +464,7 @@ fn groups(
         (2, lights.views.as_entire_binding()),
         (3, wgpu::BindingResource::TextureView(&lights.array)),
         (4, wgpu::BindingResource::Sampler(&renderer.shadow_sampler)),
+        (5, object.as_entire_binding()),
     ];
     for (i, v) in volume.views.iter().enumerate() {
         entries.push((6 + i as u32, wgpu::BindingResource::TextureView(v)));

@@ -10,7 +10,10 @@ use anyhow::{Context, Result, anyhow, bail};
 use bounce_client::{LightSet, Volume};
 use bounce_core::scene::Scene;
 use bounce_engine::gpu::GpuContext;
-use bounce_render::{Camera, IMAGE_FORMAT, Overlay, Renderer, Stage, Target, Terms, read_buffer};
+use bounce_render::{
+    Camera, IMAGE_FORMAT, Overlay, ProbeSphere, Renderer, Stage, Target, Terms, ambient_cube,
+    read_buffer,
+};
 use glam::Vec3;
 use winit::application::ApplicationHandler;
 use winit::dpi::{PhysicalPosition, PhysicalSize};
@@ -70,6 +73,11 @@ pub struct App {
     volume: Volume,
     fly: Fly,
     terms: Terms,
+    /// Draw the probe-lit sphere ahead of the camera (`P`).
+    sphere: bool,
+    /// The newest probe irradiance (six values a probe of `source.layout().probes()`, in the
+    /// face order), from the source's answers.
+    probe_light: Vec<[f32; 3]>,
     held: HashSet<KeyCode>,
     drag: Option<PhysicalPosition<f64>>,
     gfx: Option<Gfx>,
@@ -123,6 +131,8 @@ impl App {
                 direct: true,
                 indirect: true,
             },
+            sphere: true,
+            probe_light: Vec::new(),
             held: HashSet::new(),
             drag: None,
             gfx: None,
@@ -377,8 +387,11 @@ impl App {
             });
             self.send_lights = false;
         }
-        if let Some(answer) = self.source.poll(&mut self.volume)? {
+        if let Some(mut answer) = self.source.poll(&mut self.volume)? {
             gfx.stage.set_volume(&gfx.renderer, &self.volume);
+            if let Some(probes) = answer.probes.take() {
+                self.probe_light = probes;
+            }
             self.shown = Some(answer);
         }
 
@@ -406,6 +419,14 @@ impl App {
             height: gfx.config.height,
         };
         let camera = self.fly.camera();
+        let sphere = probe_sphere(
+            self.sphere,
+            self.source.layout().probes(),
+            &self.probe_light,
+            &camera,
+            gfx.stage.bounds(),
+        );
+        gfx.stage.set_probe_sphere(&gfx.renderer, sphere);
         gfx.renderer.draw(
             &mut gfx.stage,
             &mut encoder,
@@ -423,6 +444,11 @@ impl App {
                 &self.source,
                 self.shown.as_ref(),
                 self.terms,
+                sphere_status(
+                    self.sphere,
+                    self.source.layout().probes().len(),
+                    gfx.stage.probe_sphere().is_some(),
+                ),
                 &self.lights,
                 self.selected,
                 self.write_error.as_deref(),
@@ -557,6 +583,7 @@ impl App {
                     indirect: true,
                 }
             }
+            KeyCode::KeyP => self.sphere = !self.sphere,
             KeyCode::Tab if !self.lights.lights.is_empty() => {
                 self.selected = (self.selected + 1) % self.lights.lights.len();
             }
@@ -674,6 +701,7 @@ fn overlay_lines(
     source: &Source,
     shown: Option<&Answer>,
     terms: Terms,
+    sphere: &str,
     lights: &LightSet,
     selected: usize,
     write_error: Option<&str>,
@@ -712,6 +740,7 @@ fn overlay_lines(
                 _ => "indirect only",
             }
         ),
+        format!("[P] probe-lit sphere: {sphere}"),
     ];
     match lights.lights.get(selected) {
         Some(l) => lines.push(format!(
@@ -730,6 +759,33 @@ fn overlay_lines(
     }
     lines.push("WASD QE fly, Shift fast, drag to look, wheel speed, H hide, Esc quit".into());
     lines
+}
+
+/// The probe-lit sphere ahead of `camera`, lit by the ambient cube the probes nearest its
+/// centre give: none while it is off, or without probes or their light.
+fn probe_sphere(
+    on: bool,
+    positions: &[Vec3],
+    light: &[[f32; 3]],
+    camera: &Camera,
+    bounds: (Vec3, Vec3),
+) -> Option<ProbeSphere> {
+    if !on {
+        return None;
+    }
+    let placed = ProbeSphere::ahead_of(camera, bounds, [[0.0; 3]; 6]);
+    let cube = ambient_cube(positions, light, placed.centre)?;
+    Some(ProbeSphere { cube, ..placed })
+}
+
+/// The overlay's word on the sphere.
+fn sphere_status(on: bool, probes: usize, drawn: bool) -> &'static str {
+    match (on, probes, drawn) {
+        (false, _, _) => "off",
+        (true, 0, _) => "the scene has no probes (bake --probes)",
+        (true, _, false) => "waiting for probe light",
+        (true, _, true) => "on",
+    }
 }
 
 /// Records a copy of the presented texture into a buffer (rows padded to wgpu's alignment).

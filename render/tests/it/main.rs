@@ -4,6 +4,8 @@
 //!
 //! GPU tests never skip silently: without an adapter they fail, unless `BOUNCE_ALLOW_NO_GPU=1`.
 
+mod probe_sphere;
+
 use std::path::Path;
 use std::sync::OnceLock;
 
@@ -17,7 +19,7 @@ use bounce_core::voxel::Resolution;
 use bounce_engine::gpu::GpuContext;
 use bounce_engine::{Engine, EngineChoice};
 use bounce_render::{
-    Camera, Globals, Image, OverlayParams, RenderOptions, Renderer, volume_from_baked,
+    Camera, Globals, Image, Object, OverlayParams, RenderOptions, Renderer, volume_from_baked,
 };
 use glam::{UVec3, Vec3};
 
@@ -387,6 +389,10 @@ fn shared_structs_match_the_wgsl() {
         offsets!(Globals; view_proj, eye, exposure, volume_origin, voxel_size, volume_dims,
             light_count, indirect, normal_offset, flags, pad1)
     );
+
+    let (members, span) = wgsl_struct(&module, "Object");
+    assert_eq!(span as usize, std::mem::size_of::<Object>());
+    assert_eq!(members, offsets!(Object; centre, radius, albedo, pad, cube));
 
     let overlay = naga::front::wgsl::parse_str(bounce_render::OVERLAY_SHADER)
         .unwrap_or_else(|e| panic!("{}", e.emit_to_string(bounce_render::OVERLAY_SHADER)));
