@@ -14,7 +14,7 @@ use bounce_core::import::import_path;
 use bounce_core::light::LightSet;
 use bounce_core::matrix::DENSE_F32;
 use bounce_core::pointwise;
-use bounce_engine::{Engine, EngineChoice};
+use bounce_engine::{Engine, EngineChoice, Irradiance};
 use bounce_reference::compare::{Meta, Report, Variants, compare};
 use bounce_reference::{Options, Reference};
 use clap::Args;
@@ -82,16 +82,22 @@ pub fn run(args: &VerifyArgs) -> Result<()> {
     let (exact, exact_from) = exact_transport(&baked, &scene, &args.scene, args.quiet)?;
 
     let engine = Engine::new(args.engine.parse::<EngineChoice>()?)?;
-    let relight = |scene: &bounce_engine::Scene| -> Result<Vec<[f32; 3]>> {
+    let relight_all = |scene: &bounce_engine::Scene| -> Result<Irradiance> {
         let mut lit = engine.relight(scene, std::slice::from_ref(&lights))?;
-        Ok(lit.remove(0).indirect)
+        Ok(lit.remove(0))
+    };
+    let relight = |scene: &bounce_engine::Scene| -> Result<Vec<[f32; 3]>> {
+        Ok(relight_all(scene)?.indirect)
     };
     let mut exact_scene = engine.load(exact.as_ref().unwrap_or(&baked))?;
-    let exact_e = relight(&exact_scene)?;
-    let compressed = match &exact {
-        Some(_) => relight(&engine.load(&baked)?)?,
-        None => exact_e.clone(),
+    let exact_lit = relight_all(&exact_scene)?;
+    let exact_e = exact_lit.indirect.clone();
+    // The file as it is: its own transport, and its probes' light.
+    let file_lit = match &exact {
+        Some(_) => relight_all(&engine.load(&baked)?)?,
+        None => exact_lit,
     };
+    let compressed = file_lit.indirect;
     if let Err(why) = engine.near_field(&exact_scene) {
         eprintln!("verify: the file's near field is not applied: {why}");
     }
@@ -238,7 +244,13 @@ pub fn run(args: &VerifyArgs) -> Result<()> {
         std::fs::write(path, csv).with_context(|| format!("writing {}", path.display()))?;
     }
     let probes = match &baked.probes {
-        Some(_) => Some(check_probes(&baked, &engine, &reference, &lights, args)?),
+        Some(_) => Some(check_probes(
+            &baked,
+            &file_lit.probes,
+            &reference,
+            &lights,
+            args,
+        )?),
         None => None,
     };
     if args.json {
@@ -279,12 +291,13 @@ struct ProbeCheck {
     total: f64,
 }
 
-/// Each probe direction is a reference point at the probe with that axis as its normal. A
+/// `lit`, the probes' light from the file's relight, against the reference. Each probe
+/// direction is a reference point at the probe with that axis as its normal. A
 /// probe gathers the surfaces' exitance, which holds their indirect light of the bake's
 /// bounces, so the reference carries one bounce more.
 fn check_probes(
     baked: &Baked,
-    engine: &Engine,
+    lit: &[[f32; 3]],
     reference: &Reference,
     lights: &LightSet,
     args: &VerifyArgs,
@@ -292,10 +305,6 @@ fn check_probes(
     let Some(probes) = &baked.probes else {
         bail!("the file has no probes");
     };
-    let scene = engine.load(baked)?;
-    let lit = engine
-        .relight(&scene, std::slice::from_ref(lights))?
-        .remove(0);
     let points: Vec<bounce_reference::Point> = probes
         .positions
         .iter()
@@ -321,7 +330,7 @@ fn check_probes(
     let seconds = start.elapsed().as_secs_f64();
     bar.end(bounce_core::bake::Stage::Probes, seconds);
     let (mut num, mut den, mut var) = (0.0f64, 0.0f64, 0.0f64);
-    for (g, e) in lit.probes.iter().zip(&estimates) {
+    for (g, e) in lit.iter().zip(&estimates) {
         for ((g, m), se) in g.iter().zip(e.mean).zip(e.stderr) {
             num += (f64::from(*g) - m).powi(2);
             den += m * m;
@@ -335,7 +344,7 @@ fn check_probes(
         seconds,
         rel_l2: (num / den).sqrt(),
         noise: (var / den).sqrt(),
-        total: lit.probes.iter().map(|g| f64::from(g[1])).sum::<f64>()
+        total: lit.iter().map(|g| f64::from(g[1])).sum::<f64>()
             / estimates.iter().map(|e| e.mean[1]).sum::<f64>().max(1e-300),
     })
 }

@@ -710,16 +710,13 @@ fn main_layout_entries() -> Vec<wgpu::BindGroupLayoutEntry> {
         multisampled: false,
     };
     let float = wgpu::TextureSampleType::Float { filterable: true };
+    let uniform = wgpu::BindingType::Buffer {
+        ty: wgpu::BufferBindingType::Uniform,
+        has_dynamic_offset: false,
+        min_binding_size: None,
+    };
     let mut entries = vec![
-        entry(
-            0,
-            S::VERTEX | S::FRAGMENT,
-            wgpu::BindingType::Buffer {
-                ty: wgpu::BufferBindingType::Uniform,
-                has_dynamic_offset: false,
-                min_binding_size: None,
-            },
-        ),
+        entry(0, S::VERTEX | S::FRAGMENT, uniform),
         entry(1, S::FRAGMENT, storage),
         entry(2, S::VERTEX | S::FRAGMENT, storage),
         entry(
@@ -735,15 +732,7 @@ fn main_layout_entries() -> Vec<wgpu::BindGroupLayoutEntry> {
             S::FRAGMENT,
             wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Comparison),
         ),
-        entry(
-            5,
-            S::VERTEX | S::FRAGMENT,
-            wgpu::BindingType::Buffer {
-                ty: wgpu::BufferBindingType::Uniform,
-                has_dynamic_offset: false,
-                min_binding_size: None,
-            },
-        ),
+        entry(5, S::VERTEX | S::FRAGMENT, uniform),
     ];
     for binding in 6..12 {
         entries.push(entry(
