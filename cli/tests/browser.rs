@@ -9,6 +9,8 @@ mod cdp;
 mod common;
 #[path = "browser/fixture.rs"]
 mod fixture;
+#[path = "browser/probes.rs"]
+mod probes;
 #[path = "browser/selftest.rs"]
 mod selftest;
 #[path = "browser/viewer.rs"]

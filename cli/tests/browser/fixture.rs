@@ -26,14 +26,35 @@ pub fn baked_cornell() -> &'static Path {
     })
 }
 
+/// The same box baked with irradiance probes (`--probes`, the default spacing), for the
+/// probe-lit sphere's tests; the other tests keep a scene without probes, so a page that never
+/// asks for probe frames stays tested.
+pub fn baked_cornell_probes() -> &'static Path {
+    static BAKED: OnceLock<PathBuf> = OnceLock::new();
+    BAKED.get_or_init(|| {
+        let dir = Path::new(env!("CARGO_TARGET_TMPDIR"));
+        let path = dir.join("browser-cornell-600-probes.bounce");
+        let part = dir.join(format!(
+            "browser-cornell-600-probes.{}.part",
+            std::process::id()
+        ));
+        crate::common::ok(bake_small_command(&cornell(), &part).arg("--probes"));
+        std::fs::rename(&part, &path).expect("rename the bake into place");
+        path
+    })
+}
+
 /// `gltf` baked into `out` at 600 patches: quick for the page and the server on CI's two cores.
 pub fn bake_small(gltf: &Path, out: &Path) {
-    crate::common::ok(
-        bounce()
-            .args(["bake", "--patches", "600", "--rays", "512", "--quiet", "-o"])
-            .arg(out)
-            .arg(gltf),
-    );
+    crate::common::ok(&mut bake_small_command(gltf, out));
+}
+
+fn bake_small_command(gltf: &Path, out: &Path) -> std::process::Command {
+    let mut cmd = bounce();
+    cmd.args(["bake", "--patches", "600", "--rays", "512", "--quiet", "-o"])
+        .arg(out)
+        .arg(gltf);
+    cmd
 }
 
 /// The light every test starts from: the README's point light under the ceiling.
@@ -57,6 +78,8 @@ pub struct ServeOptions<'a> {
     pub http_port: Option<u16>,
     /// Reuse a previous server's directory (scenes and stored sessions).
     pub dir: Option<tempfile::TempDir>,
+    /// The baked file served as `box` ([`baked_cornell`] when `None`).
+    pub scene: Option<&'a Path>,
 }
 
 impl Serve {
@@ -64,8 +87,8 @@ impl Serve {
         let dir = options.dir.unwrap_or_else(|| {
             let dir = tempfile::tempdir().expect("a temporary directory");
             std::fs::create_dir_all(dir.path().join("scenes")).expect("scenes dir");
-            std::fs::copy(baked_cornell(), dir.path().join("scenes/box.bounce"))
-                .expect("copy the baked box");
+            let scene = options.scene.unwrap_or_else(|| baked_cornell());
+            std::fs::copy(scene, dir.path().join("scenes/box.bounce")).expect("copy the baked box");
             dir
         });
         let http = format!("127.0.0.1:{}", options.http_port.unwrap_or(0));

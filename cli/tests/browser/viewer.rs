@@ -21,7 +21,7 @@ pub(crate) const WAIT: Duration = Duration::from_secs(90);
 const W: u32 = 320;
 const H: u32 = 240;
 /// The camera both viewers use for pictures: the box from the open side.
-const EYE: [f32; 3] = [0.0, 1.0, 3.4];
+pub(crate) const EYE: [f32; 3] = [0.0, 1.0, 3.4];
 const TARGET: [f32; 3] = [0.0, 1.0, 0.0];
 const FOV: f32 = 45.0;
 
@@ -37,7 +37,7 @@ pub(crate) fn camera_param() -> String {
 
 /// Page parameters for a picture comparable with `bounce render`: no overlay, buttons, light
 /// markers or antialiasing, one pixel per CSS pixel.
-fn picture_params() -> String {
+pub(crate) fn picture_params() -> String {
     picture_params_from(&camera_param())
 }
 
@@ -86,7 +86,7 @@ pub(crate) fn assert_no_errors(page: &Page) {
 }
 
 /// Where a world point lands in a `W`×`H` picture from the test camera (top-left origin).
-fn project(p: Vec3) -> (u32, u32) {
+pub(crate) fn project(p: Vec3) -> (u32, u32) {
     // The native renderer's own camera: the same projection the page must match.
     let camera = bounce_render::Camera {
         eye: Vec3::from(EYE),
@@ -103,7 +103,7 @@ fn project(p: Vec3) -> (u32, u32) {
     (x.min(W - 1), y.min(H - 1))
 }
 
-fn rgb(img: &RgbaImage, (x, y): (u32, u32)) -> [f32; 3] {
+pub(crate) fn rgb(img: &RgbaImage, (x, y): (u32, u32)) -> [f32; 3] {
     let p = img.get_pixel(x, y).0;
     [p[0], p[1], p[2]].map(f32::from)
 }
@@ -206,7 +206,7 @@ async fn the_page_lists_scenes_and_draws_the_indirect_light_where_it_belongs() {
 }
 
 /// FNV-1a over a frame's payload words: the page computes the same (viewer.js `checksum`).
-fn checksum(frame: &Frame) -> u64 {
+pub(crate) fn checksum(frame: &Frame) -> u64 {
     let mut h: u32 = 0x811c_9dc5;
     for w in frame.words() {
         h = (h ^ w).wrapping_mul(0x0100_0193);

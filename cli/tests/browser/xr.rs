@@ -22,7 +22,7 @@ const XR_SCALE: f64 = 2.0;
 
 /// IWER's Quest 3 with both eyes drawn, installed over the browser's own `navigator.xr` (headless
 /// chromium has one, with no device behind it).
-fn headset_script() -> String {
+pub(crate) fn headset_script() -> String {
     format!(
         "{IWER}\n;window.headset = new IWER.XRDevice(IWER.metaQuest3, {{ stereoEnabled: true }});\n\
          window.headset.installRuntime({{ forceInstall: true }});"
@@ -36,7 +36,7 @@ async fn button_text(page: &Page) -> Value {
 }
 
 /// Clicks the VR button with the mouse: requestSession needs a user's gesture.
-async fn click_vr_button(page: &Page) {
+pub(crate) async fn click_vr_button(page: &Page) {
     let r = page
         .eval(
             "(() => { const r = document.getElementById('vr-button').getBoundingClientRect(); \
@@ -50,7 +50,7 @@ async fn click_vr_button(page: &Page) {
 
 /// The right controller at `position` in the session's reference space, pointing along -z (its
 /// ray straight ahead of it), then two animation frames so the page has seen the pose.
-async fn place_controller(page: &Page, position: [f64; 3]) {
+pub(crate) async fn place_controller(page: &Page, position: [f64; 3]) {
     page.eval(&format!(
         "(() => {{ const c = window.headset.controllers.right; \
          c.position.set({}, {}, {}); c.quaternion.set(0, 0, 0, 1); }})()",

@@ -59,9 +59,13 @@ export const createSession = (scene, lights, token) =>
 export const putLights = (id, lights, token) =>
   json('PUT', `/v1/sessions/${seg(id)}/lights`, { body: { lights: lights.lights }, token });
 
-export function socketUrl(id, token) {
+// `probes`: ask for each patch frame's probe frame too (server/src/http/ws.rs).
+export function socketUrl(id, token, { probes = false } = {}) {
   const scheme = location.protocol === 'https:' ? 'wss:' : 'ws:';
   const presented = token || pageToken;
-  const query = presented ? `?token=${seg(presented)}` : '';
-  return `${scheme}//${location.host}/v1/sessions/${seg(id)}/ws${query}`;
+  const query = new URLSearchParams();
+  if (presented) query.set('token', presented);
+  if (probes) query.set('probes', '1');
+  const q = query.toString();
+  return `${scheme}//${location.host}/v1/sessions/${seg(id)}/ws${q ? `?${q}` : ''}`;
 }

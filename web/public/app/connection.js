@@ -10,6 +10,10 @@
 // Order: a frame is kept only if it is newer than the one held. On one connection that is a
 // greater (lights version, sequence); after a reconnect sequences restart, so a frame is newer
 // when its lights version is at least the held one's.
+//
+// Probes: with `probes` set the socket asks for probe frames (`?probes=1`). A probe frame is kept
+// only when it carries the sequence and lights version of the patch frame just kept on the same
+// connection, so the probes' light is never older or newer than the walls'.
 
 import { ApiError, getSession, socketUrl } from './api.js';
 import { parseFrame } from './frame.js';
@@ -29,10 +33,13 @@ const CLOSE_REASONS = {
 };
 
 export class Connection {
-  constructor(sessionId, token, handlers) {
+  constructor(sessionId, token, handlers, { probes = false } = {}) {
     this.sessionId = sessionId;
     this.token = token;
-    this.handlers = handlers; // onFrame(frame, receivedAt), onState({state, detail}), onHello(hello)
+    // onFrame(frame, receivedAt), onProbes(frame, receivedAt), onState({state, detail}),
+    // onHello(hello)
+    this.handlers = handlers;
+    this.probes = probes;
     this.attempt = 0;
     this.held = null; // {lightsVersion, sequence} of the newest frame kept
     this.connectionFrames = 0;
@@ -45,12 +52,13 @@ export class Connection {
     if (this.closed) return;
     this.attempt += 1;
     this.handlers.onState({ state: 'connecting', detail: `attempt ${this.attempt}` });
-    const ws = new WebSocket(socketUrl(this.sessionId, this.token));
+    const ws = new WebSocket(socketUrl(this.sessionId, this.token, { probes: this.probes }));
     ws.binaryType = 'arraybuffer';
     this.ws = ws;
     this.connectionFrames = 0;
     let hello = false;
     let sameConnection = false;
+    let kept = null; // the patch frame last kept on this connection, for its probe frame
     ws.onmessage = (event) => {
       if (typeof event.data === 'string') {
         let message;
@@ -79,7 +87,18 @@ export class Connection {
         this.handlers.onState({ state: 'live', detail: `bad frame: ${e.message}` });
         return;
       }
-      if (!this.isNewer(frame, sameConnection)) return;
+      if (frame.kind === 'probes') {
+        if (kept && frame.sequence === kept.sequence && frame.lightsVersion === kept.lightsVersion) {
+          kept = null;
+          this.handlers.onProbes?.(frame, receivedAt);
+        }
+        return;
+      }
+      if (!this.isNewer(frame, sameConnection)) {
+        kept = null;
+        return;
+      }
+      kept = frame;
       sameConnection = true;
       this.connectionFrames += 1;
       this.held = { lightsVersion: frame.lightsVersion, sequence: frame.sequence };

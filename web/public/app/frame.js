@@ -1,9 +1,12 @@
 // Frames as the server sends them (wire/src/frame.rs): a 32-byte little-endian header, then one
-// RGB9E5 word per patch. This module only reads bytes; what a frame means for the picture is
-// volume.js's business.
+// RGB9E5 word per patch. A scene with irradiance probes also sends probe frames, the same layout
+// under the magic BNCP, one word per probe direction (six a probe, +X, −X, +Y, −Y, +Z, −Z); each
+// follows its patch frame with the same sequence and lights version. This module only reads
+// bytes; what a frame means for the picture is volume.js's and probes.js's business.
 
 export const HEADER_LEN = 32;
 const MAGIC = 0x46434e42; // "BNCF" read as a little-endian u32
+const PROBE_MAGIC = 0x50434e42; // "BNCP"
 const FORMAT_VERSION = 1;
 const ENCODING_RGB9E5 = 1;
 export const FLAG_NON_FINITE = 1;
@@ -12,7 +15,9 @@ export const FLAG_CLAMPED = 2;
 export class FrameError extends Error {}
 
 // The header's fields and a view of the payload words. Sequences and lights versions are u64 on
-// the wire; they stay exact as Numbers up to 2^53, far beyond any session's count.
+// the wire; they stay exact as Numbers up to 2^53, far beyond any session's count. `kind` is
+// 'patches' or 'probes'; `patchCount` is the payload's word count either way (probe directions
+// for a probe frame, as the wire's header names it).
 export function parseFrame(buffer) {
   if (!(buffer instanceof ArrayBuffer)) {
     throw new FrameError('a frame must be binary');
@@ -21,9 +26,11 @@ export function parseFrame(buffer) {
     throw new FrameError(`frame is ${buffer.byteLength} bytes, shorter than its ${HEADER_LEN}-byte header`);
   }
   const view = new DataView(buffer);
-  if (view.getUint32(0, true) !== MAGIC) {
+  const magic = view.getUint32(0, true);
+  if (magic !== MAGIC && magic !== PROBE_MAGIC) {
     throw new FrameError('not a bounce frame (bad magic)');
   }
+  const kind = magic === MAGIC ? 'patches' : 'probes';
   const version = view.getUint16(4, true);
   if (version !== FORMAT_VERSION) {
     throw new FrameError(`frame format version ${version}, this page reads ${FORMAT_VERSION}`);
@@ -38,7 +45,11 @@ export function parseFrame(buffer) {
   if (payload !== patchCount * 4) {
     throw new FrameError(`frame says ${patchCount} patches but carries ${payload} payload bytes`);
   }
+  if (kind === 'probes' && patchCount % 6 !== 0) {
+    throw new FrameError(`a probe frame carries six values a probe, not ${patchCount}`);
+  }
   return {
+    kind,
     flags,
     patchCount,
     sequence: Number(view.getBigUint64(16, true)),

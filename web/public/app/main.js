@@ -5,7 +5,8 @@
 // URL parameters: scene, session, token (a write or read token; kept for this tab only), camera
 // (eye_x,eye_y,eye_z,target_x,target_y,target_z[,fov_deg], as `bounce render --camera`),
 // exposure, terms (both|direct|indirect), xr_scale (the scene's units in a metre, for a headset:
-// glTF says metres, but a game level may not be), overlay (on|off), aa (on|off), markers (on|off),
+// glTF says metres, but a game level may not be), object (on|off: the probe-lit sphere, in a
+// scene baked with probes), overlay (on|off), aa (on|off), markers (on|off),
 // ui (on|off: the buttons), pixel_ratio. The last few are for comparing pictures with
 // `bounce render`, which draws neither markers nor buttons.
 
@@ -175,6 +176,7 @@ async function view(scene, session) {
     overlay: onOff('overlay', true),
     antialias: onOff('aa', true),
     markers: onOff('markers', true),
+    object: onOff('object', true),
     ui: onOff('ui', true),
     preserve: onOff('preserve', false),
     pixelRatio: params.has('pixel_ratio') ? Number(params.get('pixel_ratio')) : undefined,

@@ -51,6 +51,11 @@ export class Overlay {
     this.lastBytes = frame.bytes;
   }
 
+  // A probe frame's bytes, counted into the frame's size: what a frame costs a viewer.
+  receivedProbes(frame) {
+    this.lastProbeBytes = frame.bytes;
+  }
+
   frame(frame, applyMs, firstDrawnAt) {
     this.lastFrame = frame;
     this.applyMs = applyMs;
@@ -70,6 +75,7 @@ export class Overlay {
       sequence: f ? f.sequence : null,
       lights_version: f ? f.lightsVersion : null,
       frame_bytes: this.lastBytes ?? null,
+      probe_frame_bytes: this.lastProbeBytes ?? null,
       flags: f ? f.flags : null,
       first_drawn_at_ms: this.firstDrawnAt,
     };
@@ -93,8 +99,8 @@ export class Overlay {
     const lines = [
       `${n(s.fps)} fps · draw ${n(s.draw_ms, 2)} ms`,
       `GI latency ${n(s.gi_latency_ms, 0)} ms (median of ${this.latencies.length})`,
-      `frame #${s.sequence ?? '–'} · lights v${s.lights_version ?? '–'} (session v${state.lightsVersion}) · ${s.frame_bytes ?? '–'} B`,
-      `${terms} [1/2/3] · ${state.fly ? 'fly [WASD QE, F: orbit]' : 'orbit [F: fly]'}`,
+      `frame #${s.sequence ?? '–'} · lights v${s.lights_version ?? '–'} (session v${state.lightsVersion}) · ${s.frame_bytes ?? '–'} B${s.probe_frame_bytes ? ` + ${s.probe_frame_bytes} B probes` : ''}`,
+      `${terms} [1/2/3] · ${state.fly ? 'fly [WASD QE, F: orbit]' : 'orbit [F: fly]'}${state.object ? ` · probe-lit sphere [P]: ${state.object}` : ''}`,
       `${state.writable ? 'drag a light, wheel over it to dim' : 'read-only'}${sel ? ` · light ${state.selected + 1}: ${sel.type}, ${n(sel.intensity, 2)}` : ''}`,
       link,
     ];

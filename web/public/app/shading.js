@@ -10,7 +10,7 @@
 // offset to the side of the surface that faces the light. The shadow maps are drawn with the
 // native renderer's slope-scaled depth bias.
 
-import { DoubleSide, MeshDepthMaterial, MeshDistanceMaterial, MeshLambertMaterial, Vector3 } from 'three';
+import { Color, DoubleSide, MeshDepthMaterial, MeshDistanceMaterial, MeshLambertMaterial, Vector3 } from 'three';
 
 // The uniforms every converted material shares: one object, so updating it updates them all.
 export function volumeUniforms() {
@@ -206,6 +206,47 @@ export function shadowDepthMaterials() {
   const bias = { polygonOffset: true, polygonOffsetFactor: 2, polygonOffsetUnits: 2 };
   return { depth: new MeshDepthMaterial(bias), distance: new MeshDistanceMaterial(bias) };
 }
+
+// The probe-lit sphere's material (probes.js): Lambert of `albedo`, direct light and shadows as
+// every surface, and for its indirect light the ambient cube (shade.wgsl's cube_irradiance) read
+// with the interpolated normal rather than the volume. `userData.cube` (six Vector3, face order)
+// and `userData.indirect` (1 or 0) are its uniforms.
+export function objectMaterial(albedo) {
+  const cube = { value: Array.from({ length: 6 }, () => new Vector3()) };
+  const indirect = { value: 0 };
+  const m = new MeshLambertMaterial({ color: new Color(albedo, albedo, albedo) });
+  m.userData = { cube, indirect };
+  m.onBeforeCompile = (shader) => {
+    shader.uniforms.bounceCube = cube;
+    shader.uniforms.bounceIndirect = indirect;
+    shader.vertexShader = shader.vertexShader
+      .replace('void main() {', VERTEX_DECL)
+      .replace('#include <shadowmap_vertex>', THREE_SHADOWMAP_VERTEX_TOWARD_LIGHT);
+    shader.fragmentShader = shader.fragmentShader
+      .replace('void main() {', OBJECT_FRAGMENT_DECL)
+      .replace('#include <lights_fragment_end>', OBJECT_FRAGMENT_INDIRECT)
+      .replace('#include <lights_pars_begin>', THREE_LIGHTS_PARS_GLTF_SPOT);
+  };
+  m.customProgramCacheKey = () => 'bounce-object-v1';
+  return m;
+}
+
+const OBJECT_FRAGMENT_DECL = /* glsl */ `
+uniform vec3 bounceCube[6];
+uniform float bounceIndirect;
+vec3 bounceCubeIrradiance(vec3 n) {
+  vec3 x = n.x < 0.0 ? bounceCube[1] : bounceCube[0];
+  vec3 y = n.y < 0.0 ? bounceCube[3] : bounceCube[2];
+  vec3 z = n.z < 0.0 ? bounceCube[5] : bounceCube[4];
+  return x * n.x * n.x + y * n.y * n.y + z * n.z * n.z;
+}
+void main() {`;
+
+const OBJECT_FRAGMENT_INDIRECT = /* glsl */ `
+if (bounceIndirect > 0.0) {
+  irradiance += bounceCubeIrradiance(normalize(inverseTransformDirection(normal, viewMatrix)));
+}
+#include <lights_fragment_end>`;
 
 // The glTF's material as the native renderer draws it: base colour factor × COLOR_0 × base-colour
 // map, emission, no specular, both sides.

@@ -1,6 +1,8 @@
 // The viewer: the scene's own model drawn with the session's lights (three.js, shadow maps) and
 // the indirect light streamed over the session's WebSocket, sampled per fragment from the
-// six-direction volume exactly as the native viewer does (shading.js, volume.js).
+// six-direction volume exactly as the native viewer does (shading.js, volume.js). A scene baked
+// with probes also gets probe frames, which light a sphere that follows the camera or, in a
+// headset, the controller (probes.js).
 
 import {
   Box3,
@@ -31,6 +33,7 @@ import {
   scaleLight,
 } from './lights.js';
 import { Overlay } from './overlay.js';
+import { Probes, ProbeSphere } from './probes.js';
 import {
   bindVolume,
   convertMaterial,
@@ -97,6 +100,24 @@ function testHooks(viewer) {
     get xr() {
       return viewer.xr.state;
     },
+    // The scene's probes: {count, sequence, lightsVersion, checksum} of the probe frame on
+    // screen (null before one), or null for a scene without probes.
+    get probes() {
+      const p = viewer.probes;
+      if (!p) return null;
+      const f = p.frame;
+      return { count: p.count, frame: f ? { sequence: f.sequence, lightsVersion: f.lightsVersion, checksum: checksum(f.words) } : null };
+    },
+    // The ambient cube the probes give at a point (six [r, g, b], face order), or null.
+    ambientCube: (p) => viewer.probes?.ambientCube(p) ?? null,
+    // The probe-lit sphere: {on, visible, centre, radius, cube}, or null without probes.
+    get object() {
+      return viewer.sphere?.state ?? null;
+    },
+    // Pins the sphere at `centre` with `radius` (null: it follows the camera again).
+    placeObject: (centre, radius) => {
+      if (viewer.sphere) viewer.sphere.pinned = centre ? { centre, radius } : null;
+    },
   };
 }
 
@@ -143,12 +164,22 @@ export class Viewer {
     // is touched rather than failing the write.
     if (scenes.writes_need_token && !p.token) this.writable = false;
     this.volume = new Volume(layout);
+    this.probes = layout.probe_positions?.length ? new Probes(layout.probe_positions) : null;
     this.buildScene(gltf);
     this.applyRemoteLights(session.lights_version, { lights: session.lights ?? [] });
-    this.connection = new Connection(p.session, p.token, {
-      onFrame: (frame, at) => this.onFrame(frame, at),
-      onState: (s) => this.onConnectionState(s),
-    });
+    this.connection = new Connection(
+      p.session,
+      p.token,
+      {
+        onFrame: (frame, at) => this.onFrame(frame, at),
+        onProbes: (frame) => {
+          this.pendingProbes = frame;
+          this.overlay.receivedProbes(frame);
+        },
+        onState: (s) => this.onConnectionState(s),
+      },
+      { probes: this.probes !== null },
+    );
     this.ready = true;
     this.message('');
   }
@@ -206,6 +237,10 @@ export class Viewer {
     this.scene.add(this.lightGroup);
     this.markers = new Markers(this.scene, this.bounds);
     this.markers.setVisible(p.markers);
+    if (this.probes) {
+      this.sphere = new ProbeSphere(this.scene, this.bounds, this.probes);
+      this.sphere.on = p.object !== false;
+    }
     if (!p.ui) {
       this.root.querySelector('#panel').hidden = true;
     }
@@ -262,9 +297,18 @@ export class Viewer {
         this.message(e.message);
       }
     }
+    if (this.pendingProbes) {
+      try {
+        this.probes.apply(this.pendingProbes);
+      } catch (e) {
+        this.message(e.message);
+      }
+      this.pendingProbes = null;
+    }
     if (this.fly.on) this.flyStep(dt);
     this.markers.scaleFor(this.camera);
     this.xr.update(dt);
+    this.sphere?.update(this);
     this.updateDepthRange();
     this.uniforms.bounceIndirect.value = this.terms.indirect && (this.drawn || applied) ? 1 : 0;
     this.lightGroup.visible = this.terms.direct;
@@ -303,6 +347,7 @@ export class Viewer {
       selected: this.selected,
       lights: this.lights,
       fly: this.fly.on,
+      object: this.sphere ? objectStatus(this.sphere, this.probes) : null,
     });
   }
 
@@ -516,6 +561,9 @@ export class Viewer {
         case 'KeyF':
           this.toggleFly();
           break;
+        case 'KeyP':
+          if (this.sphere) this.sphere.on = !this.sphere.on;
+          break;
         case 'Tab':
           if (this.lights.lights.length) {
             event.preventDefault();
@@ -611,6 +659,13 @@ export class Viewer {
       .addScaledVector(this.camera.up, axis('KeyE', 'KeyQ'));
     if (move.lengthSq() > 0) this.camera.position.addScaledVector(move.normalize(), speed * dt);
   }
+}
+
+// The overlay's word on the probe-lit sphere (the native viewer's sphere_status).
+function objectStatus(sphere, probes) {
+  if (!sphere.on) return 'off';
+  if (!probes.frame) return 'waiting for probe light';
+  return `on (${probes.count} probes)`;
 }
 
 // FNV-1a over the payload words: lets a test compare the frame a tab got with another client's.

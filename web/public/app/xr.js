@@ -53,6 +53,11 @@ export class Xr {
     c.add(ray);
     c.addEventListener('connected', (e) => {
       c.userData.gamepad = e.data.gamepad;
+      c.userData.handedness = e.data.handedness;
+      c.userData.tracked = true;
+    });
+    c.addEventListener('disconnected', () => {
+      c.userData.tracked = false;
     });
     c.addEventListener('selectstart', () => this.grab(c));
     c.addEventListener('selectend', () => this.grabbed.delete(c));
@@ -149,6 +154,13 @@ export class Xr {
         return set;
       });
     }
+  }
+
+  // The controller the probe-lit sphere rides: the right hand's when it is tracked, else the
+  // other one's, else null.
+  trackedController() {
+    const tracked = this.controllers.filter((c) => c.userData.tracked && c.visible);
+    return tracked.find((c) => c.userData.handedness === 'right') ?? tracked[0] ?? null;
   }
 
   // What the tests read: whether a session is presenting, where the rig stands (the reference
