@@ -376,7 +376,7 @@ impl Local {
                         .and_then(|lit| {
                             lit.into_iter()
                                 .next()
-                                .map(|l| (tag, l.indirect, l.probes))
+                                .map(|l| (tag, l.streamed().into_owned(), l.probes))
                                 .ok_or_else(|| "the engine answered no light set".to_string())
                         });
                     if tx.send(answer).is_err() {

@@ -88,6 +88,11 @@ pub fn run(args: &InspectArgs) -> Result<()> {
                 "spacing": p.spacing,
                 "rays_per_direction": p.rays,
                 "entries": p.nnz(),
+                // The share of the probes' rays that escape, over every direction: what
+                // the probes see of a sky (null for a file without their sky view).
+                "sky_escaped": p.sky.as_ref().map(|s| {
+                    (0..s.len()).map(|i| s.escaped_fraction(i)).sum::<f64>() / s.len().max(1) as f64
+                }),
             })),
             "surface_area": m.stats.surface_area,
             "unassigned_area": m.stats.unassigned_area,
@@ -219,11 +224,19 @@ pub fn run(args: &InspectArgs) -> Result<()> {
     }
     match &baked.probes {
         Some(p) => println!(
-            "  probes        {} at spacing {} × 6 directions, {} rays each; gather {} entries",
+            "  probes        {} at spacing {} × 6 directions, {} rays each; gather {} entries; {}",
             p.len(),
             p.spacing,
             p.rays,
-            p.nnz()
+            p.nnz(),
+            match &p.sky {
+                Some(s) => format!(
+                    "sky view: {:.1}% of their rays escape",
+                    100.0 * (0..s.len()).map(|i| s.escaped_fraction(i)).sum::<f64>()
+                        / s.len().max(1) as f64
+                ),
+                None => "no sky view (baked before format version 8)".to_string(),
+            }
         ),
         None => println!("  probes        none (bake with --probes to place them)"),
     }

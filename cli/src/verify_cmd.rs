@@ -294,7 +294,9 @@ struct ProbeCheck {
 /// `lit`, the probes' light from the file's relight, against the reference. Each probe
 /// direction is a reference point at the probe with that axis as its normal. A
 /// probe gathers the surfaces' exitance, which holds their indirect light of the bake's
-/// bounces, so the reference carries one bounce more.
+/// bounces, so the reference carries one bounce more. Under a sky a probe also holds the sky it
+/// sees directly (when the file has the probes' sky view), so the reference's direct light of
+/// the sky alone is added at the same points.
 fn check_probes(
     baked: &Baked,
     lit: &[[f32; 3]],
@@ -326,7 +328,30 @@ fn check_probes(
     let start = std::time::Instant::now();
     let bar = TermProgress::new(args.quiet);
     bar.begin(bounce_core::bake::Stage::Probes, points.len() as u64);
-    let estimates = reference.estimate(lights, &points, &options, &|n| bar.advance(n))?;
+    let mut estimates = reference.estimate(lights, &points, &options, &|n| bar.advance(n))?;
+    let sees_sky = probes.sky.is_some() && lights.sky_sh().is_some();
+    if sees_sky {
+        let sky_only = LightSet {
+            lights: lights
+                .lights
+                .iter()
+                .filter(|l| matches!(l, bounce_core::light::Light::Sky { .. }))
+                .cloned()
+                .collect(),
+        };
+        for (e, d) in estimates
+            .iter_mut()
+            .zip(reference.direct(&sky_only, &points))
+        {
+            for (m, d) in e.mean.iter_mut().zip(d) {
+                *m += d;
+            }
+        }
+    } else if lights.sky_sh().is_some() {
+        eprintln!(
+            "verify: the file's probes have no view of the sky (baked before format version 8):              they see the sky only off the surfaces, and are checked so"
+        );
+    }
     let seconds = start.elapsed().as_secs_f64();
     bar.end(bounce_core::bake::Stage::Probes, seconds);
     let (mut num, mut den, mut var) = (0.0f64, 0.0f64, 0.0f64);

@@ -38,7 +38,7 @@ fn bake_then_inspect_the_cornell_box() {
     assert!(summary.contains("patches"), "{summary}");
 
     let j = inspect_json(&file);
-    assert_eq!(j["format_version"], 7);
+    assert_eq!(j["format_version"], 8);
     assert_eq!(j["near_field_radius"], 1.0, "a near field by default");
     assert!(j["near_field_entries"].as_u64().unwrap() > 0);
     assert_eq!(j["geometry"], "surface", "surface patches are the default");
@@ -1524,6 +1524,9 @@ fn probes_bake_relight_and_verify() {
     let count = j["probes"]["count"].as_u64().unwrap();
     assert!(count > 0, "{j}");
     assert_eq!(j["probes"]["rays_per_direction"], 256);
+    // The box is open on one side: some of the probes' rays see the sky.
+    let escaped = j["probes"]["sky_escaped"].as_f64().unwrap();
+    assert!(escaped > 0.01 && escaped < 0.5, "{j}");
     let json = dir.path().join("r.json");
     let out = run(bounce()
         .arg("relight")
@@ -1548,6 +1551,20 @@ fn probes_bake_relight_and_verify() {
     assert!(out.status.success(), "{}", stderr(&out));
     let v: Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(v["probes"]["probes"].as_u64(), Some(count));
+    let err = v["probes"]["rel_l2"].as_f64().unwrap();
+    assert!(err.is_finite() && err < 0.5, "{v}");
+    // Under a sky too: the probes hold the sky they see, and the reference adds it.
+    let sky = dir.path().join("sky.json");
+    std::fs::write(&sky, r#"{"lights":[{"type":"sky","color":[1,1,1]}]}"#).unwrap();
+    let out = run(bounce()
+        .arg("verify")
+        .arg(&file)
+        .arg(cornell())
+        .arg("--lights")
+        .arg(&sky)
+        .args(["--spp", "16", "--probe-spp", "64", "--json", "--quiet"]));
+    assert!(out.status.success(), "{}", stderr(&out));
+    let v: Value = serde_json::from_slice(&out.stdout).unwrap();
     let err = v["probes"]["rel_l2"].as_f64().unwrap();
     assert!(err.is_finite() && err < 0.5, "{v}");
     for (args, says) in [

@@ -17,9 +17,14 @@
 //! rays estimate `E = π · mean(L)`, so each ray that lands on row `j` adds `B_j / R`. Rows sum
 //! to at most 1 (escaped rays and back faces carry nothing), as the form factors' do.
 //!
-//! What this does not do: a probe sees no sky through the openings (a sky's light reaches it
-//! only off the surfaces), and probes are as fine as `spacing`: an object between them gets a
-//! blend of its neighbours (the client's job, trilinear over the grid or nearest).
+//! The rays that escape are the probe direction's view of the sky, kept as the rows' is
+//! ([`crate::sky`]): `c_lm = (π / R) Σ_escaped Y_lm(ω)`, so under a sky of radiance
+//! coefficients `L_lm` a probe direction also gets `E_sky = Σ c_lm L_lm`, the sky seen through
+//! the openings. That is the light a moving object cannot draw itself, as the patches' frames
+//! carry their sky's direct light.
+//!
+//! What this does not do: probes are as fine as `spacing`: an object between them gets a blend
+//! of its neighbours (the client's job, trilinear over the grid or nearest).
 //!
 //! Placement is a regular grid of `spacing` over the voxel grid's box. A grid point is a probe
 //! when its voxel is empty, an occupied voxel lies within `spacing` of it, at most 8 voxels (near
@@ -32,6 +37,7 @@ use rayon::prelude::*;
 
 use crate::patch::PatchLayout;
 use crate::rays::RayFate;
+use crate::sky::{SkySum, SkyVisibility};
 use crate::surface::{SurfaceScene, cosine_direction};
 use bounce_types::face::Face;
 
@@ -113,6 +119,10 @@ pub struct Probes {
     pub cols: Vec<u32>,
     /// Per entry, the share of the direction's rays that met that row.
     pub values: Vec<f32>,
+    /// Each probe direction's view of the sky from its rays that escaped (`6 · probe +
+    /// direction`, [`crate::sky`]); `None` in a file from before it (format version 8), whose
+    /// probes see no sky directly.
+    pub sky: Option<SkyVisibility>,
 }
 
 impl Probes {
@@ -187,7 +197,20 @@ impl Probes {
                 return Err(format!("gather row {r} sums to {sum}, over 1"));
             }
         }
+        if let Some(sky) = &self.sky {
+            sky.check(gathers)
+                .map_err(|m| format!("the probes' sky view: {m}"))?;
+        }
         Ok(())
+    }
+
+    /// Irradiance at every probe direction from a sky of radiance coefficients `sky`, through
+    /// the directions' sky view: `None` without a view.
+    pub fn sky_irradiance(
+        &self,
+        sky: &[[f32; 3]; bounce_types::sh::SH_COEFFICIENTS],
+    ) -> Option<Vec<[f32; 3]>> {
+        Some(self.sky.as_ref()?.irradiance(sky))
     }
 
     /// Irradiance at every probe direction (`6 · probe + direction`) from the rows' exitance
@@ -240,7 +263,7 @@ pub fn bake_probes(
         .spacing
         .unwrap_or(layout.voxel_size * DEFAULT_SPACING_VOXELS);
     let positions = place(layout, occupied, scene, spacing, seed)?;
-    let rows: Vec<Vec<(u32, f32)>> = (0..positions.len() * DIRECTIONS)
+    let rows: Vec<GatherRow> = (0..positions.len() * DIRECTIONS)
         .into_par_iter()
         .map(|r| {
             let row = gather(
@@ -263,15 +286,21 @@ pub fn bake_probes(
         row_ptr: Vec::with_capacity(rows.len() + 1),
         cols: Vec::new(),
         values: Vec::new(),
+        sky: None,
+    };
+    let mut sky = SkyVisibility {
+        rows: Vec::with_capacity(rows.len()),
     };
     probes.row_ptr.push(0);
-    for row in rows {
+    for (row, view) in rows {
         for (c, v) in row {
             probes.cols.push(c);
             probes.values.push(v);
         }
         probes.row_ptr.push(probes.cols.len() as u32);
+        sky.rows.push(view);
     }
+    probes.sky = Some(sky);
     Ok(probes)
 }
 
@@ -372,16 +401,25 @@ fn inside(scene: &SurfaceScene, p: Vec3, index: u64, seed: u64) -> bool {
     back as f32 <= MAX_BACK_SHARE * n && escaped as f32 <= MAX_ESCAPED_SHARE * n
 }
 
+/// One probe direction's gather: the transport rows its rays met with their shares, and its view
+/// of the sky.
+type GatherRow = (Vec<(u32, f32)>, [f32; bounce_types::sh::SH_COEFFICIENTS]);
+
 /// Gather row `r` (probe `r / 6`, direction `r % 6`): each transport row met and its share of
-/// `rays` cosine-weighted rays about the direction, ascending by row.
-fn gather(scene: &SurfaceScene, p: Vec3, r: usize, rays: u32, seed: u64) -> Vec<(u32, f32)> {
+/// `rays` cosine-weighted rays about the direction, ascending by row; and the direction's view
+/// of the sky from the rays that escaped.
+fn gather(scene: &SurfaceScene, p: Vec3, r: usize, rays: u32, seed: u64) -> GatherRow {
     let axis = Face::ALL[r % DIRECTIONS].normal();
     let s = crate::formfactor::row_seed(seed ^ 0x4741_5448_4552, r);
     let mut hits: Vec<u32> = Vec::new();
+    let mut sky = SkySum::default();
     for k in 0..rays {
         let [a, b, ..] = sobol_burley::sample_4d(k, GATHER_SET, s);
-        if let RayFate::Patch(j) = scene.free_fate(p, cosine_direction(axis, a, b)) {
-            hits.push(j as u32);
+        let dir = cosine_direction(axis, a, b);
+        match scene.free_fate(p, dir) {
+            RayFate::Patch(j) => hits.push(j as u32),
+            RayFate::Escaped => sky.add(dir),
+            RayFate::Occluder | RayFate::BackFace => {}
         }
     }
     hits.sort_unstable();
@@ -393,7 +431,7 @@ fn gather(scene: &SurfaceScene, p: Vec3, r: usize, rays: u32, seed: u64) -> Vec<
             _ => out.push((j, share)),
         }
     }
-    out
+    (out, sky.finish(rays))
 }
 
 #[cfg(test)]
@@ -408,6 +446,7 @@ mod tests {
             row_ptr: vec![0, 2, 2, 2, 2, 2, 2, 3, 3, 3, 3, 3, 3],
             cols: vec![0, 2, 1],
             values: vec![0.25, 0.5, 1.0],
+            sky: None,
         }
     }
 

@@ -399,7 +399,7 @@ fn layout_on_disk_matches_the_documentation() {
     let baked = sample(3, true);
     let b = baked.to_bytes().unwrap();
     assert_eq!(&b[..8], b"BOUNCE\0B");
-    assert_eq!(get_u32(&b, 8), 7);
+    assert_eq!(get_u32(&b, 8), 8);
     assert_eq!(get_u32(&b, 12), 5);
     assert_eq!(get_u64(&b, 16), b.len() as u64);
     let kinds: Vec<&[u8]> = (0..5).map(|i| &b[entry_at(i)..entry_at(i) + 4]).collect();
@@ -646,23 +646,23 @@ fn bad_magic() {
 #[test]
 fn future_version() {
     let mut b = sample_bytes();
-    put_u32(&mut b, 8, 8);
+    put_u32(&mut b, 8, 9);
     reseal(&mut b);
     let err = refuse(&b);
     assert!(
         matches!(
             err,
             FormatError::UnsupportedVersion {
-                found: 8,
+                found: 9,
                 oldest: 1,
-                supported: 7
+                supported: 8
             }
         ),
         "{err:?}"
     );
     assert_eq!(
         err.to_string(),
-        "unsupported format version 8 (this build reads versions 1 to 7); bake the scene again \
+        "unsupported format version 9 (this build reads versions 1 to 8); bake the scene again \
          with this bounce"
     );
 }
@@ -983,6 +983,7 @@ fn probes_round_trip_and_are_checked() {
         row_ptr,
         cols: vec![0, rows - 1],
         values: vec![0.25, 0.5],
+        sky: None,
     });
     let bytes = b.to_bytes().expect("probes encode");
     assert_eq!(Baked::from_bytes(&bytes).unwrap(), b);
@@ -1015,6 +1016,73 @@ fn probes_round_trip_and_are_checked() {
     let mut wrong = b.clone();
     wrong.probes.as_mut().unwrap().cols[1] = rows;
     assert!(wrong.to_bytes().is_err());
+    for cut in (0..bytes.len()).step_by(31) {
+        assert!(Baked::from_bytes(&bytes[..cut]).is_err());
+    }
+}
+
+/// The probes' view of the sky (`PSKY`, version 8) rides beside `PROB`: it round-trips, is
+/// flagged optional (a version-7 reader reads the probes without it), and is refused in a
+/// version-7 file, without probes, or over another count of probe directions.
+#[test]
+fn the_probes_sky_view_round_trips_and_is_checked() {
+    use bounce_core::probe::Probes;
+    use bounce_core::sky::SkyVisibility;
+    let mut b = element_sample();
+    let rows = b.transport_layout().len() as u32;
+    let mut row_ptr = vec![0u32, 1];
+    row_ptr.extend([1u32; 5]);
+    let mut sky = SkyVisibility {
+        rows: vec![[0.0; 9]; 6],
+    };
+    // The +Y direction sees the open sky over a third of its rays.
+    sky.rows[2][0] = std::f32::consts::PI * 0.282_094_8 / 3.0;
+    sky.rows[2][2] = 0.2;
+    b.probes = Some(Probes {
+        spacing: 0.5,
+        rays: 64,
+        positions: vec![[0.25, 0.5, 0.75]],
+        row_ptr,
+        cols: vec![rows - 1],
+        values: vec![0.5],
+        sky: Some(sky),
+    });
+    let bytes = b.to_bytes().expect("probes with a sky view encode");
+    assert_eq!(Baked::from_bytes(&bytes).unwrap(), b);
+    assert_eq!(get_u32(&bytes, entry_at(entry_of(&bytes, b"PSKY")) + 4), 1);
+    let (o, _) = section_of(&bytes, b"PSKY");
+    assert_eq!(get_u32(&bytes, o), 6, "six probe directions");
+    // As a version-7 file, the section is refused by its version, not skipped.
+    let mut old = bytes.clone();
+    put_u32(&mut old, 8, 7);
+    reseal(&mut old);
+    let e = refuse(&old);
+    assert!(
+        e.to_string()
+            .contains("a version-7 file cannot hold the probes' sky view"),
+        "{e}"
+    );
+    // Another count of directions.
+    let mut bad = bytes.clone();
+    put_u32(&mut bad, o, 12);
+    reseal(&mut bad);
+    assert!(
+        refuse(&bad).to_string().contains("PSKY"),
+        "{}",
+        refuse(&bad)
+    );
+    // A value no rays could sum to, refused by the writer as by the reader.
+    let mut wrong = b.clone();
+    wrong.probes.as_mut().unwrap().sky.as_mut().unwrap().rows[0][0] = -1.0;
+    assert!(wrong.to_bytes().is_err());
+    // With `PROB` renamed to a kind no reader knows (optional, so skipped), the sky view is
+    // left without probes, and refused.
+    let mut no_probes = bytes.clone();
+    let at = entry_at(entry_of(&no_probes, b"PROB"));
+    no_probes[at..at + 4].copy_from_slice(b"XXXX");
+    reseal(&mut no_probes);
+    let e = refuse(&no_probes);
+    assert!(e.to_string().contains("without probes"), "{e}");
     for cut in (0..bytes.len()).step_by(31) {
         assert!(Baked::from_bytes(&bytes[..cut]).is_err());
     }

@@ -52,6 +52,24 @@ pub enum EngineChoice {
     Cpu,
 }
 
+impl Irradiance {
+    /// What the service streams to a viewer: the light it cannot draw itself. A viewer draws the
+    /// punctual lights with its own shadow maps; everything else reaches a patch through the bake,
+    /// so a frame carries `E_ind` plus a sky's direct light (`E_ind` alone without a sky).
+    pub fn streamed(&self) -> std::borrow::Cow<'_, [[f32; 3]]> {
+        if self.sky.is_empty() {
+            return std::borrow::Cow::Borrowed(&self.indirect);
+        }
+        std::borrow::Cow::Owned(
+            self.indirect
+                .iter()
+                .zip(&self.sky)
+                .map(|(i, s)| std::array::from_fn(|c| (i[c] + s[c]).min(f32::MAX)))
+                .collect(),
+        )
+    }
+}
+
 impl FromStr for EngineChoice {
     type Err = EngineError;
     fn from_str(s: &str) -> Result<Self, EngineError> {
@@ -276,7 +294,9 @@ impl Engine {
         }
         let n = scene.rows.len();
         let start = Instant::now();
-        let (direct, near) = self.direct(scene, lights, true)?;
+        let (mut direct, near) = self.punctual_direct(scene, lights, true)?;
+        let skies = sky_rows(scene.sky.as_ref(), lights);
+        add_sky(&skies, &mut direct);
         let mut b0: Vec<[f32; 3]> = Vec::with_capacity(n * lights.len());
         for (index, (set, e)) in lights.iter().zip(&direct).enumerate() {
             b0.extend(
@@ -306,19 +326,29 @@ impl Engine {
         }
         let out = direct
             .into_iter()
+            .zip(skies)
+            .zip(lights)
             .zip(indirect.chunks(n.max(1)).zip(b0.chunks(n.max(1))))
-            .map(|(direct, (ind, b0))| {
-                let probes = scene.probe_irradiance(b0, ind);
+            .map(|(((direct, sky), set), (ind, b0))| {
+                let probes = scene.probe_irradiance(b0, ind, set);
+                let sky = sky.unwrap_or_default();
                 match &scene.elements {
                     // What a patch streams is its elements' light over its surface.
                     Some(e) => Irradiance {
                         direct: e.restrict_sampled(&scene.layout, &direct),
                         indirect: e.restrict(&scene.layout, ind),
+                        sky: if sky.is_empty() {
+                            sky
+                        } else {
+                            // Direct light, averaged over the surface it was sampled on.
+                            e.restrict_sampled(&scene.layout, &sky)
+                        },
                         probes,
                     },
                     None => Irradiance {
                         direct,
                         indirect: ind.to_vec(),
+                        sky,
                         probes,
                     },
                 }
@@ -367,7 +397,7 @@ impl Engine {
         near: bool,
     ) -> Result<(Vec<Vec<[f32; 3]>>, Option<Vec<Vec<[f32; 3]>>>), EngineError> {
         let (mut direct, near) = self.punctual_direct(scene, lights, near)?;
-        add_sky(scene.sky.as_ref(), lights, &mut direct);
+        add_sky(&sky_rows(scene.sky.as_ref(), lights), &mut direct);
         Ok((direct, near))
     }
 
@@ -468,14 +498,22 @@ impl Engine {
     }
 }
 
-/// Adds each set's sky, if it has one, to its rows' direct light (`direct[set][row]`), through
-/// the rows' sky view; nothing without a view. The near-field correction needs nothing of it: a
-/// row's sky is the same over the row, so its samples' deviation from the row's mean is zero.
-fn add_sky(view: Option<&SkyVisibility>, lights: &[LightSet], direct: &mut [Vec<[f32; 3]>]) {
-    let Some(view) = view else { return };
-    for (set, rows) in lights.iter().zip(direct.iter_mut()) {
-        let Some(sky) = set.sky_sh() else { continue };
-        for (d, e) in rows.iter_mut().zip(view.irradiance(&sky)) {
+/// Per light set, its sky's direct irradiance on each row through the rows' sky view: `None`
+/// for a set without a sky, and for every set without a view.
+fn sky_rows(view: Option<&SkyVisibility>, lights: &[LightSet]) -> Vec<Option<Vec<[f32; 3]>>> {
+    lights
+        .iter()
+        .map(|set| Some(view?.irradiance(&set.sky_sh()?)))
+        .collect()
+}
+
+/// Adds each set's sky ([`sky_rows`]) to its rows' direct light (`direct[set][row]`). The
+/// near-field correction needs nothing of it: a row's sky is the same over the row, so its
+/// samples' deviation from the row's mean is zero.
+fn add_sky(skies: &[Option<Vec<[f32; 3]>>], direct: &mut [Vec<[f32; 3]>]) {
+    for (sky, rows) in skies.iter().zip(direct.iter_mut()) {
+        let Some(sky) = sky else { continue };
+        for (d, e) in rows.iter_mut().zip(sky) {
             // Kept finite as the punctual lights' sums are.
             *d = std::array::from_fn(|c| (d[c] + e[c]).min(f32::MAX));
         }
@@ -494,9 +532,14 @@ pub struct Timing {
 /// Irradiance per patch for one light set (linear RGB).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Irradiance {
+    /// Direct light: the punctual lights' with shadows, and a sky's ([`Irradiance::sky`]).
     pub direct: Vec<[f32; 3]>,
-    /// `E_ind`: what the service streams.
+    /// `E_ind`: the light that reached each patch after at least one bounce (emitting surfaces'
+    /// light on others included, as it comes through `T`).
     pub indirect: Vec<[f32; 3]>,
+    /// The sky's direct irradiance on each patch (part of `direct`), from the bake's sky view:
+    /// empty for a light set without a sky or a file without a view.
+    pub sky: Vec<[f32; 3]>,
     /// Irradiance at each probe direction (`6 · probe + direction`, [`bounce_core::probe`]):
     /// what an object moving through the scene gathers from its surfaces. Empty for a file
     /// without probes.
@@ -572,10 +615,16 @@ impl Scene {
     }
 
     /// Irradiance at every probe direction from one set's `B0` and `E_ind` on the rows: the
-    /// probes gather the rows' exitance `B = B0 + ρ ⊙ E_ind`. Empty without probes. On the host
-    /// for both engines: the gather is sparse (a probe direction meets at most its rays' rows)
-    /// and small beside `T · B0`.
-    pub fn probe_irradiance(&self, b0: &[[f32; 3]], indirect: &[[f32; 3]]) -> Vec<[f32; 3]> {
+    /// probes gather the rows' exitance `B = B0 + ρ ⊙ E_ind`, and under `set`'s sky add what
+    /// each direction sees of it through the openings (the probes' sky view; nothing in a file
+    /// without one). Empty without probes. On the host for both engines: the gather is sparse
+    /// (a probe direction meets at most its rays' rows) and small beside `T · B0`.
+    pub fn probe_irradiance(
+        &self,
+        b0: &[[f32; 3]],
+        indirect: &[[f32; 3]],
+        set: &LightSet,
+    ) -> Vec<[f32; 3]> {
         let Some(probes) = &self.probes else {
             return Vec::new();
         };
@@ -586,7 +635,18 @@ impl Scene {
             .zip(b0.iter().zip(indirect))
             .map(|(p, (b, e))| std::array::from_fn(|c| b[c] + p.albedo[c] * e[c]))
             .collect();
-        probes.irradiance(&exitance)
+        let mut out = probes.irradiance(&exitance);
+        if let Some(sky) = set.sky_sh().and_then(|sky| probes.sky_irradiance(&sky)) {
+            for (e, s) in out.iter_mut().zip(sky) {
+                *e = std::array::from_fn(|c| (e[c] + s[c]).min(f32::MAX));
+            }
+        }
+        out
+    }
+
+    /// Whether the probes see a sky directly (their view of it is in the file).
+    pub fn probes_see_the_sky(&self) -> bool {
+        self.probes.as_ref().is_some_and(|p| p.sky.is_some())
     }
 
     /// Relight without the near-field first bounce from now on: how `bounce verify` shows what

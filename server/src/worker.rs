@@ -628,7 +628,7 @@ fn solve_scene(
                     "solved"
                 );
                 for (target, irr) in batch_targets.into_iter().zip(lit) {
-                    deliver(target, &irr.indirect, &irr.probes, metrics);
+                    deliver(target, &irr.streamed(), &irr.probes, metrics);
                 }
             }
             Err(source) => {

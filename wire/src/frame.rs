@@ -1,5 +1,7 @@
 //! Frames: a session's per-patch indirect irradiance in the one byte layout that gRPC carries as
-//! `bytes` and a WebSocket will carry as a binary message.
+//! `bytes` and a WebSocket will carry as a binary message. "Indirect" is the light a viewer does
+//! not draw itself: the bounces (emitting surfaces' light on others included), and under a sky the
+//! sky's direct light too (a viewer draws only the punctual lights, with its shadow maps).
 //!
 //! Layout (little-endian), a 32-byte header then the payload:
 //!

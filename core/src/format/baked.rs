@@ -51,6 +51,10 @@
 //! irradiance probes and their gather matrix over the transport's rows ([`crate::probe`]);
 //! `super::probe` has its layout. Files without it have no probes.
 //!
+//! `PSKY` (version 8, flagged [`SECTION_OPTIONAL`], only beside `PROB`): each probe direction's
+//! view of the sky (row `6 · probe + direction`), laid out as `SKYV` over those rows. Probes
+//! without it see no sky directly.
+//!
 //! `MODL` (flagged [`SECTION_OPTIONAL`]): the scene the file was baked from, packed into one
 //! self-contained GLB 2.0 file ([`crate::import::pack_glb`]): every buffer and image inside its
 //! BIN chunk, the glTF JSON otherwise as the source had it. The section is exactly the GLB's
@@ -214,6 +218,17 @@ impl Baked {
                 flags: SECTION_OPTIONAL,
                 pieces: vec![Cow::Owned(encode_probes(probes, n)?)],
             });
+            if let Some(sky) = &probes.sky {
+                sections.push(Section {
+                    kind: SectionKind::PSKY,
+                    flags: SECTION_OPTIONAL,
+                    pieces: vec![Cow::Owned(encode_sky(
+                        SectionKind::PSKY,
+                        sky,
+                        probes.len() * crate::probe::DIRECTIONS,
+                    )?)],
+                });
+            }
         }
         if let Some(model) = &self.model {
             sections.push(model_section(model)?);
@@ -239,6 +254,7 @@ impl Baked {
                 SectionKind::SKYV,
                 SectionKind::EMIT,
                 SectionKind::PROB,
+                SectionKind::PSKY,
             ]
             .contains(&e.kind);
             if !known && !e.is_optional() {
@@ -339,6 +355,25 @@ impl Baked {
                 )));
             }
             Some(e) => Some(decode_probes(c.section(e)?, n)?),
+        };
+        let probes = match (probes, c.entry(SectionKind::PSKY)) {
+            (probes, None) => probes,
+            (_, Some(_)) if c.header.format_version < 8 => {
+                return Err(FormatError::Probes(format!(
+                    "a version-{} file cannot hold the probes' sky view",
+                    c.header.format_version
+                )));
+            }
+            (None, Some(_)) => {
+                return Err(FormatError::Probes(
+                    "a probes' sky view (PSKY) without probes (PROB)".to_string(),
+                ));
+            }
+            (Some(mut p), Some(e)) => {
+                let rows = p.len() * crate::probe::DIRECTIONS;
+                p.sky = Some(decode_sky(SectionKind::PSKY, c.section(e)?, rows)?);
+                Some(p)
+            }
         };
         let model = match c.entry(SectionKind::MODL) {
             Some(e) => {

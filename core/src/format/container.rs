@@ -100,6 +100,7 @@ impl SectionKind {
     pub const SKYV: SectionKind = SectionKind(*b"SKYV");
     pub const EMIT: SectionKind = SectionKind(*b"EMIT");
     pub const PROB: SectionKind = SectionKind(*b"PROB");
+    pub const PSKY: SectionKind = SectionKind(*b"PSKY");
 }
 
 impl fmt::Display for SectionKind {

@@ -58,8 +58,10 @@ pub use sky::SKY_HEADER_LEN;
 /// (any older one) reads, and a sky then adds nothing to it. Version 6 added the emissive
 /// materials and the rows they cover (the `EMIT` section, flagged optional): a file without it
 /// keeps its baked emission, and a light set cannot change it. Version 7 added irradiance
-/// probes (the `PROB` section, flagged optional): a file without them has none.
-pub const FORMAT_VERSION: u32 = 7;
+/// probes (the `PROB` section, flagged optional): a file without them has none. Version 8 added
+/// the probes' view of the sky (the `PSKY` section, flagged optional, beside `PROB`): a version-7
+/// reader skips it and reads the probes, which then see no sky directly, as in any older file.
+pub const FORMAT_VERSION: u32 = 8;
 /// The oldest version this build reads: a version-1 file is a voxel-face bake and is relit as
 /// one.
 pub const OLDEST_FORMAT_VERSION: u32 = 1;

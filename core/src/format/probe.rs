@@ -90,6 +90,8 @@ pub(crate) fn decode_probes(bytes: &[u8], rows: usize) -> Result<Probes, FormatE
         row_ptr: Vec::with_capacity(gathers as usize + 1),
         cols: Vec::with_capacity(entries as usize),
         values: Vec::with_capacity(entries as usize),
+        // In its own section (`PSKY`), read beside this one.
+        sky: None,
     };
     for _ in 0..probes {
         out.positions.push(r.f32x3("probe position")?);
@@ -121,6 +123,7 @@ mod tests {
             row_ptr,
             cols: vec![0, 3, 1],
             values: vec![0.125, 0.5, 0.875],
+            sky: None,
         }
     }
 

@@ -157,6 +157,132 @@ fn probes_match_the_reference() {
     assert!(err < 0.10, "probe error {err}");
 }
 
+/// A uniform sky of radiance `l` (grey).
+fn sky(l: f32) -> LightSet {
+    LightSet::from_json(&format!(
+        r#"{{"lights": [{{"type": "sky", "color": [{l}, {l}, {l}]}}]}}"#
+    ))
+    .unwrap()
+}
+
+/// Each probe direction's sky view counts the rays that escaped through the box's open side:
+/// with the rays that met a row it makes at most all of them, a uniform sky gives it `π L`
+/// times that share (the closed form), and a relight under the sky adds it to what the surfaces
+/// send.
+#[test]
+fn probes_see_the_sky_through_the_opening() {
+    let baked = baked();
+    let probes = baked.probes.as_ref().unwrap();
+    let view = probes
+        .sky
+        .as_ref()
+        .expect("a new bake keeps the probes' sky view");
+    assert_eq!(view.len(), probes.len() * DIRECTIONS);
+    let mut open = 0;
+    for r in 0..view.len() {
+        let (a, b) = (probes.row_ptr[r] as usize, probes.row_ptr[r + 1] as usize);
+        let met: f64 = probes.values[a..b].iter().map(|&v| f64::from(v)).sum();
+        let escaped = view.escaped_fraction(r);
+        assert!(
+            met + escaped <= 1.0 + 1e-4,
+            "row {r}: {met} met + {escaped} escaped"
+        );
+        if escaped > 0.1 {
+            open += 1;
+            // The box is open towards +Z only: a direction that sees the sky faces that way.
+            assert_ne!(
+                r % DIRECTIONS,
+                5,
+                "a probe's −Z side sees the sky (row {r})"
+            );
+        }
+    }
+    assert!(open > probes.len() / 4, "{open} directions see the sky");
+    let engine = Engine::new(EngineChoice::Cpu).unwrap();
+    let scene = engine.load(baked).unwrap();
+    assert!(scene.probes_see_the_sky());
+    let lit = engine.relight(&scene, &[sky(2.0)]).unwrap().remove(0);
+    let through = probes.sky_irradiance(&sky(2.0).sky_sh().unwrap()).unwrap();
+    for (r, (e, s)) in lit.probes.iter().zip(&through).enumerate() {
+        let want = 2.0 * std::f64::consts::PI * view.escaped_fraction(r);
+        assert!(
+            (f64::from(s[1]) - want).abs() < 1e-4 * want.max(1.0),
+            "{s:?} {want}"
+        );
+        // Off the surfaces it gets more, never less.
+        assert!(e[1] >= s[1], "row {r}: {e:?} below the sky it sees {s:?}");
+    }
+    // A file without the view: the probes get the sky only off the surfaces.
+    let mut old = baked.clone();
+    old.probes.as_mut().unwrap().sky = None;
+    let scene = engine.load(&old).unwrap();
+    assert!(!scene.probes_see_the_sky());
+    let without = engine.relight(&scene, &[sky(2.0)]).unwrap().remove(0);
+    for ((a, b), s) in lit.probes.iter().zip(&without.probes).zip(&through) {
+        assert!((a[1] - b[1] - s[1]).abs() <= 1e-4 * a[1].max(1.0));
+    }
+}
+
+/// Under a uniform sky, probes against the reference: its indirect light at the probe plus
+/// the sky it sees directly (the reference's direct light of the sky alone), a quarter of the
+/// probes.
+#[test]
+fn probes_under_a_sky_match_the_reference() {
+    let baked = baked();
+    let engine = Engine::new(EngineChoice::Cpu).unwrap();
+    let scene = engine.load(baked).unwrap();
+    let set = sky(1.0);
+    let lit = engine
+        .relight(&scene, std::slice::from_ref(&set))
+        .unwrap()
+        .remove(0);
+    let probes = baked.probes.as_ref().unwrap();
+    let chosen: Vec<usize> = (0..probes.len()).step_by(4).collect();
+    let points: Vec<Point> = chosen
+        .iter()
+        .flat_map(|&i| {
+            Face::ALL.map(|f| Point {
+                position: probes.positions[i],
+                normal: f.normal().to_array(),
+            })
+        })
+        .collect();
+    let reference = Reference::new(&import_path(&scene_path()).unwrap()).unwrap();
+    let options = Options {
+        spp: 2048,
+        bounces: Bounces::K(4),
+        seed: 11,
+    };
+    let estimates = reference
+        .estimate(&set, &points, &options, &|_| {})
+        .unwrap();
+    let seen = reference.direct(&set, &points);
+    let got: Vec<[f32; 3]> = chosen
+        .iter()
+        .flat_map(|&i| lit.probes[i * DIRECTIONS..(i + 1) * DIRECTIONS].to_vec())
+        .collect();
+    let (mut num, mut den, mut var) = (0.0f64, 0.0f64, 0.0f64);
+    for ((g, e), d) in got.iter().zip(&estimates).zip(&seen) {
+        for c in 0..3 {
+            let m = e.mean[c] + d[c];
+            num += (f64::from(g[c]) - m).powi(2);
+            den += m * m;
+            var += e.stderr[c] * e.stderr[c];
+        }
+    }
+    let err = (num / den).sqrt();
+    let noise = (var / den).sqrt();
+    eprintln!(
+        "probes under a sky: {} of {} against the reference: rel L2 {:.2}% (its noise {:.2}%)",
+        chosen.len(),
+        probes.len(),
+        err * 100.0,
+        noise * 100.0
+    );
+    assert!(noise < 0.03, "reference noise {noise}");
+    assert!(err < 0.10, "probe error under a sky {err}");
+}
+
 /// No light, no probe light; twice the light, twice the probe light (the gather is linear).
 #[test]
 fn probe_light_is_linear_in_the_light() {

@@ -106,6 +106,33 @@ fn a_sky_is_direct_light_through_each_rows_view() {
             .all(|d| d[0] > 0.0 && d[0] < std::f32::consts::PI)
     );
     assert!(lit.indirect.iter().all(|d| d[0] > 0.0));
+    // The sky's share of direct light is kept apart, and what a viewer is streamed adds it to
+    // the bounces: a viewer draws only the punctual lights itself.
+    assert_eq!(lit.sky, lit.direct, "a sky alone is all the direct light");
+    let streamed = lit.streamed();
+    for ((s, i), k) in streamed.iter().zip(&lit.indirect).zip(&lit.sky) {
+        assert_eq!(*s, [i[0] + k[0], i[1] + k[1], i[2] + k[2]]);
+    }
+    // With a point light beside it the sky's share is the same; without a sky there is none,
+    // and the stream is E_ind itself.
+    let point = r#"{"type": "point", "position": [0.5, 0.8, 0.5], "intensity": 2}"#;
+    let both = LightSet::from_json(&format!(
+        r#"{{"lights": [{point}, {{"type": "sky", "color": [1, 1, 1]}}]}}"#
+    ))
+    .unwrap();
+    let alone = LightSet::from_json(&format!(r#"{{"lights": [{point}]}}"#)).unwrap();
+    let lit2 = engine.relight(&scene, &[both, alone]).unwrap();
+    assert_eq!(lit2[0].sky, lit.sky);
+    assert!(
+        lit2[0]
+            .direct
+            .iter()
+            .zip(&lit.sky)
+            .any(|(d, k)| d[0] > k[0])
+    );
+    assert!(lit2[1].sky.is_empty());
+    assert!(matches!(lit2[1].streamed(), std::borrow::Cow::Borrowed(_)));
+    assert_eq!(*lit2[1].streamed(), lit2[1].indirect[..]);
 }
 
 /// The engine's `E_ind` under a uniform white sky against the reference path tracer's, patch
@@ -204,6 +231,7 @@ fn without_a_sky_view_a_sky_adds_nothing() {
             .chain(&lit.indirect)
             .all(|d| *d == [0.0; 3])
     );
+    assert!(lit.sky.is_empty(), "no view, no sky to stream");
     let with_point = LightSet::from_json(
         r#"{"lights": [{"type": "point", "position": [0.5, 0.5, 0.5], "intensity": 1},
                        {"type": "sky", "color": [1, 1, 1]}]}"#,

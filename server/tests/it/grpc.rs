@@ -453,6 +453,66 @@ async fn frames_carry_probe_light_beside_the_patches() {
     server.stop().await;
 }
 
+/// Under a sky a frame carries the sky's direct light with the bounces: a viewer draws only the
+/// punctual lights itself. The frame is the engine's `streamed()` (E_ind + the sky's share of
+/// direct light) within RGB9E5's step, and brighter than E_ind alone where the sky is seen.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn under_a_sky_frames_carry_its_direct_light() {
+    let server = TestServer::start().await;
+    let mut c = server.client().await;
+    let sky = PbLight {
+        r#type: "sky".into(),
+        color: vec![0.5, 0.6, 0.8],
+        ..Default::default()
+    };
+    let lights = vec![point(3.0), sky];
+    let (id, version) = create_session(&mut c, lights.clone()).await;
+    let mut stream = subscribe(&mut c, &id).await;
+    let frame = loop {
+        let f = tokio::time::timeout(PATIENCE, stream.message())
+            .await
+            .expect("a frame in time")
+            .expect("stream")
+            .expect("a frame");
+        if f.lights_version >= version {
+            break f;
+        }
+    };
+    let got = Frame::parse(frame.data.clone())
+        .expect("frame")
+        .irradiance();
+
+    let engine = Engine::new(EngineChoice::Cpu).expect("cpu engine");
+    let scene = engine.load(&baked()).expect("load");
+    let set = bounce_server::lights::light_set(&lights).expect("lights");
+    let lit = engine.relight(&scene, &[set]).expect("relight").remove(0);
+    assert_eq!(lit.sky.len(), got.len(), "the test scene has a sky view");
+    let want = lit.streamed();
+    for (g, w) in got.iter().zip(want.iter()) {
+        let max = w.iter().fold(0.0f64, |m, &x| m.max(f64::from(x)));
+        let bound = max / 511.0 + 2f64.powi(-25) + 1e-5 * max;
+        for k in 0..3 {
+            assert!(
+                (f64::from(g[k]) - f64::from(w[k])).abs() <= bound,
+                "{g:?} vs {w:?}"
+            );
+        }
+    }
+    // Where the sky is seen, the frame is more than the bounces by the sky's direct light.
+    let lifted = got
+        .iter()
+        .zip(&lit.indirect)
+        .zip(&lit.sky)
+        .filter(|((g, i), k)| k[2] > 0.1 * i[2] && g[2] > i[2] * 1.05)
+        .count();
+    assert!(
+        lifted * 10 > got.len(),
+        "{lifted} of {} patches carry the sky's direct light",
+        got.len()
+    );
+    server.stop().await;
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn relight_stream_takes_lights_and_returns_frames() {
     let server = TestServer::start().await;
