@@ -19,6 +19,7 @@ mod reference_cmd;
 mod relight_cmd;
 mod render_cmd;
 mod serve_cmd;
+mod sky_cmd;
 mod verify_cmd;
 mod view;
 
@@ -68,6 +69,9 @@ enum Command {
     /// Measure a baked file's indirect irradiance against the path-traced reference, split into
     /// codec error and method error.
     Verify(verify_cmd::VerifyArgs),
+    /// An equirectangular HDR image (.hdr or .exr) as a sky light: its order-2 spherical
+    /// harmonics, written as a light file.
+    Sky(sky_cmd::SkyArgs),
     /// Serve baked scenes over gRPC: sessions, light changes, frames streamed to every viewer.
     /// With no --scenes, the embedded Cornell box demo.
     Serve(serve_cmd::ServeArgs),
@@ -97,6 +101,7 @@ fn main() -> ExitCode {
         Command::Serve(args) => serve_cmd::run(&args),
         Command::Reference(args) => reference_cmd::run(&args),
         Command::Verify(args) => verify_cmd::run(&args),
+        Command::Sky(args) => sky_cmd::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

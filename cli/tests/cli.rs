@@ -1586,3 +1586,71 @@ fn probes_bake_relight_and_verify() {
         assert!(!dir.path().join("no.bounce").exists());
     }
 }
+
+/// `bounce sky`: an OpenEXR environment map becomes a light file with its SH sky (the core's
+/// projection of the same file, times `--scale`), which a relight takes; a file that is no HDR
+/// image, or a bad scale, is refused with the reason.
+#[test]
+fn sky_turns_an_hdr_map_into_a_sky_light() {
+    let dir = tempfile::tempdir().unwrap();
+    let map = dir.path().join("courtyard.exr");
+    let (w, h) = (128u32, 64u32);
+    let img = image::Rgb32FImage::from_fn(w, h, |_, y| {
+        // Bright overhead, dark below the horizon.
+        let up = 1.0 - 2.0 * (y as f32 + 0.5) / h as f32;
+        let v = if up > 0.0 { 0.5 + up } else { 0.05 };
+        image::Rgb([v, v, v * 1.2])
+    });
+    img.save(&map).unwrap();
+    let want = bounce_core::environment::sh_from_image(&std::fs::read(&map).unwrap()).unwrap();
+    let out_file = dir.path().join("sky.json");
+    let out = run(bounce()
+        .arg("sky")
+        .arg(&map)
+        .args(["--scale", "2", "-o"])
+        .arg(&out_file));
+    assert!(out.status.success(), "{}", stderr(&out));
+    let text = std::fs::read_to_string(&out_file).unwrap();
+    let set = bounce_core::light::LightSet::from_json(&text).expect("a valid light file");
+    let sh = set.sky_sh().expect("a sky");
+    for (got, want) in sh.iter().flatten().zip(want.sh.iter().flatten()) {
+        assert_eq!(*got, 2.0 * want);
+    }
+    assert!(sh[1][0] > 0.0, "brighter overhead: {sh:?}");
+    // The light file lights a bake as any sky does.
+    let file = dir.path().join("box.bounce");
+    common::ok(
+        bounce()
+            .arg("bake")
+            .arg(cornell())
+            .args(["--patches", "200", "--rays", "128", "--quiet", "-o"])
+            .arg(&file),
+    );
+    let lit = dir.path().join("lit.json");
+    common::ok(
+        bounce()
+            .arg("relight")
+            .arg(&file)
+            .arg("--lights")
+            .arg(&out_file)
+            .args(["--engine", "cpu", "--out"])
+            .arg(&lit),
+    );
+    let r: Value = serde_json::from_str(&std::fs::read_to_string(&lit).unwrap()).unwrap();
+    let direct = r["sets"][0]["direct"].as_array().unwrap();
+    assert!(
+        direct.iter().any(|d| d[0].as_f64().unwrap() > 0.0),
+        "the sky lights the box through its opening"
+    );
+    let junk = dir.path().join("junk.hdr");
+    std::fs::write(&junk, "not an image").unwrap();
+    common::refused(bounce().arg("sky").arg(&junk), "not an image");
+    common::refused(
+        bounce().arg("sky").arg(&map).arg("--scale=-1"),
+        "--scale",
+    );
+    common::refused(
+        bounce().arg("sky").arg(dir.path().join("missing.hdr")),
+        "reading",
+    );
+}

@@ -18,6 +18,7 @@ pub mod codec;
 pub mod direct;
 pub mod element;
 pub mod emitter;
+pub mod environment;
 pub mod extent;
 pub mod format;
 pub mod formfactor;

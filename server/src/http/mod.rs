@@ -15,6 +15,7 @@
 //! | `GET /v1/sessions/{id}` | `{"session_id", "scene", "lights_version", "lights"}` |
 //! | `PUT /v1/sessions/{id}/lights` | `{"lights"}` → `{"lights_version", "changed"}` |
 //! | `GET /v1/sessions/{id}/ws` | the session's WebSocket |
+//! | `POST /v1/sky/sh` | an equirectangular HDR image (Radiance `.hdr` or OpenEXR, up to 64 MiB) → `{"sh", "width", "height"}`: its order-2 SH, ready for a sky light (`{"type": "sky", "sh": ...}`) |
 //! | `GET /`, `GET /PATH` | the browser page: `index.html`, and each file of `web/public/` ([`web`]) |
 //!
 //! Writes present the hub's token, if it has one, as `Authorization: Bearer T` or `?token=T`;
@@ -46,7 +47,7 @@ use std::time::Duration;
 use axum::Router;
 use axum::extract::ConnectInfo;
 use axum::http::StatusCode;
-use axum::routing::{MethodRouter, get, put};
+use axum::routing::{MethodRouter, get, post, put};
 use axum::serve::Listener;
 use tokio::net::{TcpListener, TcpStream};
 use tokio_util::task::TaskTracker;
@@ -64,8 +65,8 @@ use access::{check_origin, check_read};
 pub use error::ErrorCode;
 use error::{ApiError, count_refusals};
 use routes::{
-    create_session, get_session, layout, list_scenes, list_sessions, metrics, model, readyz,
-    set_lights,
+    MAX_ENVIRONMENT_BYTES, create_session, get_session, layout, list_scenes, list_sessions,
+    metrics, model, readyz, set_lights, sky_sh,
 };
 use state::{AppState, Peer};
 
@@ -225,6 +226,10 @@ fn router(hub: Hub, sockets: TaskTracker) -> Router {
         .route("/v1/sessions/{id}", get(get_session))
         .route("/v1/sessions/{id}/lights", put(set_lights))
         .route("/v1/sessions/{id}/ws", get(ws::upgrade))
+        .route(
+            "/v1/sky/sh",
+            post(sky_sh).layer(axum::extract::DefaultBodyLimit::max(MAX_ENVIRONMENT_BYTES)),
+        )
         .method_not_allowed_fallback(|| async {
             ApiError::from_rejection(
                 StatusCode::METHOD_NOT_ALLOWED,

@@ -320,3 +320,39 @@ pub(super) async fn set_lights(
         changed: v.changed,
     }))
 }
+
+/// The largest environment image `POST /v1/sky/sh` takes: an 8k × 4k Radiance file, run-length
+/// encoded, is well under it; an OpenEXR of that size in f16 fits.
+pub(super) const MAX_ENVIRONMENT_BYTES: usize = 64 << 20;
+
+#[derive(Serialize)]
+pub(super) struct SkySh {
+    /// The 9 order-2 coefficients, `[r, g, b]` each, as a sky light's `sh` takes them.
+    sh: Vec<[f32; 3]>,
+    width: u32,
+    height: u32,
+}
+
+/// An equirectangular HDR image (the body: Radiance `.hdr` or OpenEXR) projected to the order-2
+/// SH a sky light takes (`bounce_core::environment`). A write like setting lights: it presents
+/// the write token when the server has one, since decoding a large image is work done on the
+/// server's cores (on the blocking pool, not the async workers).
+pub(super) async fn sky_sh(
+    State(state): State<AppState>,
+    Token(token): Token,
+    body: Result<Bytes, BytesRejection>,
+) -> Result<Json<SkySh>, ApiError> {
+    state.hub.authorize(token.as_deref())?;
+    let body = body?;
+    let env = tokio::task::spawn_blocking(move || bounce_core::environment::sh_from_image(&body))
+        .await
+        // Only a panic in the decoder ends the task early: the server goes on, this request
+        // is answered as a failed one.
+        .map_err(|_| ServerError::WorkerGone)?
+        .map_err(|e| ServerError::Invalid(format!("the image: {e}")))?;
+    Ok(Json(SkySh {
+        sh: env.sh.to_vec(),
+        width: env.width,
+        height: env.height,
+    }))
+}

@@ -422,6 +422,101 @@ async fn writes_need_the_token_when_one_is_set() {
     server.stop().await;
 }
 
+/// An equirectangular HDR image, over the JSON routes' 1 MiB limit, posted to `/v1/sky/sh`: the
+/// answer is `bounce_core::environment`'s projection of the same bytes, and it lights a session
+/// as a sky. Anything but an HDR image is refused with the reason; a server with a write token
+/// wants it here too.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_hdr_image_becomes_a_sky() {
+    let (w, h) = (1024u32, 512u32);
+    let mut pixels = Vec::with_capacity((w * h) as usize);
+    for y in 0..h {
+        for x in 0..w {
+            // Bright above the horizon, bluer up high, with a ripple so the file does not
+            // compress under the limit.
+            let up = 1.0 - 2.0 * (y as f32 + 0.5) / h as f32;
+            let ripple = 1.0 + 0.2 * ((x * 7 + y * 3) as f32).sin();
+            let sky = if up > 0.0 { 1.0 + up } else { 0.1 };
+            pixels.push(image::Rgb([
+                sky * ripple,
+                sky * ripple,
+                (sky + up.max(0.0)) * ripple,
+            ]));
+        }
+    }
+    let mut bytes = Vec::new();
+    image::codecs::hdr::HdrEncoder::new(&mut bytes)
+        .encode(&pixels, w as usize, h as usize)
+        .expect("an HDR file");
+    assert!(
+        bytes.len() > bounce_server::MAX_REQUEST_BYTES,
+        "{} bytes",
+        bytes.len()
+    );
+    let want = bounce_core::environment::sh_from_image(&bytes).expect("a projection");
+
+    let server = TestServer::start().await;
+    let http = client();
+    let r = http
+        .post(server.url("/v1/sky/sh"))
+        .body(bytes.clone())
+        .send()
+        .await
+        .expect("POST");
+    assert_eq!(r.status(), StatusCode::OK);
+    let answer: Value = r.json().await.expect("JSON");
+    assert_eq!(
+        (answer["width"].as_u64(), answer["height"].as_u64()),
+        (Some(1024), Some(512))
+    );
+    let sh: Vec<[f32; 3]> = serde_json::from_value(answer["sh"].clone()).expect("9 triples");
+    assert_eq!(sh, want.sh.to_vec());
+    // Brighter above than below: Y1−1 (the up axis) is positive, and bluer.
+    assert!(sh[1][0] > 0.0 && sh[1][2] > sh[1][0], "{sh:?}");
+    let body = json!({"scene": SCENE, "lights": [{"type": "sky", "sh": sh}]});
+    let r = http
+        .post(server.url("/v1/sessions"))
+        .json(&body)
+        .send()
+        .await
+        .expect("POST");
+    assert_eq!(r.status(), StatusCode::CREATED);
+
+    let r = http
+        .post(server.url("/v1/sky/sh"))
+        .body("not an image")
+        .send()
+        .await
+        .expect("POST");
+    assert_refused(
+        refusal(r).await,
+        StatusCode::BAD_REQUEST,
+        "invalid_argument",
+        "the image: not an image",
+    );
+    server.stop().await;
+
+    let mut config = HubConfig::new(scenes_dir(), EngineChoice::Cpu);
+    config.token = Some("s3cret".into());
+    let server = TestServer::start_with(config).await;
+    let r = http
+        .post(server.url("/v1/sky/sh"))
+        .body(bytes.clone())
+        .send()
+        .await
+        .expect("POST");
+    assert_eq!(r.status(), StatusCode::UNAUTHORIZED);
+    let r = http
+        .post(server.url("/v1/sky/sh"))
+        .bearer_auth("s3cret")
+        .body(bytes)
+        .send()
+        .await
+        .expect("POST");
+    assert_eq!(r.status(), StatusCode::OK);
+    server.stop().await;
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn request_bodies_over_the_limit_are_413() {
     let server = TestServer::start().await;
