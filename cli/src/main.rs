@@ -69,8 +69,8 @@ enum Command {
     /// Measure a baked file's indirect irradiance against the path-traced reference, split into
     /// codec error and method error.
     Verify(verify_cmd::VerifyArgs),
-    /// An equirectangular HDR image (.hdr or .exr) as a sky light: its order-2 spherical
-    /// harmonics, written as a light file.
+    /// A sky as a light file: an equirectangular HDR image (.hdr or .exr) as its order-2
+    /// spherical harmonics, or a sun's direction as the sun and its clear sky (--sun).
     Sky(sky_cmd::SkyArgs),
     /// Serve baked scenes over gRPC: sessions, light changes, frames streamed to every viewer.
     /// With no --scenes, the embedded Cornell box demo.

@@ -1645,12 +1645,24 @@ fn sky_turns_an_hdr_map_into_a_sky_light() {
     let junk = dir.path().join("junk.hdr");
     std::fs::write(&junk, "not an image").unwrap();
     common::refused(bounce().arg("sky").arg(&junk), "not an image");
-    common::refused(
-        bounce().arg("sky").arg(&map).arg("--scale=-1"),
-        "--scale",
-    );
+    common::refused(bounce().arg("sky").arg(&map).arg("--scale=-1"), "--scale");
     common::refused(
         bounce().arg("sky").arg(dir.path().join("missing.hdr")),
         "reading",
+    );
+
+    // A sun's direction: the sun and its sky, two lights of a valid file.
+    let out = common::ok(bounce().args(["sky", "--sun", "0.3,0.9,-0.2", "--scale", "0.1"]));
+    let set = bounce_core::light::LightSet::from_json(&String::from_utf8_lossy(&out.stdout))
+        .expect("a valid light file");
+    assert_eq!(set.lights.len(), 2);
+    assert!(set.sky_sh().is_some());
+    common::refused(
+        bounce().args(["sky", "--sun", "0.3,-0.9,-0.2"]),
+        "below the horizon",
+    );
+    common::refused(
+        bounce().args(["sky", "--sun", "0,1,0", "--turbidity", "50"]),
+        "turbidity",
     );
 }

@@ -36,6 +36,7 @@ pub mod rays;
 pub mod scene;
 pub mod sky;
 pub mod space;
+pub mod sunsky;
 pub mod surface;
 pub mod transport;
 pub mod trimesh;

@@ -15,6 +15,7 @@
 //! | `GET /v1/sessions/{id}` | `{"session_id", "scene", "lights_version", "lights"}` |
 //! | `PUT /v1/sessions/{id}/lights` | `{"lights"}` → `{"lights_version", "changed"}` |
 //! | `GET /v1/sessions/{id}/ws` | the session's WebSocket |
+//! | `POST /v1/sky/sun` | `{"direction": [x, y, z], "turbidity": 3, "scale": 1}` (towards the sun, +Y up; the last two optional) → `{"lights": [sun, sky]}`: a directional sun and its clear SH sky (`bounce_core::sunsky`), for a session's lights |
 //! | `POST /v1/sky/sh` | an equirectangular HDR image (Radiance `.hdr` or OpenEXR, up to 64 MiB) → `{"sh", "width", "height"}`: its order-2 SH, ready for a sky light (`{"type": "sky", "sh": ...}`) |
 //! | `GET /`, `GET /PATH` | the browser page: `index.html`, and each file of `web/public/` ([`web`]) |
 //!
@@ -66,7 +67,7 @@ pub use error::ErrorCode;
 use error::{ApiError, count_refusals};
 use routes::{
     MAX_ENVIRONMENT_BYTES, create_session, get_session, layout, list_scenes, list_sessions,
-    metrics, model, readyz, set_lights, sky_sh,
+    metrics, model, readyz, set_lights, sky_sh, sky_sun,
 };
 use state::{AppState, Peer};
 
@@ -226,6 +227,7 @@ fn router(hub: Hub, sockets: TaskTracker) -> Router {
         .route("/v1/sessions/{id}", get(get_session))
         .route("/v1/sessions/{id}/lights", put(set_lights))
         .route("/v1/sessions/{id}/ws", get(ws::upgrade))
+        .route("/v1/sky/sun", post(sky_sun))
         .route(
             "/v1/sky/sh",
             post(sky_sh).layer(axum::extract::DefaultBodyLimit::max(MAX_ENVIRONMENT_BYTES)),

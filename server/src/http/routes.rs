@@ -356,3 +356,36 @@ pub(super) async fn sky_sh(
         height: env.height,
     }))
 }
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct SunRequest {
+    /// Towards the sun, +Y up, any length.
+    direction: [f32; 3],
+    #[serde(default = "typical_turbidity")]
+    turbidity: f64,
+    #[serde(default = "unit_scale")]
+    scale: f64,
+}
+
+fn typical_turbidity() -> f64 {
+    3.0
+}
+
+fn unit_scale() -> f64 {
+    1.0
+}
+
+/// A sun and its clear sky (`bounce_core::sunsky`) as the two lights a session takes: a day's
+/// sequence of these is a day-night cycle. Computed, not stored: no token is needed beyond a
+/// read's.
+pub(super) async fn sky_sun(
+    body: Result<Bytes, BytesRejection>,
+) -> Result<Json<serde_json::Value>, ApiError> {
+    let body = body?;
+    let request: SunRequest = serde_json::from_str(body_str(&body)?)
+        .map_err(|e| ServerError::Invalid(format!("request body: {e}")))?;
+    let set = bounce_core::sunsky::sun_and_sky(request.direction, request.turbidity, request.scale)
+        .map_err(|e| ServerError::Invalid(e.to_string()))?;
+    Ok(Json(serde_json::json!({ "lights": set.lights })))
+}

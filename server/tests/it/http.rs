@@ -517,6 +517,62 @@ async fn an_hdr_image_becomes_a_sky() {
     server.stop().await;
 }
 
+/// `/v1/sky/sun`: a sun's direction becomes a directional sun and its SH sky, which a session
+/// takes as they are; a sun below the horizon or an unknown field is refused with the reason.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_sun_direction_becomes_a_sun_and_its_sky() {
+    let server = TestServer::start().await;
+    let http = client();
+    let post = |body: Value| http.post(server.url("/v1/sky/sun")).json(&body).send();
+    let r = post(json!({"direction": [0.5, 0.8, 0.2], "scale": 0.05}))
+        .await
+        .expect("POST");
+    assert_eq!(r.status(), StatusCode::OK);
+    let answer: Value = r.json().await.expect("JSON");
+    let lights = answer["lights"].as_array().expect("lights");
+    assert_eq!(lights.len(), 2, "{answer}");
+    assert_eq!(lights[0]["type"], "directional");
+    assert!(
+        lights[0]["direction"][1].as_f64().unwrap() < 0.0,
+        "{answer}"
+    );
+    assert_eq!(lights[1]["type"], "sky");
+    assert_eq!(lights[1]["sh"].as_array().map(Vec::len), Some(9));
+    let want = bounce_core::sunsky::sun_and_sky([0.5, 0.8, 0.2], 3.0, 0.05).unwrap();
+    assert_eq!(
+        answer["lights"],
+        serde_json::to_value(&want.lights).unwrap()
+    );
+    let r = http
+        .post(server.url("/v1/sessions"))
+        .json(&json!({"scene": SCENE, "lights": lights}))
+        .send()
+        .await
+        .expect("POST");
+    assert_eq!(r.status(), StatusCode::CREATED);
+    for (body, says) in [
+        (json!({"direction": [0.5, -0.2, 0.0]}), "below the horizon"),
+        (
+            json!({"direction": [0.5, 0.8, 0.2], "turbidity": 40}),
+            "turbidity",
+        ),
+        (
+            json!({"direction": [0.5, 0.8, 0.2], "sun": 1}),
+            "unknown field",
+        ),
+        (json!({"turbidity": 3}), "direction"),
+    ] {
+        let r = post(body).await.expect("POST");
+        assert_refused(
+            refusal(r).await,
+            StatusCode::BAD_REQUEST,
+            "invalid_argument",
+            says,
+        );
+    }
+    server.stop().await;
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn request_bodies_over_the_limit_are_413() {
     let server = TestServer::start().await;
