@@ -1,6 +1,7 @@
 //! bounce-server's integration tests, in one binary: real servers on loopback, real clients.
 
 mod common;
+mod emissive;
 mod grpc;
 mod http;
 mod lifecycle;
