@@ -1553,6 +1553,34 @@ fn probes_bake_relight_and_verify() {
     assert_eq!(v["probes"]["probes"].as_u64(), Some(count));
     let err = v["probes"]["rel_l2"].as_f64().unwrap();
     assert!(err.is_finite() && err < 0.5, "{v}");
+    // `bench engines` reports what the probes add: the gather's own rows, equal to the relight's.
+    let csv = dir.path().join("engines.csv");
+    let out = run(bounce()
+        .args(["bench", "engines"])
+        .arg(&file)
+        .args([
+            "--engines",
+            "cpu",
+            "--codecs",
+            "dense-f32",
+            "--batches",
+            "1,2",
+        ])
+        .args(["--repeat", "1", "--warm-up", "0", "--csv"])
+        .arg(&csv));
+    assert!(out.status.success(), "{}", stderr(&out));
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let header: Vec<&str> = text.lines().next().unwrap().split(',').collect();
+    let rel = header.iter().position(|h| *h == "eind_rel_l2").unwrap();
+    let gathers: Vec<Vec<&str>> = text
+        .lines()
+        .filter(|l| l.contains("probe gather"))
+        .map(|l| l.split(',').collect())
+        .collect();
+    assert_eq!(gathers.len(), 2, "{text}");
+    for g in gathers {
+        assert_eq!(g[rel].parse::<f64>().unwrap(), 0.0, "{text}");
+    }
     // Under a sky too: the probes hold the sky they see, and the reference adds it.
     let sky = dir.path().join("sky.json");
     std::fs::write(&sky, r#"{"lights":[{"type":"sky","color":[1,1,1]}]}"#).unwrap();

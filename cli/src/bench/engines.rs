@@ -249,6 +249,7 @@ pub fn run(args: &BenchEnginesArgs) -> Result<()> {
             reorder: true,
         };
         rows.extend(direct_rows_all(args, &baked, &sets)?);
+        rows.extend(probe_rows(args, &baked, &sets)?);
         rows.extend(product_rows(args, &devices, &subject)?);
         rows.extend(jacobi_rows(args, &baked, &subject.b0, &subject.reference)?);
     } else {
@@ -532,6 +533,78 @@ fn tile_lights(b0: &[[f32; 3]], n: usize, size: usize, sets: usize) -> Vec<[f32;
     (0..sets)
         .flat_map(|k| (0..size).map(move |i| b0[k * n + i % n]))
         .collect()
+}
+
+/// What probes add to a relight (issue 22): the sparse gather `G · (B0 + ρ ⊙ E_ind)` of every
+/// light set of the batch, on the host after the product (both engines run it there), timed on
+/// the rows' own `B0` and `E_ind` and checked against the relight's probes. Nothing for a file
+/// without probes.
+fn probe_rows(args: &BenchEnginesArgs, baked: &Baked, sets: &[LightSet]) -> Result<Vec<Row>> {
+    let Some(probes) = &baked.probes else {
+        return Ok(Vec::new());
+    };
+    let cpu = Engine::new(EngineChoice::Cpu)?;
+    let scene = cpu.load(baked)?;
+    let n = baked.transport_layout().len();
+    let label = format!(
+        "probe gather ({} probes · {} entries)",
+        probes.len(),
+        probes.nnz()
+    );
+    let mut rows = Vec::new();
+    for &batch in &args.batches {
+        let sets = &sets[..batch];
+        let (direct, near) = cpu.direct_and_near(&scene, sets)?;
+        let mut b0 = Vec::with_capacity(batch * n);
+        for (set, d) in sets.iter().zip(&direct) {
+            b0.extend(scene.exitance(set, d)?);
+        }
+        let mut ind = vec![[0.0f32; 3]; b0.len()];
+        cpu.indirect(&scene, &b0, &mut ind)?;
+        // As a relight finishes `E_ind`: with the near-field first bounce, where there is one.
+        for (v, d) in ind.iter_mut().zip(near.iter().flatten().flatten()) {
+            *v = std::array::from_fn(|c| (v[c] + d[c]).max(0.0));
+        }
+        let gather = || -> Vec<[f32; 3]> {
+            sets.iter()
+                .zip(b0.chunks(n).zip(ind.chunks(n)))
+                .flat_map(|(set, (b, e))| scene.probe_irradiance(b, e, set))
+                .collect()
+        };
+        warm_up(args.warm_up, || {
+            std::hint::black_box(gather());
+            Ok(())
+        })?;
+        let mut times = Vec::with_capacity(args.repeat);
+        let mut got = Vec::new();
+        for _ in 0..args.repeat {
+            let start = Instant::now();
+            got = std::hint::black_box(gather());
+            times.push(start.elapsed().as_secs_f64());
+        }
+        // The relight's own probes: the gather measured is the one a relight runs.
+        let want: Vec<[f32; 3]> = cpu
+            .relight(&scene, sets)?
+            .into_iter()
+            .flat_map(|l| l.probes)
+            .collect();
+        let (rel_l2, rel_max) = errors(&got, &want);
+        rows.push(Row {
+            engine: "host".to_string(),
+            codec: label.clone(),
+            rows: n,
+            batch,
+            times,
+            kernel_times: Vec::new(),
+            // Per entry a row index and a share, read once a light set.
+            bytes: probes.nnz() * 8,
+            passes: batch,
+            rel_l2,
+            rel_max,
+        });
+        report("probe gather", rows.last());
+    }
+    Ok(rows)
 }
 
 /// Direct light rows for every engine, on the file's own scene.
