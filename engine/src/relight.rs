@@ -19,7 +19,9 @@
 //! baked sky view (`bounce_core::sky`), is added to the row's direct light on the host, after
 //! either engine's direct light and before `B0`, so both engines light by it alike (it costs
 //! `O(rows)` a light set). A file without a sky view ([`Scene::has_sky_view`]) gets nothing from
-//! a sky.
+//! a sky. Its share is also kept apart ([`Irradiance::sky`]): a viewer draws the punctual lights
+//! itself but not a sky, so what is streamed is `E_ind` with the sky's direct light
+//! ([`Irradiance::streamed`]).
 
 use std::fmt;
 use std::str::FromStr;
@@ -50,24 +52,6 @@ pub enum EngineChoice {
     Auto,
     Gpu,
     Cpu,
-}
-
-impl Irradiance {
-    /// What the service streams to a viewer: the light it cannot draw itself. A viewer draws the
-    /// punctual lights with its own shadow maps; everything else reaches a patch through the bake,
-    /// so a frame carries `E_ind` plus a sky's direct light (`E_ind` alone without a sky).
-    pub fn streamed(&self) -> std::borrow::Cow<'_, [[f32; 3]]> {
-        if self.sky.is_empty() {
-            return std::borrow::Cow::Borrowed(&self.indirect);
-        }
-        std::borrow::Cow::Owned(
-            self.indirect
-                .iter()
-                .zip(&self.sky)
-                .map(|(i, s)| std::array::from_fn(|c| (i[c] + s[c]).min(f32::MAX)))
-                .collect(),
-        )
-    }
 }
 
 impl FromStr for EngineChoice {
@@ -376,7 +360,7 @@ impl Engine {
     }
 
     /// [`Engine::direct_on_rows`] and, for a scene with a near field that this engine's sample
-    /// count can use ([`Scene::near_field`]), the near-field first bounce per light set and row
+    /// count can use ([`Engine::near_field`]), the near-field first bounce per light set and row
     /// (`bounce_core::nearfield`).
     #[allow(clippy::type_complexity)]
     pub fn direct_and_near(
@@ -544,6 +528,24 @@ pub struct Irradiance {
     /// what an object moving through the scene gathers from its surfaces. Empty for a file
     /// without probes.
     pub probes: Vec<[f32; 3]>,
+}
+
+impl Irradiance {
+    /// What the service streams to a viewer: the light it cannot draw itself. A viewer draws the
+    /// punctual lights with its own shadow maps; everything else reaches a patch through the bake,
+    /// so a frame carries `E_ind` plus a sky's direct light (`E_ind` alone without a sky).
+    pub fn streamed(&self) -> std::borrow::Cow<'_, [[f32; 3]]> {
+        if self.sky.is_empty() {
+            return std::borrow::Cow::Borrowed(&self.indirect);
+        }
+        std::borrow::Cow::Owned(
+            self.indirect
+                .iter()
+                .zip(&self.sky)
+                .map(|(i, s)| std::array::from_fn(|c| (i[c] + s[c]).min(f32::MAX)))
+                .collect(),
+        )
+    }
 }
 
 /// A baked scene made ready on one engine.

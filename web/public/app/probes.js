@@ -9,8 +9,8 @@
 //   each component picking the side), plus the lights' direct light and shadows as any surface.
 //
 // On the desktop the sphere floats ahead of the camera (radius 3% of the scene's diagonal, six
-// radii ahead), as in `bounce view`; in a headset it rides just ahead of the first controller that
-// is tracked, else ahead of the headset. The blend is blind to walls, and the sphere casts no
+// radii ahead), as in `bounce view`; in a headset it rides just ahead of the right controller (the
+// other one when only it is tracked), else ahead of the headset. The blend is blind to walls, and the sphere casts no
 // shadow and is not in the baked light.
 
 import { Mesh, SphereGeometry, Vector3 } from 'three';
