@@ -59,8 +59,8 @@ pub use sky::SKY_HEADER_LEN;
 /// materials and the rows they cover (the `EMIT` section, flagged optional): a file without it
 /// keeps its baked emission, and a light set cannot change it. Version 7 added irradiance
 /// probes (the `PROB` section, flagged optional): a file without them has none. Version 8 added
-/// the probes' view of the sky (the `PSKY` section, flagged optional, beside `PROB`): a version-7
-/// reader skips it and reads the probes, which then see no sky directly, as in any older file.
+/// the probes' view of the sky (the `PSKY` section, flagged optional, beside `PROB`): a file
+/// without it (any older one) reads, and its probes see the sky only off the surfaces.
 pub const FORMAT_VERSION: u32 = 8;
 /// The oldest version this build reads: a version-1 file is a voxel-face bake and is relit as
 /// one.
