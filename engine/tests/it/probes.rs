@@ -62,6 +62,27 @@ fn bounds() -> ([f32; 3], [f32; 3]) {
     (lo, hi)
 }
 
+/// The reference's points for probes `chosen`: each probe's six directions, in face order.
+fn probe_points(probes: &bounce_core::probe::Probes, chosen: &[usize]) -> Vec<Point> {
+    chosen
+        .iter()
+        .flat_map(|&i| {
+            Face::ALL.map(|f| Point {
+                position: probes.positions[i],
+                normal: f.normal().to_array(),
+            })
+        })
+        .collect()
+}
+
+/// A relight's probe values for probes `chosen`, in the order of [`probe_points`].
+fn probe_values(lit: &[[f32; 3]], chosen: &[usize]) -> Vec<[f32; 3]> {
+    chosen
+        .iter()
+        .flat_map(|&i| lit[i * DIRECTIONS..(i + 1) * DIRECTIONS].to_vec())
+        .collect()
+}
+
 #[test]
 fn probes_fill_the_box_and_only_the_box() {
     let probes = baked().probes.as_ref().expect("baked with probes");
@@ -110,15 +131,7 @@ fn probes_match_the_reference() {
     assert_eq!(lit.probes.len(), probes.len() * DIRECTIONS);
     // Every second probe keeps the reference's time in bounds.
     let chosen: Vec<usize> = (0..probes.len()).step_by(2).collect();
-    let points: Vec<Point> = chosen
-        .iter()
-        .flat_map(|&i| {
-            Face::ALL.map(|f| Point {
-                position: probes.positions[i],
-                normal: f.normal().to_array(),
-            })
-        })
-        .collect();
+    let points = probe_points(probes, &chosen);
     let reference = Reference::new(&import_path(&scene_path()).unwrap()).unwrap();
     let options = Options {
         spp: 4096,
@@ -128,10 +141,7 @@ fn probes_match_the_reference() {
     let estimates = reference
         .estimate(&set, &points, &options, &|_| {})
         .unwrap();
-    let got: Vec<[f32; 3]> = chosen
-        .iter()
-        .flat_map(|&i| lit.probes[i * DIRECTIONS..(i + 1) * DIRECTIONS].to_vec())
-        .collect();
+    let got = probe_values(&lit.probes, &chosen);
     let (mut num, mut den, mut var) = (0.0f64, 0.0f64, 0.0f64);
     for (g, e) in got.iter().zip(&estimates) {
         for ((g, m), se) in g.iter().zip(e.mean).zip(e.stderr) {
@@ -238,15 +248,7 @@ fn probes_under_a_sky_match_the_reference() {
         .remove(0);
     let probes = baked.probes.as_ref().unwrap();
     let chosen: Vec<usize> = (0..probes.len()).step_by(4).collect();
-    let points: Vec<Point> = chosen
-        .iter()
-        .flat_map(|&i| {
-            Face::ALL.map(|f| Point {
-                position: probes.positions[i],
-                normal: f.normal().to_array(),
-            })
-        })
-        .collect();
+    let points = probe_points(probes, &chosen);
     let reference = Reference::new(&import_path(&scene_path()).unwrap()).unwrap();
     let options = Options {
         spp: 2048,
@@ -257,10 +259,7 @@ fn probes_under_a_sky_match_the_reference() {
         .estimate(&set, &points, &options, &|_| {})
         .unwrap();
     let seen = reference.direct(&set, &points);
-    let got: Vec<[f32; 3]> = chosen
-        .iter()
-        .flat_map(|&i| lit.probes[i * DIRECTIONS..(i + 1) * DIRECTIONS].to_vec())
-        .collect();
+    let got = probe_values(&lit.probes, &chosen);
     let (mut num, mut den, mut var) = (0.0f64, 0.0f64, 0.0f64);
     for ((g, e), d) in got.iter().zip(&estimates).zip(&seen) {
         for c in 0..3 {

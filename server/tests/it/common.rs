@@ -169,6 +169,37 @@ pub async fn subscribe(c: &mut BounceClient<Channel>, id: &str) -> Streaming<pro
     .into_inner()
 }
 
+/// The first frame of `stream` answering `version` or a later one.
+pub async fn frame_answering(stream: &mut Streaming<proto::Frame>, version: u64) -> proto::Frame {
+    loop {
+        let f = tokio::time::timeout(PATIENCE, stream.message())
+            .await
+            .expect("a frame in time")
+            .expect("stream")
+            .expect("a frame");
+        if f.lights_version >= version {
+            return f;
+        }
+    }
+}
+
+/// `got` (a frame's values) is `want` (the engine's) within RGB9E5's step: a ninth bit of the
+/// largest channel, the smallest step, and a hair for summation order.
+#[track_caller]
+pub fn assert_within_rgb9e5_step(got: &[[f32; 3]], want: &[[f32; 3]]) {
+    assert_eq!(got.len(), want.len());
+    for (g, w) in got.iter().zip(want) {
+        let max = w.iter().fold(0.0f64, |m, &x| m.max(f64::from(x)));
+        let bound = max / 511.0 + 2f64.powi(-25) + 1e-5 * max;
+        for k in 0..3 {
+            assert!(
+                (f64::from(g[k]) - f64::from(w[k])).abs() <= bound,
+                "{g:?} vs {w:?}"
+            );
+        }
+    }
+}
+
 /// Reads frames until one answers `version`; checks order on the way and returns the
 /// (sequence, version) of every frame seen.
 pub async fn read_until(stream: &mut Streaming<proto::Frame>, version: u64) -> Vec<(u64, u64)> {

@@ -415,16 +415,7 @@ async fn frames_carry_probe_light_beside_the_patches() {
 
     let (id, version) = create_session(&mut c, vec![point(3.0)]).await;
     let mut stream = subscribe(&mut c, &id).await;
-    let frame = loop {
-        let f = tokio::time::timeout(PATIENCE, stream.message())
-            .await
-            .expect("a frame in time")
-            .expect("stream")
-            .expect("a frame");
-        if f.lights_version >= version {
-            break f;
-        }
-    };
+    let frame = frame_answering(&mut stream, version).await;
     let probe_frame = Frame::parse_probes(frame.probes.clone()).expect("probe frame");
     assert_eq!(probe_frame.header.sequence, frame.sequence);
     assert_eq!(probe_frame.header.lights_version, frame.lights_version);
@@ -440,16 +431,7 @@ async fn frames_carry_probe_light_beside_the_patches() {
         .remove(0)
         .probes;
     assert!(want.iter().any(|w| w[1] > 0.0), "the probes saw no light");
-    for (g, w) in got.iter().zip(&want) {
-        let max = w.iter().fold(0.0f64, |m, &x| m.max(f64::from(x)));
-        let bound = max / 511.0 + 2f64.powi(-25) + 1e-5 * max;
-        for k in 0..3 {
-            assert!(
-                (f64::from(g[k]) - f64::from(w[k])).abs() <= bound,
-                "{g:?} vs {w:?}"
-            );
-        }
-    }
+    assert_within_rgb9e5_step(&got, &want);
     server.stop().await;
 }
 
@@ -468,16 +450,7 @@ async fn under_a_sky_frames_carry_its_direct_light() {
     let lights = vec![point(3.0), sky];
     let (id, version) = create_session(&mut c, lights.clone()).await;
     let mut stream = subscribe(&mut c, &id).await;
-    let frame = loop {
-        let f = tokio::time::timeout(PATIENCE, stream.message())
-            .await
-            .expect("a frame in time")
-            .expect("stream")
-            .expect("a frame");
-        if f.lights_version >= version {
-            break f;
-        }
-    };
+    let frame = frame_answering(&mut stream, version).await;
     let got = Frame::parse(frame.data.clone())
         .expect("frame")
         .irradiance();
@@ -487,17 +460,7 @@ async fn under_a_sky_frames_carry_its_direct_light() {
     let set = bounce_server::lights::light_set(&lights).expect("lights");
     let lit = engine.relight(&scene, &[set]).expect("relight").remove(0);
     assert_eq!(lit.sky.len(), got.len(), "the test scene has a sky view");
-    let want = lit.streamed();
-    for (g, w) in got.iter().zip(want.iter()) {
-        let max = w.iter().fold(0.0f64, |m, &x| m.max(f64::from(x)));
-        let bound = max / 511.0 + 2f64.powi(-25) + 1e-5 * max;
-        for k in 0..3 {
-            assert!(
-                (f64::from(g[k]) - f64::from(w[k])).abs() <= bound,
-                "{g:?} vs {w:?}"
-            );
-        }
-    }
+    assert_within_rgb9e5_step(&got, &lit.streamed());
     // Where the sky is seen, the frame is more than the bounces by the sky's direct light.
     let lifted = got
         .iter()
