@@ -159,6 +159,36 @@ impl Serve {
             .expect("the session as JSON")
     }
 
+    /// `GET /v1/scenes/box/layout`, read by the client library.
+    pub async fn layout(&self) -> bounce_client::layout::Layout {
+        let bytes = reqwest::get(format!("{}/v1/scenes/box/layout", self.http))
+            .await
+            .and_then(|r| r.error_for_status())
+            .expect("the layout")
+            .bytes()
+            .await
+            .expect("its bytes");
+        bounce_client::layout::Layout::from_json(&bytes).expect("a valid layout")
+    }
+
+    /// The first frame a gRPC subscriber to `session` gets.
+    pub async fn first_frame(&self, session: &str) -> bounce_server::proto::Frame {
+        use bounce_server::proto::{self, bounce_client::BounceClient};
+        let mut grpc = BounceClient::connect(self.grpc.clone())
+            .await
+            .expect("a gRPC connection");
+        grpc.subscribe(proto::SubscribeRequest {
+            session_id: session.to_string(),
+        })
+        .await
+        .expect("a subscription")
+        .into_inner()
+        .message()
+        .await
+        .expect("the stream")
+        .expect("a frame")
+    }
+
     pub fn page_url(&self, session: &str, extra: &str) -> String {
         format!("{}/?scene=box&session={session}{extra}", self.http)
     }

@@ -4,9 +4,7 @@
 //! with it (the exact colour where its normal faces the camera, redder towards the red wall),
 //! and in a headset the sphere rides the controller.
 
-use bounce_client::layout::Layout;
 use bounce_server::frame::Frame;
-use bounce_server::proto::{self, bounce_client::BounceClient};
 use glam::Vec3;
 use serde_json::{Value, json};
 
@@ -72,30 +70,14 @@ async fn the_page_lights_a_sphere_from_the_probe_frames_and_a_headset_carries_it
         .expect("a probe frame is drawn");
 
     // The same probe light as a gRPC subscriber's probe frame, at the probes the layout names.
-    let layout: Vec<u8> = reqwest::get(format!("{}/v1/scenes/box/layout", serve.http))
-        .await
-        .and_then(|r| r.error_for_status())
-        .expect("the layout")
-        .bytes()
-        .await
-        .expect("its bytes")
-        .to_vec();
-    let layout = Layout::from_json(&layout).expect("a valid layout");
+    let layout = serve.layout().await;
     let positions = layout.probes().to_vec();
     assert!(positions.len() > 10, "{} probes", positions.len());
     assert_eq!(
         page.eval("window.bounce.probes.count").await.unwrap(),
         json!(positions.len())
     );
-    let mut grpc = BounceClient::connect(serve.grpc.clone()).await.unwrap();
-    let mut stream = grpc
-        .subscribe(proto::SubscribeRequest {
-            session_id: session.clone(),
-        })
-        .await
-        .unwrap()
-        .into_inner();
-    let message = stream.message().await.unwrap().expect("a frame");
+    let message = serve.first_frame(&session).await;
     let probe_frame = Frame::parse_probes(message.probes).expect("a probe frame beside it");
     assert_eq!(held["checksum"].as_u64(), Some(checksum(&probe_frame)));
     let irradiance = probe_frame.irradiance();

@@ -6,7 +6,6 @@
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-use bounce_client::layout::Layout;
 use bounce_client::volume::Volume;
 use bounce_server::frame::Frame;
 use bounce_server::proto::{self, bounce_client::BounceClient};
@@ -498,24 +497,8 @@ async fn the_pages_volume_samples_as_the_client_library_does() {
     let page = open(&browser, &serve.page_url(&session, "&overlay=off")).await;
     wait_drawn(&page).await;
 
-    let layout: Vec<u8> = reqwest::get(format!("{}/v1/scenes/box/layout", serve.http))
-        .await
-        .and_then(|r| r.error_for_status())
-        .expect("the layout")
-        .bytes()
-        .await
-        .expect("its bytes")
-        .to_vec();
-    let layout = Layout::from_json(&layout).expect("a valid layout");
-    let mut grpc = BounceClient::connect(serve.grpc.clone()).await.unwrap();
-    let mut stream = grpc
-        .subscribe(proto::SubscribeRequest {
-            session_id: session.clone(),
-        })
-        .await
-        .unwrap()
-        .into_inner();
-    let frame = Frame::parse(stream.message().await.unwrap().unwrap().data).unwrap();
+    let layout = serve.layout().await;
+    let frame = Frame::parse(serve.first_frame(&session).await.data).unwrap();
     let mut volume = Volume::new(&layout).unwrap();
     volume.apply(&frame).unwrap();
     let drawn = page.eval("window.bounce.received.at(-1)").await.unwrap();

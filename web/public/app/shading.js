@@ -137,15 +137,17 @@ const SPOT_THREE = 'return smoothstep( coneCosine, penumbraCosine, angleCosine )
 const SPOT_GLTF =
   'float a = clamp( ( angleCosine - coneCosine ) / max( penumbraCosine - coneCosine, 0.001 ), 0.0, 1.0 ); return a * a;';
 
-function patchShader(shader, uniforms) {
+// What both materials patch in: the shadow lookup's offset and glTF's spot falloff, and, given
+// as `decl` and `indirect`, the fragment shader's declarations and its indirect term.
+function patchShader(shader, uniforms, decl = FRAGMENT_DECL, indirect = FRAGMENT_INDIRECT) {
   Object.assign(shader.uniforms, uniforms);
   shader.vertexShader = shader.vertexShader
     .replace('void main() {', VERTEX_DECL)
     .replace('#include <project_vertex>', VERTEX_WORLD)
     .replace('#include <shadowmap_vertex>', THREE_SHADOWMAP_VERTEX_TOWARD_LIGHT);
   shader.fragmentShader = shader.fragmentShader
-    .replace('void main() {', FRAGMENT_DECL)
-    .replace('#include <lights_fragment_end>', FRAGMENT_INDIRECT)
+    .replace('void main() {', decl)
+    .replace('#include <lights_fragment_end>', indirect)
     .replace('#include <lights_pars_begin>', THREE_LIGHTS_PARS_GLTF_SPOT);
 }
 
@@ -216,17 +218,8 @@ export function objectMaterial(albedo) {
   const indirect = { value: 0 };
   const m = new MeshLambertMaterial({ color: new Color(albedo, albedo, albedo) });
   m.userData = { cube, indirect };
-  m.onBeforeCompile = (shader) => {
-    shader.uniforms.bounceCube = cube;
-    shader.uniforms.bounceIndirect = indirect;
-    shader.vertexShader = shader.vertexShader
-      .replace('void main() {', VERTEX_DECL)
-      .replace('#include <shadowmap_vertex>', THREE_SHADOWMAP_VERTEX_TOWARD_LIGHT);
-    shader.fragmentShader = shader.fragmentShader
-      .replace('void main() {', OBJECT_FRAGMENT_DECL)
-      .replace('#include <lights_fragment_end>', OBJECT_FRAGMENT_INDIRECT)
-      .replace('#include <lights_pars_begin>', THREE_LIGHTS_PARS_GLTF_SPOT);
-  };
+  m.onBeforeCompile = (shader) =>
+    patchShader(shader, { bounceCube: cube, bounceIndirect: indirect }, OBJECT_FRAGMENT_DECL, OBJECT_FRAGMENT_INDIRECT);
   m.customProgramCacheKey = () => 'bounce-object-v1';
   return m;
 }
