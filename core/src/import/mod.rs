@@ -120,11 +120,16 @@ pub fn import_path_with(path: &Path, options: &ImportOptions) -> Result<Scene, I
             source,
         },
     })?;
-    let base = match path.parent() {
+    import(&bytes, Some(base_dir(path)), path.to_path_buf(), options)
+}
+
+/// The directory a scene file's relative URIs resolve against. A bare file name's parent is the
+/// empty path, which names no directory (canonicalising it fails): it means the current one.
+pub(crate) fn base_dir(path: &Path) -> &Path {
+    match path.parent() {
         Some(p) if !p.as_os_str().is_empty() => p,
         _ => Path::new("."),
-    };
-    import(&bytes, Some(base), path.to_path_buf(), options)
+    }
 }
 
 /// Imports glTF or GLB bytes. External (non-`data:`) URIs are resolved relative to `base_dir`;

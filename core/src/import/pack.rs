@@ -56,7 +56,7 @@ pub fn pack_glb(path: &Path) -> Result<Vec<u8>, PackError> {
         path: path.to_path_buf(),
         error,
     })?;
-    pack_bytes(&bytes, path.parent(), path)
+    pack_bytes(&bytes, Some(super::base_dir(path)), path)
 }
 
 /// As [`pack_glb`], from the file's bytes; external files are resolved relative to `base`.
