@@ -407,9 +407,15 @@ fn check(dir: &Path, house: &House, patches: u32) -> Checked {
 
     // Floor patches (facing up, at floor height) of each dark room.
     let mut sums = vec![(0.0f64, 0.0f64); house.rooms.len()];
-    let text = std::fs::read_to_string(&csv).unwrap();
+    let text = std::fs::read_to_string(&csv).expect("verify --patches-out wrote its CSV");
     for line in text.lines().skip(1) {
-        let v: Vec<f64> = line.split(',').map(|x| x.parse().unwrap()).collect();
+        let v: Vec<f64> = line
+            .split(',')
+            .map(|x| {
+                x.parse()
+                    .unwrap_or_else(|e| panic!("verify's CSV: '{x}' in '{line}': {e}"))
+            })
+            .collect();
         let (x, y, z, ny) = (v[1], v[2], v[3], v[5]);
         if ny < 0.9 || y > 0.05 {
             continue;
@@ -424,7 +430,9 @@ fn check(dir: &Path, house: &House, patches: u32) -> Checked {
         }
     }
     Checked {
-        patches: report["patches"].as_u64().unwrap(),
+        patches: report["patches"]
+            .as_u64()
+            .unwrap_or_else(|| panic!("patches in {report}")),
         method: get("method_rel_l2"),
         method_without_noise: get("method_rel_l2_without_noise"),
         noise: get("reference_rel_stderr"),
