@@ -358,14 +358,14 @@ fn float_bytes(v: &[[f32; 3]]) -> Vec<u8> {
 }
 
 /// What `bounce verify` says of one house, and the rooms without a light: per room, the summed
-/// `E_ind` of its floor's patches (exact `T`) against the reference's.
+/// `E_ind` of its floor's patches (exact `T`), the reference's sum and that sum's standard error.
 struct Checked {
     patches: u64,
     method: f64,
     method_without_noise: f64,
     noise: f64,
     leak: f64,
-    dark_rooms: Vec<(f64, f64)>,
+    dark_rooms: Vec<(f64, f64, f64)>,
 }
 
 fn check(dir: &Path, house: &House, patches: u32) -> Checked {
@@ -406,7 +406,7 @@ fn check(dir: &Path, house: &House, patches: u32) -> Checked {
     };
 
     // Floor patches (facing up, at floor height) of each dark room.
-    let mut sums = vec![(0.0f64, 0.0f64); house.rooms.len()];
+    let mut sums = vec![(0.0f64, 0.0f64, 0.0f64); house.rooms.len()];
     let text = std::fs::read_to_string(&csv).expect("verify --patches-out wrote its CSV");
     for line in text.lines().skip(1) {
         let v: Vec<f64> = line
@@ -422,10 +422,13 @@ fn check(dir: &Path, house: &House, patches: u32) -> Checked {
         }
         let reference = v[7] + v[8] + v[9];
         let exact = v[16] + v[17] + v[18];
+        // The channels' errors are one path's: correlated, so they add.
+        let se = v[10] + v[11] + v[12];
         for (r, &([x0, z0], [x1, z1])) in house.rooms.iter().enumerate() {
             if x > x0 as f64 && x < x1 as f64 && z > z0 as f64 && z < z1 as f64 {
                 sums[r].0 += exact;
                 sums[r].1 += reference;
+                sums[r].2 += se * se;
             }
         }
     }
@@ -441,7 +444,7 @@ fn check(dir: &Path, house: &House, patches: u32) -> Checked {
             .into_iter()
             .zip(&house.lit)
             .filter(|(_, lit)| !**lit)
-            .map(|(s, _)| s)
+            .map(|(s, _)| (s.0, s.1, s.2.sqrt()))
             .collect(),
     }
 }
@@ -465,7 +468,7 @@ fn generated_interiors_against_the_reference() {
         let house = house(dir.path(), seed, nx, nz);
         let patches = PATCHES_A_ROOM * house.rooms.len() as u32;
         let c = check(dir.path(), &house, patches);
-        let ratios: Vec<f64> = c.dark_rooms.iter().map(|(p, r)| p / r).collect();
+        let ratios: Vec<f64> = c.dark_rooms.iter().map(|(p, r, _)| p / r).collect();
         let _ = writeln!(
             table,
             "{seed:>5}  {:>5}  {:>3}  {:>7}  {:>5.1}%  {:>14.1}%  {:>9.1}%  {:>4.2}%  {}",
@@ -493,10 +496,15 @@ fn generated_interiors_against_the_reference() {
         if c.leak > 0.01 {
             failures.push(format!("house {seed}: leak share {:.2}%", 100.0 * c.leak));
         }
-        for (k, ((p, r), ratio)) in c.dark_rooms.iter().zip(&ratios).enumerate() {
-            if *r <= 0.0 || !(0.5..=2.0).contains(ratio) {
+        // A room lit through a wall reads several times its reference, a closed doorway black.
+        // The reference's own sum is noisy in the darkest rooms (paths must find the light
+        // through two doorways: 20-36% standard error measured at 512 paths), so the band is
+        // half to twice the reference widened by three of its standard errors.
+        for (k, (p, r, se)) in c.dark_rooms.iter().enumerate() {
+            let (lo, hi) = (0.5 * (r - 3.0 * se), 2.0 * (r + 3.0 * se));
+            if *r <= 0.0 || !(lo..=hi).contains(p) {
                 failures.push(format!(
-                    "house {seed}: dark room {k}'s floor {p:.4} against the reference's {r:.4}"
+                    "house {seed}: dark room {k}'s floor {p:.4} against the reference's {r:.4} ± {se:.4}"
                 ));
             }
         }

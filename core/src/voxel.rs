@@ -978,7 +978,9 @@ fn cluster_with(
             }
         }
     });
-    let labels: Vec<Facing> = match &spaces {
+    // Per part, its leaves: the part itself, or the pieces it was cut into where its points face
+    // different spaces ([`one_space_each`]), each with its label.
+    let labels: Vec<Vec<(Facing, Poly, f64, DVec3)>> = match &spaces {
         Some((spaces, _, mesh, factor)) => {
             let mut cells: Vec<(u64, [u32; 3])> = pending
                 .iter()
@@ -1001,13 +1003,22 @@ fn cluster_with(
                 .flat_map_iter(|item| {
                     let normal = item.normal.as_vec3();
                     let local = locals.get(&item.key);
-                    parts[item.parts.clone()].iter().map(move |&(_, _, c)| {
-                        let p = c.as_vec3();
-                        let space = spaces
-                            .facing(mesh, p, normal)
-                            .and_then(|point| local?.label(spaces, point));
-                        let open = crate::openness::class(mesh, p, normal, extent, size);
-                        (space, open)
+                    let space = move |p: DVec3| {
+                        spaces
+                            .facing(mesh, p.as_vec3(), normal)
+                            .and_then(|point| local?.label(spaces, point))
+                    };
+                    parts[item.parts.clone()].iter().map(move |&part| {
+                        let mut leaves = Vec::with_capacity(1);
+                        one_space_each(part, item.n, &space, SPACE_SPLITS, &mut leaves);
+                        leaves
+                            .into_iter()
+                            .map(|(space, poly, a, c)| {
+                                let open =
+                                    crate::openness::class(mesh, c.as_vec3(), normal, extent, size);
+                                ((space, open), poly, a, c)
+                            })
+                            .collect::<Vec<_>>()
                     })
                 })
                 .collect()
@@ -1018,16 +1029,17 @@ fn cluster_with(
     let mut id_of: Vec<u32> = Vec::new();
     let mut groups: HashMap<(u64, Face, u32, u32), Group> = HashMap::new();
     for item in &pending {
-        let facing = &labels[item.parts.clone()];
-        let whole = facing.windows(2).all(|w| w[0] == w[1]);
+        let mut leaves = labels[item.parts.clone()].iter().flatten();
+        let first = leaves.clone().next().map(|l| l.0);
+        let whole = leaves.all(|l| Some(l.0) == first);
         let split: Vec<(Facing, Poly, f64, DVec3)> = if whole {
-            let label = facing.first().copied().unwrap_or((None, 0));
+            let label = first.unwrap_or((None, 0));
             vec![(label, item.piece, item.area, item.centroid)]
         } else {
-            facing
+            labels[item.parts.clone()]
                 .iter()
-                .zip(&parts[item.parts.clone()])
-                .map(|(&label, &(poly, a, c))| (label, poly, a, c))
+                .flatten()
+                .copied()
                 .collect()
         };
         let tri = &scene.triangles[item.index];
@@ -1154,6 +1166,55 @@ struct Pending {
     centroid: DVec3,
     /// Its fine parts in `parts`, and their labels at the same indices.
     parts: std::ops::Range<usize>,
+}
+
+/// How many times a lattice part whose points face different spaces is halved, at most: a
+/// quarter-voxel part down to a 32nd of a voxel.
+pub const SPACE_SPLITS: u32 = 3;
+
+/// `part` (a polygon, its area and centroid, on a surface of normal `n`) as pieces that each face
+/// one space, with that space, pushed onto `out`. A part is labelled by the space its centroid
+/// faces; when a point near one of its corners faces another, it is halved across its longest
+/// extent and each half labelled again, at most `splits` times deep. Without this, a lattice
+/// part that a thin wall stands on (a floor running on under the wall, found in any level built
+/// of closed boxes) holds floor on both sides of the wall and one label, so the lit room's floor
+/// and the dark room's were one element and its light leaked through the wall.
+fn one_space_each(
+    part: (Poly, f64, DVec3),
+    n: DVec3,
+    space: &impl Fn(DVec3) -> Option<u32>,
+    splits: u32,
+    out: &mut Vec<(Option<u32>, Poly, f64, DVec3)>,
+) {
+    let (poly, area, centroid) = part;
+    let label = space(centroid);
+    let pts = poly.points();
+    let agree = splits == 0
+        || pts
+            .iter()
+            .all(|&corner| space(centroid + (corner - centroid) * 0.75) == label);
+    if agree {
+        out.push((label, poly, area, centroid));
+        return;
+    }
+    let (lo, hi) = pts.iter().fold(
+        (DVec3::splat(f64::MAX), DVec3::splat(f64::MIN)),
+        |(lo, hi), &p| (lo.min(p), hi.max(p)),
+    );
+    // A square part's extents tie, and which is longer is then rounding's choice: one that
+    // differs at another scale. Take the first axis within a hair of the longest.
+    let extent = hi - lo;
+    let longest = extent.max_element();
+    let axis = (0..3)
+        .find(|&a| extent[a] >= longest * (1.0 - 1e-4))
+        .unwrap_or(0);
+    let (below, above) = poly.clip(axis, 0.5 * (lo[axis] + hi[axis]));
+    for half in [below, above] {
+        let (a, c) = half.area_centroid(n);
+        if a > 0.0 {
+            one_space_each((half, a, c), n, space, splits - 1, out);
+        }
+    }
 }
 
 /// Lattice points per voxel edge for finding the spaces surfaces face ([`crate::space`]).
@@ -1572,5 +1633,78 @@ mod tests {
             Err(VoxelError::TooManyPatches { .. })
         ));
         assert!(start.elapsed().as_secs_f32() < 1.0);
+    }
+
+    /// A unit square on the floor (normal +Y) as a part: its polygon, area and centroid.
+    fn floor_part(scale: f64) -> (Poly, f64, DVec3) {
+        let mut poly = Poly {
+            pts: [DVec3::ZERO; 12],
+            len: 0,
+        };
+        for (x, z) in [(0.0, 0.0), (0.0, 1.0), (1.0, 1.0), (1.0, 0.0)] {
+            // Off the origin, so the extents are differences that round.
+            poly.push(DVec3::new(x + 0.2, 0.0, z + 0.4) * scale);
+        }
+        let (a, c) = poly.area_centroid(DVec3::Y);
+        (poly, a, c)
+    }
+
+    #[test]
+    fn a_part_facing_two_spaces_is_cut_where_they_part() {
+        // A wall's foot at x = 0.5 parts the floor's spaces: 0 west of it, 1 east.
+        let space = |p: DVec3| Some(u32::from(p.x >= 0.5));
+        let mut leaves = Vec::new();
+        one_space_each(floor_part(1.0), DVec3::Y, &space, SPACE_SPLITS, &mut leaves);
+        assert!(leaves.len() > 1, "{} leaves", leaves.len());
+        let total: f64 = leaves.iter().map(|l| l.2).sum();
+        assert!((total - 1.0).abs() < 1e-12, "area kept: {total}");
+        // Each leaf carries its centroid's space, and the area on the west side is the wall's
+        // position to within the finest cut (an eighth of the part).
+        for (label, _, _, c) in &leaves {
+            assert_eq!(*label, space(*c));
+        }
+        let west: f64 = leaves.iter().filter(|l| l.0 == Some(0)).map(|l| l.2).sum();
+        assert!((west - 0.3).abs() <= 0.125, "west area {west}");
+        // Uncut, the whole part would have been east's (its centroid's).
+        assert_eq!(space(floor_part(1.0).2), Some(1));
+    }
+
+    #[test]
+    fn a_part_facing_one_space_is_kept_whole_and_cuts_do_not_depend_on_scale() {
+        let mut leaves = Vec::new();
+        one_space_each(
+            floor_part(1.0),
+            DVec3::Y,
+            &|_| Some(7),
+            SPACE_SPLITS,
+            &mut leaves,
+        );
+        assert_eq!(leaves.len(), 1);
+        assert_eq!((leaves[0].0, leaves[0].1.points().len()), (Some(7), 4));
+        // The square's two extents tie; at a thousandth of its size rounding must not pick
+        // another axis to cut first (the scale stress test caught that: core/tests/it/stress.rs).
+        let cut = |scale: f64| {
+            let space = |p: DVec3| Some(u32::from(p.x + p.z >= 1.05 * scale));
+            let mut leaves = Vec::new();
+            one_space_each(
+                floor_part(scale),
+                DVec3::Y,
+                &space,
+                SPACE_SPLITS,
+                &mut leaves,
+            );
+            leaves
+                .iter()
+                .map(|l| {
+                    (
+                        l.0,
+                        (l.2 / (scale * scale) * 1e6).round(),
+                        (l.3 / scale * 1e6).round(),
+                    )
+                })
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(cut(1.0), cut(1e-3));
+        assert_eq!(cut(1.0), cut(1e4));
     }
 }
