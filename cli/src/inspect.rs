@@ -179,10 +179,15 @@ pub fn run(args: &InspectArgs) -> Result<()> {
     );
     if let Some(near) = &baked.near_field {
         println!(
-            "  near field    rays landing within {} voxel(s): {} entries over {} samples a row",
+            "  near field    rays landing within {} voxel(s): {} entries over {} samples a row; {}",
             m.settings.near_radius,
             near.nnz(),
-            near.per_row
+            near.per_row,
+            if near.sky.is_some() {
+                "each sample's own sky view (a sky is corrected too)"
+            } else {
+                "no samples' sky view (a file from before version 9: a sky is not corrected)"
+            }
         );
     }
     match (&baked.sky, sky_escaped) {

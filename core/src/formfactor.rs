@@ -17,7 +17,8 @@ use thiserror::Error;
 use crate::matrix::DenseMatrix;
 use crate::patch::Quad;
 pub use crate::rays::{RayFate, RayScene, RayTally, Tracer};
-use crate::sky::{SkySum, SkyVisibility};
+use crate::sky::{RowSky, SkyVisibility};
+use crate::surface::SamplePoint;
 use bounce_types::sh::SH_COEFFICIENTS;
 
 #[derive(Debug, Error)]
@@ -61,18 +62,18 @@ fn cosine_direction(quad: &Quad, u1: f32, u2: f32) -> Vec3 {
 pub trait RowTracer: Sync {
     fn patch_count(&self) -> usize;
     /// Shoot `rays` rays from patch `row`, adding to `counts[j]` each that reached patch `j` and
-    /// to `sky` the direction of each that escaped the scene ([`crate::sky`]).
+    /// to `sky` every ray, escaped or not ([`crate::sky`]).
     fn trace_row_sky(
         &self,
         row: usize,
         rays: u32,
         seed: u64,
         counts: &mut [u32],
-        sky: &mut SkySum,
+        sky: &mut RowSky<'_>,
     ) -> RayTally;
     /// [`RowTracer::trace_row_sky`] without the sky.
     fn trace_row(&self, row: usize, rays: u32, seed: u64, counts: &mut [u32]) -> RayTally {
-        self.trace_row_sky(row, rays, seed, counts, &mut SkySum::default())
+        self.trace_row_sky(row, rays, seed, counts, &mut RowSky::new(&[]))
     }
     /// Whether any of `rays` probe rays (other samples than the row's) from `row` reaches a
     /// patch.
@@ -90,7 +91,7 @@ impl RowTracer for RayScene {
         rays: u32,
         seed: u64,
         counts: &mut [u32],
-        sky: &mut SkySum,
+        sky: &mut RowSky<'_>,
     ) -> RayTally {
         let quad = self.patch(row);
         let s = row_seed(seed, row);
@@ -105,7 +106,7 @@ impl RowTracer for RayScene {
             match fate {
                 RayFate::Patch(j) => counts[j] += 1,
                 // Out of the voxel grid: nothing the scene holds stands in the way.
-                RayFate::Escaped => sky.add(dir),
+                RayFate::Escaped => sky.escaped(dir),
                 RayFate::Occluder | RayFate::BackFace => {}
             }
             tally.count(fate);
@@ -192,31 +193,62 @@ pub fn form_factor_rows_sky(
     seed: u64,
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<(Vec<f32>, RayTally, SkyVisibility), FormFactorError> {
+    form_factor_rows_sampled(scene, rows, rays, seed, None, progress)
+        .map(|(f, tally, sky, _)| (f, tally, sky))
+}
+
+/// As [`form_factor_rows_sky`], also, with `samples` (every row's direct-light sample points,
+/// `per_row` a row), each sample's view of the sky from the row's rays that start nearest it
+/// ([`crate::sky::RowSky`]): `per_row` views a row of `rows`, in row order.
+pub fn form_factor_rows_sampled(
+    scene: &dyn RowTracer,
+    rows: Range<usize>,
+    rays: u32,
+    seed: u64,
+    samples: Option<(&[SamplePoint], u32)>,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<(Vec<f32>, RayTally, SkyVisibility, Option<SkyVisibility>), FormFactorError> {
     let n = scene.patch_count();
     check_rows(&rows, rays, n)?;
+    let k = samples.map_or(0, |(_, k)| k as usize);
+    if let Some((points, _)) = samples {
+        assert!(points.len() >= n * k, "sample points for every row");
+    }
     let mut out = vec![0.0f32; rows.len() * n];
     let mut sky = vec![[0.0f32; SH_COEFFICIENTS]; rows.len()];
+    // One (unused) view a row without samples, so the rows zip in step.
+    let mut per_sample = vec![[0.0f32; SH_COEFFICIENTS]; rows.len() * k.max(1)];
     let inv = 1.0 / rays as f32;
     let tally = out
         .par_chunks_mut(n.max(1))
         .zip(sky.par_iter_mut())
+        .zip(per_sample.par_chunks_mut(k.max(1)))
         .enumerate()
         .map_init(
             || vec![0u32; n],
-            |counts, (k, (row_out, sky_out))| {
+            |counts, (r, ((row_out, sky_out), samples_out))| {
                 counts.fill(0);
-                let mut sum = SkySum::default();
-                let tally = scene.trace_row_sky(rows.start + k, rays, seed, counts, &mut sum);
+                let row = rows.start + r;
+                let own = samples.map_or(&[][..], |(p, _)| &p[row * k..(row + 1) * k]);
+                let mut tallied = RowSky::new(own);
+                let tally = scene.trace_row_sky(row, rays, seed, counts, &mut tallied);
                 for (o, &c) in row_out.iter_mut().zip(counts.iter()) {
                     *o = c as f32 * inv;
                 }
-                *sky_out = sum.finish(rays);
+                let (view, views) = tallied.finish(rays);
+                *sky_out = view;
+                samples_out[..views.len()].copy_from_slice(&views);
                 progress(1);
                 tally
             },
         )
         .reduce(RayTally::default, |a, b| a + b);
-    Ok((out, tally, SkyVisibility { rows: sky }))
+    Ok((
+        out,
+        tally,
+        SkyVisibility { rows: sky },
+        samples.map(|_| SkyVisibility { rows: per_sample }),
+    ))
 }
 
 /// The whole single-bounce form-factor matrix.

@@ -21,6 +21,13 @@
 //! element; it is first order (the later bounces keep the element means).
 //!
 //! [`NearField::correction`] is the CPU twin of the GPU engine's `near_field.wgsl`.
+//!
+//! A sky needs the same correction: a surface sees more of it where it is open than in its
+//! corners, and the corners are where near rays land. A row's sky view ([`crate::sky`]) is one
+//! per row, so the matrix keeps a finer one for its sources: per sample point, the view of the
+//! row's form-factor rays that start nearer to it than to the row's other samples (format
+//! version 9). A relight with a sky then adds [`NearField::sky_correction`], on the host for
+//! either engine (one sparse pass a light set).
 
 use std::ops::Range;
 
@@ -28,6 +35,7 @@ use glam::Vec3;
 use rayon::prelude::*;
 
 use crate::formfactor::{FormFactorError, check_rows};
+use crate::sky::SkyVisibility;
 use crate::surface::{SurfaceData, SurfaceScene};
 
 /// How far from its origin a form-factor ray may land and still count as near, in voxels,
@@ -48,6 +56,10 @@ pub struct NearField {
     pub cols: Vec<u32>,
     /// Per entry, the share of the row's rays that landed nearest that sample point.
     pub values: Vec<f32>,
+    /// Per sample point of these rows (`per_row` a row, in row order), its view of the sky: the
+    /// [`SkyVisibility`] sum over the row's form-factor rays whose origin is nearest that
+    /// sample. `None` in files from before version 9.
+    pub sky: Option<SkyVisibility>,
 }
 
 impl NearField {
@@ -58,6 +70,7 @@ impl NearField {
             row_ptr: vec![0],
             cols: Vec::new(),
             values: Vec::new(),
+            sky: Some(SkyVisibility::default()),
         }
     }
 
@@ -131,20 +144,56 @@ impl NearField {
                 return Err(format!("row {i}'s shares sum to {sum}, over 1"));
             }
         }
+        if let Some(sky) = &self.sky {
+            // One view a sample: its "rows" are the samples.
+            sky.check(rows * per_row as usize)
+                .map_err(|m| format!("the samples' sky view: {m}"))?;
+        }
         Ok(())
     }
 
-    /// The rows of `parts` one after the other (shards of one bake, in row order).
+    /// The rows of `parts` one after the other (shards of one bake, in row order). The samples'
+    /// sky view is kept when every part has one.
     pub fn concat(per_row: u32, parts: impl IntoIterator<Item = NearField>) -> NearField {
         let mut out = NearField::empty(per_row);
+        let mut skies = Some(Vec::new());
         for p in parts {
             let base = out.cols.len() as u32;
             out.row_ptr
                 .extend(p.row_ptr.iter().skip(1).map(|&o| base + o));
             out.cols.extend(p.cols);
             out.values.extend(p.values);
+            skies = skies.zip(p.sky).map(|(mut all, sky)| {
+                all.push(sky);
+                all
+            });
         }
+        out.sky = skies.map(SkyVisibility::concat);
         out
+    }
+
+    /// `ΔE` of one light set's sky (its 9 SH radiance coefficients) per row: [`Self::correction`]
+    /// with each sample's sky irradiance through its own view, against its row's mean of them.
+    /// `None` without the samples' view (a file from before version 9).
+    ///
+    /// # Panics
+    /// If `albedo` does not have one entry per row.
+    pub fn sky_correction(
+        &self,
+        albedo: &[[f32; 3]],
+        sky: &[[f32; 3]; bounce_types::sh::SH_COEFFICIENTS],
+    ) -> Option<Vec<[f32; 3]>> {
+        let view = self.sky.as_ref()?;
+        let per_sample = view.irradiance(sky);
+        let k = self.per_row as usize;
+        let mean: Vec<[f32; 3]> = per_sample
+            .chunks(k.max(1))
+            .map(|samples| {
+                let sum = samples.iter().fold(Vec3::ZERO, |s, &e| s + Vec3::from(e));
+                (sum / samples.len() as f32).to_array()
+            })
+            .collect();
+        Some(self.correction(albedo, &mean, &per_sample))
     }
 
     /// `ΔE` of one light set, per row, from the direct irradiance at every sample point
@@ -193,6 +242,8 @@ impl NearField {
 /// Rows `rows` of the near-field matrix of `tracer`'s transport rows: form-factor rays (the
 /// bake's, by `rays` and `seed`) that land within `radius` (scene units) of their origin, each
 /// credited to the sample point of `surface` (its `per_patch` a row) nearest to where it landed.
+/// The samples' sky view comes from the form factors' pass, which traced these rays in full
+/// ([`crate::formfactor::form_factor_rows_sampled`]); the caller sets it.
 pub fn near_field_rows(
     tracer: &SurfaceScene,
     surface: &SurfaceData,
@@ -247,6 +298,7 @@ pub fn near_field_rows(
         })
         .collect();
     let mut out = NearField::empty(per_row);
+    out.sky = None;
     for row in per {
         for (c, v) in row {
             out.cols.push(c);
@@ -266,6 +318,7 @@ pub(crate) fn test_field() -> NearField {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::sky::SkySum;
 
     pub(super) fn field() -> NearField {
         // Two rows, two samples a row: row 0 sees samples 2 and 3 (row 1's), row 1 sample 0.
@@ -274,7 +327,20 @@ mod tests {
             row_ptr: vec![0, 2, 3],
             cols: vec![2, 3, 0],
             values: vec![0.25, 0.125, 0.5],
+            sky: Some(SkyVisibility {
+                rows: (0..4).map(|s| view(0.1 * (s + 1) as f64)).collect(),
+            }),
         }
+    }
+
+    /// A sample's sky view when a share `f` of its rays escaped straight up.
+    fn view(f: f64) -> [f32; 9] {
+        let mut sum = SkySum::default();
+        let n = 100;
+        for _ in 0..(f * n as f64).round() as u32 {
+            sum.add(Vec3::Y);
+        }
+        sum.finish(n)
     }
 
     #[test]
@@ -316,6 +382,7 @@ mod tests {
             row_ptr: vec![0, 2],
             cols: first.to_vec(),
             values: vec![0.25, 0.125],
+            sky: None,
         };
         assert_eq!(shard.check(1, 2, 2), Ok(()));
         assert!(shard.check(1, 1, 2).unwrap_err().contains("past"));
@@ -345,14 +412,51 @@ mod tests {
                 row_ptr: vec![0, 2],
                 cols: vec![2, 3],
                 values: vec![0.25, 0.125],
+                sky: f.sky.as_ref().map(|s| s.slice(0..2)),
             },
             NearField {
                 per_row: 2,
                 row_ptr: vec![0, 1],
                 cols: vec![0],
                 values: vec![0.5],
+                sky: f.sky.as_ref().map(|s| s.slice(2..4)),
             },
         ];
+        let mut without = parts.clone();
         assert_eq!(NearField::concat(2, parts), f);
+        // A part without the samples' view leaves the whole without one.
+        without[1].sky = None;
+        assert_eq!(NearField::concat(2, without).sky, None);
+    }
+
+    #[test]
+    fn a_sky_is_corrected_by_the_view_where_the_near_rays_land() {
+        let f = field();
+        let albedo = [[0.5; 3], [0.8; 3]];
+        let white = bounce_types::sh::uniform_sh([1.0, 1.0, 1.0]);
+        let d = f
+            .sky_correction(&albedo, &white)
+            .expect("the field has the view");
+        // Uniform radiance 1: a sample's irradiance is π times its escaped share. Row 1's
+        // samples (0.3, 0.4; mean 0.35) are met by row 0 with shares 0.25 and 0.125; row 0's
+        // (0.1, 0.2; mean 0.15) by row 1 at sample 0 with 0.5.
+        let pi = std::f32::consts::PI;
+        let want0 = 0.8 * pi * (0.25 * (0.3 - 0.35) + 0.125 * (0.4 - 0.35));
+        let want1 = 0.5 * pi * 0.5 * (0.1 - 0.15);
+        for c in 0..3 {
+            assert!((d[0][c] - want0).abs() < 1e-5, "{d:?} against {want0}");
+            assert!((d[1][c] - want1).abs() < 1e-5, "{d:?} against {want1}");
+        }
+        // The same view at every sample corrects nothing; no view, no correction.
+        let mut even = field();
+        even.sky = Some(SkyVisibility {
+            rows: vec![view(0.5); 4],
+        });
+        assert_eq!(
+            even.sky_correction(&albedo, &white),
+            Some(vec![[0.0; 3]; 2])
+        );
+        even.sky = None;
+        assert_eq!(even.sky_correction(&albedo, &white), None);
     }
 }

@@ -20,6 +20,8 @@
 use bounce_types::sh::{SH_BASIS_MAX, SH_COEFFICIENTS, sh_basis};
 use glam::Vec3;
 
+use crate::surface::SamplePoint;
+
 /// Per transport row, the coefficients `c_lm` of the module doc.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct SkyVisibility {
@@ -46,6 +48,71 @@ impl SkySum {
     pub fn finish(&self, rays: u32) -> [f32; SH_COEFFICIENTS] {
         let w = std::f64::consts::PI / f64::from(rays.max(1));
         self.sum.map(|s| (s * w) as f32)
+    }
+}
+
+/// One row's sky as its form-factor rays find it: the row's [`SkySum`] and, when the row's
+/// direct-light sample points are given, each sample's, over the rays whose origin lies nearest
+/// that sample (what the near field corrects a sky with: [`crate::nearfield`]).
+pub struct RowSky<'a> {
+    pub row: SkySum,
+    samples: &'a [SamplePoint],
+    per_sample: Vec<(SkySum, u32)>,
+}
+
+impl<'a> RowSky<'a> {
+    /// A tally for a row whose sample points are `samples` (none: the row's view alone).
+    pub fn new(samples: &'a [SamplePoint]) -> RowSky<'a> {
+        RowSky {
+            row: SkySum::default(),
+            samples,
+            per_sample: vec![(SkySum::default(), 0); samples.len()],
+        }
+    }
+
+    /// A ray that started at `origin` and went along unit `dir`, escaping or not.
+    #[inline]
+    pub fn ray(&mut self, origin: Vec3, dir: Vec3, escaped: bool) {
+        if escaped {
+            self.row.add(dir);
+        }
+        if self.samples.is_empty() {
+            return;
+        }
+        let nearest = self
+            .samples
+            .iter()
+            .enumerate()
+            .map(|(s, p)| (s, Vec3::from(p.position).distance_squared(origin)))
+            .fold(
+                (0, f32::INFINITY),
+                |best, c| if c.1 < best.1 { c } else { best },
+            )
+            .0;
+        let (sum, n) = &mut self.per_sample[nearest];
+        *n += 1;
+        if escaped {
+            sum.add(dir);
+        }
+    }
+
+    /// A ray along unit `dir` escaped, from no particular sample.
+    #[inline]
+    pub fn escaped(&mut self, dir: Vec3) {
+        self.row.add(dir);
+    }
+
+    /// The row's view after `rays` rays, and its samples' (`(π / N_s) Σ_escaped Y_lm` over the
+    /// `N_s` rays a sample was given, so their ray-weighted mean is the row's view; a sample no
+    /// ray started nearest to takes the row's).
+    pub fn finish(&self, rays: u32) -> ([f32; SH_COEFFICIENTS], Vec<[f32; SH_COEFFICIENTS]>) {
+        let row = self.row.finish(rays);
+        let samples = self
+            .per_sample
+            .iter()
+            .map(|(sum, n)| if *n == 0 { row } else { sum.finish(*n) })
+            .collect();
+        (row, samples)
     }
 }
 
@@ -152,6 +219,42 @@ mod tests {
         assert!((e[0][0] - 2.0 * want).abs() < 1e-5, "{e:?}");
         assert!((e[0][1] - want).abs() < 1e-5 && e[0][2] == 0.0, "{e:?}");
         assert_eq!(sky.check(1), Ok(()));
+    }
+
+    #[test]
+    fn each_sample_sees_the_sky_of_the_rays_that_start_nearest_it() {
+        let at = |x: f32| SamplePoint {
+            position: [x, 0.0, 0.0],
+            normal: [0.0, 1.0, 0.0],
+        };
+        let samples = [at(0.0), at(1.0), at(5.0)];
+        let mut tally = RowSky::new(&samples);
+        // Near sample 0: 4 rays, 3 escape. Near sample 1: 4 rays, 1 escapes. Sample 2: none.
+        for k in 0..4 {
+            tally.ray(Vec3::new(0.1, 0.0, 0.0), Vec3::Y, k < 3);
+            tally.ray(Vec3::new(0.9, 0.0, 0.0), Vec3::X, k < 1);
+        }
+        let (row, views) = tally.finish(8);
+        let share =
+            |c: &[f32; SH_COEFFICIENTS]| f64::from(c[0]) / (std::f64::consts::PI * SH_BASIS_MAX[0]);
+        assert!((share(&row) - 0.5).abs() < 1e-6);
+        assert!((share(&views[0]) - 0.75).abs() < 1e-6);
+        assert!((share(&views[1]) - 0.25).abs() < 1e-6);
+        // A sample no ray started nearest to takes the row's view.
+        assert_eq!(views[2], row);
+        // Weighted by their rays, the samples' views are the row's.
+        for k in 0..SH_COEFFICIENTS {
+            let mean = 0.5 * (views[0][k] + views[1][k]);
+            assert!((mean - row[k]).abs() < 1e-6, "coefficient {k}");
+        }
+        // Without samples the row's view is the same.
+        let mut plain = RowSky::new(&[]);
+        for k in 0..4 {
+            plain.ray(Vec3::new(0.1, 0.0, 0.0), Vec3::Y, k < 3);
+            plain.ray(Vec3::new(0.9, 0.0, 0.0), Vec3::X, k < 1);
+        }
+        let (alone, none) = plain.finish(8);
+        assert_eq!((alone, none.len()), (row, 0));
     }
 
     #[test]

@@ -21,7 +21,7 @@ use crate::formfactor::{RowTracer, row_seed};
 use crate::patch::{PatchLayout, PieceTri, Pieces};
 use crate::rays::{RayFate, RayTally};
 use crate::scene::Scene;
-use crate::sky::SkySum;
+use crate::sky::RowSky;
 use crate::trimesh::{TriMesh, extent_of, offset_origin};
 
 /// Direct-light sample points per patch a bake stores unless asked otherwise.
@@ -302,7 +302,7 @@ impl RowTracer for SurfaceScene {
         rays: u32,
         seed: u64,
         counts: &mut [u32],
-        sky: &mut SkySum,
+        sky: &mut RowSky<'_>,
     ) -> RayTally {
         let s = row_seed(seed, row);
         let mut tally = RayTally::default();
@@ -313,11 +313,10 @@ impl RowTracer for SurfaceScene {
         for k in 0..rays {
             let (origin, dir) = self.ray(row, k, 0, s);
             let fate = self.fate(origin, dir);
-            match fate {
-                RayFate::Patch(j) => counts[j] += 1,
-                RayFate::Escaped => sky.add(dir),
-                RayFate::Occluder | RayFate::BackFace => {}
+            if let RayFate::Patch(j) = fate {
+                counts[j] += 1;
             }
+            sky.ray(origin, dir, fate == RayFate::Escaped);
             tally.count(fate);
         }
         tally

@@ -399,7 +399,7 @@ fn layout_on_disk_matches_the_documentation() {
     let baked = sample(3, true);
     let b = baked.to_bytes().unwrap();
     assert_eq!(&b[..8], b"BOUNCE\0B");
-    assert_eq!(get_u32(&b, 8), 8);
+    assert_eq!(get_u32(&b, 8), 9);
     assert_eq!(get_u32(&b, 12), 5);
     assert_eq!(get_u64(&b, 16), b.len() as u64);
     let kinds: Vec<&[u8]> = (0..5).map(|i| &b[entry_at(i)..entry_at(i) + 4]).collect();
@@ -646,23 +646,23 @@ fn bad_magic() {
 #[test]
 fn future_version() {
     let mut b = sample_bytes();
-    put_u32(&mut b, 8, 9);
+    put_u32(&mut b, 8, 10);
     reseal(&mut b);
     let err = refuse(&b);
     assert!(
         matches!(
             err,
             FormatError::UnsupportedVersion {
-                found: 9,
+                found: 10,
                 oldest: 1,
-                supported: 8
+                supported: 9
             }
         ),
         "{err:?}"
     );
     assert_eq!(
         err.to_string(),
-        "unsupported format version 9 (this build reads versions 1 to 8); bake the scene again \
+        "unsupported format version 10 (this build reads versions 1 to 9); bake the scene again \
          with this bounce"
     );
 }
@@ -807,6 +807,12 @@ fn a_near_field_round_trips_and_is_checked() {
         row_ptr: row_ptr.clone(),
         cols: vec![4, 13, 1],
         values: vec![0.25, 0.125, 0.5],
+        // Version 9: each of the 14 samples' view of the sky.
+        sky: Some(bounce_core::sky::SkyVisibility {
+            rows: (0..14)
+                .map(|i| std::array::from_fn(|k| 0.01 * (i + k) as f32))
+                .collect(),
+        }),
     };
     b.near_field = Some(near.clone());
     let bytes = b.to_bytes().expect("a near-field sample encodes");
@@ -827,6 +833,22 @@ fn a_near_field_round_trips_and_is_checked() {
     refuse(&|b| b.near_field.as_mut().unwrap().row_ptr = row_ptr.clone());
     refuse(&|b| b.near_field.as_mut().unwrap().cols[1] = 14);
     refuse(&|b| b.near_field.as_mut().unwrap().per_row = 1);
+    // A sky view for other samples, or one no rays could give.
+    refuse(&|b| {
+        let near = b.near_field.as_mut().unwrap();
+        near.sky.as_mut().unwrap().rows.pop();
+    });
+    refuse(&|b| {
+        let near = b.near_field.as_mut().unwrap();
+        near.sky.as_mut().unwrap().rows[3][0] = -1.0;
+    });
+    // A near field without the samples' view (as versions 4-8 wrote it) still reads.
+    let mut without = b.clone();
+    without.near_field.as_mut().unwrap().sky = None;
+    let bytes_without = without
+        .to_bytes()
+        .expect("a near field without a sky view encodes");
+    assert_eq!(Baked::from_bytes(&bytes_without).unwrap(), without);
     refuse(&|b| {
         b.meta.settings.geometry = bounce_core::voxel::Geometry::VoxelFaces;
         b.surface = None;

@@ -278,9 +278,10 @@ impl Engine {
         }
         let n = scene.rows.len();
         let start = Instant::now();
-        let (mut direct, near) = self.punctual_direct(scene, lights, true)?;
+        let (mut direct, mut near) = self.punctual_direct(scene, lights, true)?;
         let skies = sky_rows(scene.sky.as_ref(), lights);
         add_sky(&skies, &mut direct);
+        add_sky_near(self.sky_near(scene), lights, &mut near);
         let mut b0: Vec<[f32; 3]> = Vec::with_capacity(n * lights.len());
         for (index, (set, e)) in lights.iter().zip(&direct).enumerate() {
             b0.extend(
@@ -380,8 +381,9 @@ impl Engine {
         lights: &[LightSet],
         near: bool,
     ) -> Result<(Vec<Vec<[f32; 3]>>, Option<Vec<Vec<[f32; 3]>>>), EngineError> {
-        let (mut direct, near) = self.punctual_direct(scene, lights, near)?;
+        let (mut direct, mut near) = self.punctual_direct(scene, lights, near)?;
         add_sky(&sky_rows(scene.sky.as_ref(), lights), &mut direct);
+        add_sky_near(self.sky_near(scene), lights, &mut near);
         Ok((direct, near))
     }
 
@@ -449,6 +451,12 @@ impl Engine {
             .filter(|n| self.samples_for(scene) == n.field.per_row)
     }
 
+    /// The near field a sky is corrected through: the one in use, in a file whose rows see the
+    /// sky (a file without the rows' view gets no sky at all).
+    fn sky_near<'a>(&self, scene: &'a Scene) -> Option<&'a NearRows> {
+        self.near_in_use(scene).filter(|_| scene.sky.is_some())
+    }
+
     /// Whether relights of `scene` on this engine add the near-field first bounce, and if not
     /// why: `Ok(false)` for a file without one, `Err(reason)` where it has one this engine does
     /// not apply.
@@ -491,15 +499,38 @@ fn sky_rows(view: Option<&SkyVisibility>, lights: &[LightSet]) -> Vec<Option<Vec
         .collect()
 }
 
-/// Adds each set's sky ([`sky_rows`]) to its rows' direct light (`direct[set][row]`). The
-/// near-field correction needs nothing of it: a row's sky is the same over the row, so its
-/// samples' deviation from the row's mean is zero.
+/// Adds each set's sky ([`sky_rows`]) to its rows' direct light (`direct[set][row]`), the row's
+/// mean; how it varies over the row is [`add_sky_near`]'s.
 fn add_sky(skies: &[Option<Vec<[f32; 3]>>], direct: &mut [Vec<[f32; 3]>]) {
     for (sky, rows) in skies.iter().zip(direct.iter_mut()) {
         let Some(sky) = sky else { continue };
         for (d, e) in rows.iter_mut().zip(sky) {
             // Kept finite as the punctual lights' sums are.
             *d = std::array::from_fn(|c| (d[c] + e[c]).min(f32::MAX));
+        }
+    }
+}
+
+/// Adds each set's sky to its near-field correction (`near[set][row]`, present when the engine
+/// applies the scene's near field: `field`): the sky's light where the near rays land rather
+/// than its row's mean ([`NearField::sky_correction`]). Computed on the host for either engine:
+/// one sparse pass a set with a sky, and nothing for a file whose near field has no samples' sky
+/// view (before version 9).
+fn add_sky_near(
+    field: Option<&NearRows>,
+    lights: &[LightSet],
+    near: &mut Option<Vec<Vec<[f32; 3]>>>,
+) {
+    let (Some(field), Some(corrections)) = (field, near.as_mut()) else {
+        return;
+    };
+    for (set, rows) in lights.iter().zip(corrections) {
+        let Some(sky) = set.sky_sh() else { continue };
+        let Some(delta) = field.field.sky_correction(&field.albedo, &sky) else {
+            continue;
+        };
+        for (c, d) in rows.iter_mut().zip(delta) {
+            *c = std::array::from_fn(|k| c[k] + d[k]);
         }
     }
 }

@@ -25,6 +25,7 @@ use crate::patch::PatchLayout;
 use crate::probe;
 use crate::rays::Tracer;
 use crate::scene::Scene;
+use crate::sky::SkyVisibility;
 use crate::surface::{self, SurfaceData, SurfaceScene};
 use crate::transport::{self, TransportError};
 use crate::trimesh::TriMesh;
@@ -401,6 +402,17 @@ pub(crate) fn prepare(
     }
 }
 
+/// The sample points the form factors' pass gives each row's rays to, for the samples' sky view
+/// ([`crate::sky::RowSky`]): a surface bake's, when it keeps a near field (the view's only use).
+pub(crate) fn samples_for_sky<'a>(
+    surface: Option<&'a SurfaceData>,
+    options: &BakeOptions,
+) -> Option<(&'a [surface::SamplePoint], u32)> {
+    surface
+        .filter(|_| options.near_radius > 0.0)
+        .map(|s| (&s.points[..], s.per_patch))
+}
+
 /// What the transport's rows are traced through.
 pub(crate) enum Rows {
     Surface(Box<SurfaceScene>),
@@ -422,6 +434,7 @@ impl Rows {
         surface: Option<&SurfaceData>,
         voxel_size: f32,
         rows: std::ops::Range<usize>,
+        samples_sky: Option<SkyVisibility>,
         options: &BakeOptions,
         progress: &(dyn Fn(u64) + Sync),
     ) -> Result<Option<NearField>, BakeError> {
@@ -431,7 +444,7 @@ impl Rows {
         if options.near_radius <= 0.0 {
             return Ok(None);
         }
-        Ok(Some(nearfield::near_field_rows(
+        let mut near = nearfield::near_field_rows(
             scene,
             surface,
             rows,
@@ -439,7 +452,9 @@ impl Rows {
             options.seed,
             options.near_radius * voxel_size,
             progress,
-        )?))
+        )?;
+        near.sky = samples_sky;
+        Ok(Some(near))
     }
 }
 
@@ -628,11 +643,31 @@ fn bake_with(
     } = prepare(scene, options, &mut timer)?;
     let rows = vox.transport_layout();
     let n = rows.len();
-    let (f, tally, sky) = timer.run(Stage::FormFactors, n as u64, || {
-        formfactor::form_factors_sky(rays.tracer(), options.rays, options.seed, &advance)
+    let samples = samples_for_sky(surface.as_ref(), options);
+    let (f, tally, sky, samples_sky) = timer.run(Stage::FormFactors, n as u64, || {
+        formfactor::form_factor_rows_sampled(
+            rays.tracer(),
+            0..n,
+            options.rays,
+            options.seed,
+            samples,
+            &advance,
+        )
     })?;
+    let f = DenseMatrix {
+        n,
+        channels: 1,
+        data: f,
+    };
     let near_field = timer.run(Stage::NearField, n as u64, || {
-        rays.near_field(surface.as_ref(), rows.voxel_size, 0..n, options, &advance)
+        rays.near_field(
+            surface.as_ref(),
+            rows.voxel_size,
+            0..n,
+            samples_sky,
+            options,
+            &advance,
+        )
     })?;
     let probes = match (&options.probes, &rays) {
         (None, _) => None,

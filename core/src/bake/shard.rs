@@ -172,21 +172,28 @@ pub fn form_factor_shard(
     drop(scene);
     let n = vox.transport_layout().len();
     let rows = shard_rows(n, spec.index, spec.count);
+    let samples = bake::samples_for_sky(surface.as_ref(), options);
     let traced = timer.run(Stage::FormFactors, rows.len() as u64, || {
-        formfactor::form_factor_rows_sky(
+        formfactor::form_factor_rows_sampled(
             rays.tracer(),
             rows.clone(),
             options.rays,
             options.seed,
+            samples,
             &|k| progress.advance(k),
         )
     });
-    let (f_rows, tally, sky_rows) = traced.map_err(BakeError::from)?;
+    let (f_rows, tally, sky_rows, samples_sky) = traced.map_err(BakeError::from)?;
     let voxel_size = vox.layout.voxel_size;
     let near_rows = timer.run(Stage::NearField, rows.len() as u64, || {
-        rays.near_field(surface.as_ref(), voxel_size, rows.clone(), options, &|k| {
-            progress.advance(k)
-        })
+        rays.near_field(
+            surface.as_ref(),
+            voxel_size,
+            rows.clone(),
+            samples_sky,
+            options,
+            &|k| progress.advance(k),
+        )
     })?;
     drop(rays);
     let meta = ShardMeta {
@@ -428,6 +435,10 @@ fn slice_rows(all: &NearField, rows: Range<usize>) -> NearField {
             .collect(),
         cols: all.cols[lo as usize..hi as usize].to_vec(),
         values: all.values[lo as usize..hi as usize].to_vec(),
+        sky: all.sky.as_ref().map(|sky| {
+            let k = all.per_row as usize;
+            sky.slice(rows.start * k..rows.end * k)
+        }),
     }
 }
 

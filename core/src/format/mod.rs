@@ -60,16 +60,18 @@ pub use sky::SKY_HEADER_LEN;
 /// keeps its baked emission, and a light set cannot change it. Version 7 added irradiance
 /// probes (the `PROB` section, flagged optional): a file without them has none. Version 8 added
 /// the probes' view of the sky (the `PSKY` section, flagged optional, beside `PROB`): a file
-/// without it (any older one) reads, and its probes see the sky only off the surfaces.
-pub const FORMAT_VERSION: u32 = 8;
+/// without it (any older one) reads, and its probes see the sky only off the surfaces. Version 9
+/// added the samples' sky view to the near field (`NEAR`'s flag bit 0): an older file reads, and
+/// its sky then gets no near-field correction.
+pub const FORMAT_VERSION: u32 = 9;
 /// The oldest version this build reads: a version-1 file is a voxel-face bake and is relit as
 /// one.
 pub const OLDEST_FORMAT_VERSION: u32 = 1;
 /// The bake-shard version this build writes, and the only one it reads. Shards are
 /// intermediate files of one bake, written and read by the same release, so there is no reason
 /// to read older ones. Version 5 added each shard's rows of the sky view (`SROW`), version 6 the
-/// emitters (`SEMT`).
-pub const SHARD_FORMAT_VERSION: u32 = 6;
+/// emitters (`SEMT`), version 7 the samples' sky view in `NROW`.
+pub const SHARD_FORMAT_VERSION: u32 = 7;
 
 /// Everything that can go wrong reading or writing a baked file.
 ///

@@ -1,17 +1,24 @@
 //! The `NEAR` section (version 4, surface geometry only, optional there): the near-field matrix
 //! ([`crate::nearfield::NearField`]) over the transport's rows and the `SURF` sample points.
 //!
-//! Samples per row u32, row count u32, entry count u32, reserved u32 (0) (16 bytes), then
-//! `rows + 1` row offsets u32, `entries` sample indices u32 and `entries` shares f32. A shard's
-//! `NROW` section is laid out the same over its own rows, with columns over the whole transport.
+//! Samples per row u32, row count u32, entry count u32, flags u32 (16 bytes), then `rows + 1`
+//! row offsets u32, `entries` sample indices u32 and `entries` shares f32; with flag bit 0 (format
+//! version 9), then the samples' sky view: `rows · per_row` times 9 SH coefficients f32, in row
+//! order. A version 4-8 file has no flags (0) and so no view. A shard's `NROW` section is laid out
+//! the same over its own rows, with columns over the whole transport.
 
 use crate::nearfield::NearField;
+use crate::sky::SkyVisibility;
 
 use super::FormatError;
 use super::container::{FieldReader, SectionKind};
 
 /// Bytes before the offsets.
 pub const NEAR_HEADER_LEN: u64 = 16;
+/// Flag: the samples' sky view follows the shares.
+const FLAG_SKY: u32 = 1;
+/// f32s a sample's sky view takes.
+const SKY_WORDS: u64 = bounce_types::sh::SH_COEFFICIENTS as u64;
 
 /// The section's bytes for `rows` rows of a transport of `total_rows` rows with `per_row` sample
 /// points each, which the matrix is checked against as a reader will check it.
@@ -31,15 +38,18 @@ pub(crate) fn encode_near(
     };
     let rows = u32::try_from(near.rows()).map_err(|_| too_large("near-field rows", near.rows()))?;
     let nnz = u32::try_from(near.nnz()).map_err(|_| too_large("near-field entries", near.nnz()))?;
-    let mut out =
-        Vec::with_capacity(NEAR_HEADER_LEN as usize + 4 * (near.row_ptr.len() + 2 * near.nnz()));
-    for v in [near.per_row, rows, nnz, 0] {
+    let sky = near.sky.as_ref().map_or(&[][..], |s| &s.rows[..]);
+    let mut out = Vec::with_capacity(
+        NEAR_HEADER_LEN as usize + 4 * (near.row_ptr.len() + 2 * near.nnz() + 9 * sky.len()),
+    );
+    let flags = if near.sky.is_some() { FLAG_SKY } else { 0 };
+    for v in [near.per_row, rows, nnz, flags] {
         out.extend_from_slice(&v.to_le_bytes());
     }
     for v in near.row_ptr.iter().chain(&near.cols) {
         out.extend_from_slice(&v.to_le_bytes());
     }
-    for v in &near.values {
+    for v in near.values.iter().chain(sky.iter().flatten()) {
         out.extend_from_slice(&v.to_le_bytes());
     }
     Ok(out)
@@ -59,9 +69,10 @@ pub(crate) fn decode_near(
     let stored_per_row = r.u32("samples per row")?;
     let stored_rows = r.u32("row count")?;
     let nnz = r.u32("entry count")?;
-    if r.u32("reserved")? != 0 {
+    let flags = r.u32("flags")?;
+    if flags & !FLAG_SKY != 0 {
         return Err(FormatError::Reserved {
-            what: format!("section '{kind}'"),
+            what: format!("section '{kind}' flags"),
         });
     }
     if stored_rows as usize != rows {
@@ -69,10 +80,16 @@ pub(crate) fn decode_near(
     }
     let rest = r.remaining();
     // Only counts the section's length accounts for may size an allocation.
-    let want = 4 * (u64::from(stored_rows) + 1 + 2 * u64::from(nnz));
+    let sky_samples = if flags & FLAG_SKY != 0 {
+        u64::from(stored_rows) * u64::from(stored_per_row)
+    } else {
+        0
+    };
+    let want = 4 * (u64::from(stored_rows) + 1 + 2 * u64::from(nnz) + SKY_WORDS * sky_samples);
     if want != rest.len() as u64 {
         return Err(bad(format!(
-            "{stored_rows} rows and {nnz} entries need {want} bytes, the section holds {}",
+            "{stored_rows} rows, {nnz} entries and {sky_samples} samples' sky views need {want} \
+             bytes, the section holds {}",
             rest.len()
         )));
     }
@@ -81,12 +98,19 @@ pub(crate) fn decode_near(
         .map(|c| [c[0], c[1], c[2], c[3]])
         .collect();
     let (ptr, tail) = words.split_at(rows + 1);
-    let (cols, values) = tail.split_at(nnz as usize);
+    let (cols, tail) = tail.split_at(nnz as usize);
+    let (values, sky) = tail.split_at(nnz as usize);
     let near = NearField {
         per_row: stored_per_row,
         row_ptr: ptr.iter().map(|&w| u32::from_le_bytes(w)).collect(),
         cols: cols.iter().map(|&w| u32::from_le_bytes(w)).collect(),
         values: values.iter().map(|&w| f32::from_le_bytes(w)).collect(),
+        sky: (flags & FLAG_SKY != 0).then(|| SkyVisibility {
+            rows: sky
+                .chunks_exact(SKY_WORDS as usize)
+                .map(|c| std::array::from_fn(|k| f32::from_le_bytes(c[k])))
+                .collect(),
+        }),
     };
     near.check(rows, total_rows, per_row).map_err(bad)?;
     Ok(near)

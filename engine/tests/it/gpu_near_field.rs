@@ -322,6 +322,7 @@ fn no_correction_without_every_sample_or_a_matrix() {
         row_ptr: vec![0; n + 1],
         cols: Vec::new(),
         values: Vec::new(),
+        sky: None,
     };
     let (_, d) = GpuSurfaceDirect::upload(ctx, &case.data)
         .unwrap()
