@@ -1174,11 +1174,11 @@ pub const SPACE_SPLITS: u32 = 3;
 
 /// `part` (a polygon, its area and centroid, on a surface of normal `n`) as pieces that each face
 /// one space, with that space, pushed onto `out`. A part is labelled by the space its centroid
-/// faces; when a point near one of its corners faces another, it is halved across its longest
-/// extent and each half labelled again, at most `splits` times deep. Without this, a lattice
-/// part that a thin wall stands on (a floor running on under the wall, found in any level built
-/// of closed boxes) holds floor on both sides of the wall and one label, so the lit room's floor
-/// and the dark room's were one element and its light leaked through the wall.
+/// faces; when a point near one of its corners faces another, it is halved and each half
+/// labelled again, at most `splits` times deep. Without this, a lattice part that a thin wall
+/// stands on (a floor running on under the wall, found in any level built of closed boxes) holds
+/// floor on both sides of the wall and one label, so the lit room's floor and the dark room's
+/// were one element and its light leaked through the wall.
 fn one_space_each(
     part: (Poly, f64, DVec3),
     n: DVec3,
@@ -1189,10 +1189,18 @@ fn one_space_each(
     let (poly, area, centroid) = part;
     let label = space(centroid);
     let pts = poly.points();
-    let agree = splits == 0
-        || pts
-            .iter()
-            .all(|&corner| space(centroid + (corner - centroid) * 0.75) == label);
+    // Where a point near each corner looks, and how far the ones that see another space lie
+    // from the centroid, summed with their signs.
+    let (mut agree, mut toward) = (true, DVec3::ZERO);
+    if splits > 0 {
+        for &corner in pts {
+            let p = centroid + (corner - centroid) * 0.75;
+            if space(p) != label {
+                agree = false;
+                toward += p - centroid;
+            }
+        }
+    }
     if agree {
         out.push((label, poly, area, centroid));
         return;
@@ -1201,12 +1209,29 @@ fn one_space_each(
         (DVec3::splat(f64::MAX), DVec3::splat(f64::MIN)),
         |(lo, hi), &p| (lo.min(p), hi.max(p)),
     );
-    // A square part's extents tie, and which is longer is then rounding's choice: one that
-    // differs at another scale. Take the first axis within a hair of the longest.
     let extent = hi - lo;
     let longest = extent.max_element();
+    // Cut across the axis the other space lies along (a wall's foot runs across it), measured
+    // against the part's extent: a floor part whose far side is under a wall running along z is
+    // cut in x, three times at most, down to an eighth. Scores that tie (one corner of a square
+    // part) are rounding's choice, which differs at another scale: take the first axis within a
+    // hair of the best.
+    let score: [f64; 3] = std::array::from_fn(|a| {
+        if extent[a] > longest * 1e-9 {
+            (toward[a] / extent[a]).abs()
+        } else {
+            0.0
+        }
+    });
+    let best = score.iter().copied().fold(0.0, f64::max);
+    // Points that see another space on opposite sides cancel out: then halve the longest way.
+    let (score, best) = if best > 0.0 {
+        (score, best)
+    } else {
+        (extent.to_array(), longest)
+    };
     let axis = (0..3)
-        .find(|&a| extent[a] >= longest * (1.0 - 1e-4))
+        .find(|&a| score[a] >= best * (1.0 - 1e-4))
         .unwrap_or(0);
     let (below, above) = poly.clip(axis, 0.5 * (lo[axis] + hi[axis]));
     for half in [below, above] {
@@ -1665,6 +1690,19 @@ mod tests {
         }
         let west: f64 = leaves.iter().filter(|l| l.0 == Some(0)).map(|l| l.2).sum();
         assert!((west - 0.3).abs() <= 0.125, "west area {west}");
+        // Every cut runs along the wall (across x): each leaf keeps the part's whole depth in z.
+        for (_, poly, _, _) in &leaves {
+            let (lo, hi) = poly
+                .points()
+                .iter()
+                .fold((f64::MAX, f64::MIN), |(lo, hi), p| {
+                    (lo.min(p.z), hi.max(p.z))
+                });
+            assert!(
+                (lo - 0.4).abs() < 1e-12 && (hi - 1.4).abs() < 1e-12,
+                "{lo}..{hi}"
+            );
+        }
         // Uncut, the whole part would have been east's (its centroid's).
         assert_eq!(space(floor_part(1.0).2), Some(1));
     }
