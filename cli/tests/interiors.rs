@@ -453,8 +453,8 @@ fn check(dir: &Path, house: &House, patches: u32) -> Checked {
 /// against a room, not the total: at 250 a room the voxel is about a sixth of a room's width.
 /// Coarser, a voxel is wider than a doorway and ten times a wall's thickness, and the elements
 /// that then span both sides of a wall carry a lit room's light into its dark neighbour (house 3
-/// at 1,000 patches, 111 a room: 14.2% method error, a dark room's floor at 2.1 times its
-/// reference, 1.2% of the light leaked; README, "Unseen interiors").
+/// at 1,000 patches, 111 a room: 13.4% method error, a dark room's floor at 2.0 times its
+/// reference, 0.9% of the light leaked; README, "Unseen interiors").
 const PATCHES_A_ROOM: u32 = 250;
 
 #[test]
@@ -486,7 +486,7 @@ fn generated_interiors_against_the_reference() {
                 .join(" "),
         );
         // The reference's own noise (about 7% at 512 paths) taken out: what is left is the
-        // method's, 3-6% on these houses, against 23-55% with voxel faces on interiors like them.
+        // method's, 2-6% on these houses, against 23-55% with voxel faces on interiors like them.
         if c.method_without_noise > 0.12 {
             failures.push(format!(
                 "house {seed}: method error {:.1}% with the reference's noise removed",
