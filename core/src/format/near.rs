@@ -85,8 +85,10 @@ pub(crate) fn decode_near(
     } else {
         0
     };
-    let want = 4 * (u64::from(stored_rows) + 1 + 2 * u64::from(nnz) + SKY_WORDS * sky_samples);
-    if want != rest.len() as u64 {
+    // In u128: rows × samples a row × 9 words can pass u64 in a hostile header.
+    let want = 4 * (u128::from(stored_rows) + 1 + 2 * u128::from(nnz))
+        + 4 * u128::from(SKY_WORDS) * u128::from(sky_samples);
+    if want != rest.len() as u128 {
         return Err(bad(format!(
             "{stored_rows} rows, {nnz} entries and {sky_samples} samples' sky views need {want} \
              bytes, the section holds {}",
@@ -142,6 +144,10 @@ mod tests {
             b[at] ^= 0x40;
             assert!(decode_near(kind, &b, 2, 2, 2).is_err(), "byte {at}");
         }
+        // A header claiming the most samples a row with a sky view: refused by its length.
+        let mut b = bytes.clone();
+        b[0..4].copy_from_slice(&u32::MAX.to_le_bytes());
+        assert!(decode_near(kind, &b, 2, 2, 2).is_err());
         // Row 1's column past the samples, found by the check.
         let mut b = bytes.clone();
         let col = NEAR_HEADER_LEN as usize + 3 * 4 + 2 * 4;
