@@ -76,6 +76,7 @@ pub fn run(args: &InspectArgs) -> Result<()> {
             "surface_triangles": baked.surface.as_ref().map(|s| s.triangles.len()),
             "near_field_radius": baked.near_field.as_ref().map(|_| m.settings.near_radius),
             "near_field_entries": baked.near_field.as_ref().map(|n| n.nnz()),
+            "near_field_sky_view": baked.near_field.as_ref().map(|n| n.sky.is_some()),
             "sky_view_rows": baked.sky.as_ref().map(|s| s.len()),
             "sky_view_escaped_share": sky_escaped,
             "emitters": baked.emitters.as_ref().map(|e| e.groups.iter().map(|g| json!({

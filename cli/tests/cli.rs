@@ -38,9 +38,13 @@ fn bake_then_inspect_the_cornell_box() {
     assert!(summary.contains("patches"), "{summary}");
 
     let j = inspect_json(&file);
-    assert_eq!(j["format_version"], 8);
+    assert_eq!(j["format_version"], 9);
     assert_eq!(j["near_field_radius"], 1.0, "a near field by default");
     assert!(j["near_field_entries"].as_u64().unwrap() > 0);
+    assert_eq!(
+        j["near_field_sky_view"], true,
+        "version 9 keeps each sample's view of the sky with the near field"
+    );
     assert_eq!(j["geometry"], "surface", "surface patches are the default");
     assert_eq!(j["surface_samples"], 16);
     assert_eq!(j["bounces"], 3);
