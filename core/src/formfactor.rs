@@ -18,7 +18,6 @@ use crate::matrix::DenseMatrix;
 use crate::patch::Quad;
 pub use crate::rays::{RayFate, RayScene, RayTally, Tracer};
 use crate::sky::{RowSky, SkyVisibility};
-use crate::surface::SamplePoint;
 use bounce_types::sh::SH_COEFFICIENTS;
 
 #[derive(Debug, Error)]
@@ -205,7 +204,7 @@ pub fn form_factor_rows_sampled(
     rows: Range<usize>,
     rays: u32,
     seed: u64,
-    samples: Option<(&[SamplePoint], u32)>,
+    samples: Option<(&[Vec3], u32)>,
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<(Vec<f32>, RayTally, SkyVisibility, Option<SkyVisibility>), FormFactorError> {
     let n = scene.patch_count();

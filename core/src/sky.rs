@@ -20,8 +20,6 @@
 use bounce_types::sh::{SH_BASIS_MAX, SH_COEFFICIENTS, sh_basis};
 use glam::Vec3;
 
-use crate::surface::SamplePoint;
-
 /// Per transport row, the coefficients `c_lm` of the module doc.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct SkyVisibility {
@@ -56,13 +54,13 @@ impl SkySum {
 /// that sample (what the near field corrects a sky with: [`crate::nearfield`]).
 pub struct RowSky<'a> {
     pub row: SkySum,
-    samples: &'a [SamplePoint],
+    samples: &'a [Vec3],
     per_sample: Vec<(SkySum, u32)>,
 }
 
 impl<'a> RowSky<'a> {
-    /// A tally for a row whose sample points are `samples` (none: the row's view alone).
-    pub fn new(samples: &'a [SamplePoint]) -> RowSky<'a> {
+    /// A tally for a row whose sample points lie at `samples` (none: the row's view alone).
+    pub fn new(samples: &'a [Vec3]) -> RowSky<'a> {
         RowSky {
             row: SkySum::default(),
             samples,
@@ -83,7 +81,7 @@ impl<'a> RowSky<'a> {
             .samples
             .iter()
             .enumerate()
-            .map(|(s, p)| (s, Vec3::from(p.position).distance_squared(origin)))
+            .map(|(s, p)| (s, p.distance_squared(origin)))
             .fold(
                 (0, f32::INFINITY),
                 |best, c| if c.1 < best.1 { c } else { best },
@@ -223,10 +221,7 @@ mod tests {
 
     #[test]
     fn each_sample_sees_the_sky_of_the_rays_that_start_nearest_it() {
-        let at = |x: f32| SamplePoint {
-            position: [x, 0.0, 0.0],
-            normal: [0.0, 1.0, 0.0],
-        };
+        let at = |x: f32| Vec3::new(x, 0.0, 0.0);
         let samples = [at(0.0), at(1.0), at(5.0)];
         let mut tally = RowSky::new(&samples);
         // Near sample 0: 4 rays, 3 escape. Near sample 1: 4 rays, 1 escapes. Sample 2: none.

@@ -402,15 +402,17 @@ pub(crate) fn prepare(
     }
 }
 
-/// The sample points the form factors' pass gives each row's rays to, for the samples' sky view
-/// ([`crate::sky::RowSky`]): a surface bake's, when it keeps a near field (the view's only use).
-pub(crate) fn samples_for_sky<'a>(
-    surface: Option<&'a SurfaceData>,
+/// Where the sample points lie that the form factors' pass gives each row's rays to, for the
+/// samples' sky view ([`crate::sky::RowSky`]): a surface bake's, when it keeps a near field (the
+/// view's only use), with their count a row.
+pub(crate) fn samples_for_sky(
+    surface: Option<&SurfaceData>,
     options: &BakeOptions,
-) -> Option<(&'a [surface::SamplePoint], u32)> {
-    surface
-        .filter(|_| options.near_radius > 0.0)
-        .map(|s| (&s.points[..], s.per_patch))
+) -> Option<(Vec<glam::Vec3>, u32)> {
+    surface.filter(|_| options.near_radius > 0.0).map(|s| {
+        let at = s.points.iter().map(|p| glam::Vec3::from(p.position));
+        (at.collect(), s.per_patch)
+    })
 }
 
 /// What the transport's rows are traced through.
@@ -650,7 +652,7 @@ fn bake_with(
             0..n,
             options.rays,
             options.seed,
-            samples,
+            samples.as_ref().map(|(at, k)| (&at[..], *k)),
             &advance,
         )
     })?;

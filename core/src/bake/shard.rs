@@ -179,7 +179,7 @@ pub fn form_factor_shard(
             rows.clone(),
             options.rays,
             options.seed,
-            samples,
+            samples.as_ref().map(|(at, k)| (&at[..], *k)),
             &|k| progress.advance(k),
         )
     });
