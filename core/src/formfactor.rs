@@ -180,23 +180,12 @@ pub fn form_factor_rows_tallied(
     seed: u64,
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<(Vec<f32>, RayTally), FormFactorError> {
-    form_factor_rows_sky(scene, rows, rays, seed, progress).map(|(f, tally, _)| (f, tally))
+    form_factor_rows_sampled(scene, rows, rays, seed, None, progress)
+        .map(|(f, tally, _, _)| (f, tally))
 }
 
 /// As [`form_factor_rows_tallied`], also each row's view of the sky from the same rays
-/// ([`crate::sky`]).
-pub fn form_factor_rows_sky(
-    scene: &dyn RowTracer,
-    rows: Range<usize>,
-    rays: u32,
-    seed: u64,
-    progress: &(dyn Fn(u64) + Sync),
-) -> Result<(Vec<f32>, RayTally, SkyVisibility), FormFactorError> {
-    form_factor_rows_sampled(scene, rows, rays, seed, None, progress)
-        .map(|(f, tally, sky, _)| (f, tally, sky))
-}
-
-/// As [`form_factor_rows_sky`], also, with `samples` (every row's direct-light sample points,
+/// ([`crate::sky`]) and, with `samples` (every row's direct-light sample points,
 /// `per_row` a row), each sample's view of the sky from the row's rays that start nearest it
 /// ([`crate::sky::RowSky`]): `per_row` views a row of `rows`, in row order.
 pub fn form_factor_rows_sampled(
@@ -257,18 +246,8 @@ pub fn form_factors(
     seed: u64,
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<(DenseMatrix, RayTally), FormFactorError> {
-    form_factors_sky(scene, rays, seed, progress).map(|(f, tally, _)| (f, tally))
-}
-
-/// [`form_factors`] and every row's view of the sky ([`crate::sky`]).
-pub fn form_factors_sky(
-    scene: &dyn RowTracer,
-    rays: u32,
-    seed: u64,
-    progress: &(dyn Fn(u64) + Sync),
-) -> Result<(DenseMatrix, RayTally, SkyVisibility), FormFactorError> {
     let n = scene.patch_count();
-    let (data, tally, sky) = form_factor_rows_sky(scene, 0..n, rays, seed, progress)?;
+    let (data, tally) = form_factor_rows_tallied(scene, 0..n, rays, seed, progress)?;
     Ok((
         DenseMatrix {
             n,
@@ -276,7 +255,6 @@ pub fn form_factors_sky(
             data,
         },
         tally,
-        sky,
     ))
 }
 

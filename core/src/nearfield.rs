@@ -35,7 +35,7 @@ use glam::Vec3;
 use rayon::prelude::*;
 
 use crate::formfactor::{FormFactorError, check_rows};
-use crate::sky::SkyVisibility;
+use crate::sky::{SkyVisibility, nearest_point};
 use crate::surface::{SurfaceData, SurfaceScene};
 
 /// How far from its origin a form-factor ray may land and still count as near, in voxels,
@@ -63,14 +63,14 @@ pub struct NearField {
 }
 
 impl NearField {
-    /// An empty matrix over no rows.
+    /// An empty matrix over no rows, without the samples' sky view.
     pub fn empty(per_row: u32) -> NearField {
         NearField {
             per_row,
             row_ptr: vec![0],
             cols: Vec::new(),
             values: Vec::new(),
-            sky: Some(SkyVisibility::default()),
+            sky: None,
         }
     }
 
@@ -271,15 +271,7 @@ pub fn near_field_rows(
                     continue;
                 };
                 let own = &samples[j * k..(j + 1) * k];
-                let nearest = own
-                    .iter()
-                    .enumerate()
-                    .map(|(s, p)| (s, Vec3::from(p.position).distance_squared(point)))
-                    .fold(
-                        (0, f32::INFINITY),
-                        |best, c| if c.1 < best.1 { c } else { best },
-                    )
-                    .0;
+                let nearest = nearest_point(own.iter().map(|p| Vec3::from(p.position)), point);
                 hits.push((j * k + nearest) as u32);
             }
             hits.sort_unstable();
@@ -298,7 +290,6 @@ pub fn near_field_rows(
         })
         .collect();
     let mut out = NearField::empty(per_row);
-    out.sky = None;
     for row in per {
         for (c, v) in row {
             out.cols.push(c);

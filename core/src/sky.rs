@@ -49,6 +49,21 @@ impl SkySum {
     }
 }
 
+/// Which of `points` lies nearest `to` (the first on a tie; 0 when there are none). The one rule
+/// that gives a ray to a direct-light sample, for the samples' sky view here and for where a near
+/// ray lands in [`crate::nearfield`], so that both credit the same sample.
+pub(crate) fn nearest_point(points: impl IntoIterator<Item = Vec3>, to: Vec3) -> usize {
+    points
+        .into_iter()
+        .enumerate()
+        .map(|(s, p)| (s, p.distance_squared(to)))
+        .fold(
+            (0, f32::INFINITY),
+            |best, c| if c.1 < best.1 { c } else { best },
+        )
+        .0
+}
+
 /// One row's sky as its form-factor rays find it: the row's [`SkySum`] and, when the row's
 /// direct-light sample points are given, each sample's, over the rays whose origin lies nearest
 /// that sample (what the near field corrects a sky with: [`crate::nearfield`]).
@@ -77,16 +92,7 @@ impl<'a> RowSky<'a> {
         if self.samples.is_empty() {
             return;
         }
-        let nearest = self
-            .samples
-            .iter()
-            .enumerate()
-            .map(|(s, p)| (s, p.distance_squared(origin)))
-            .fold(
-                (0, f32::INFINITY),
-                |best, c| if c.1 < best.1 { c } else { best },
-            )
-            .0;
+        let nearest = nearest_point(self.samples.iter().copied(), origin);
         let (sum, n) = &mut self.per_sample[nearest];
         *n += 1;
         if escaped {

@@ -1174,8 +1174,8 @@ pub const SPACE_SPLITS: u32 = 3;
 
 /// `part` (a polygon, its area and centroid, on a surface of normal `n`) as pieces that each face
 /// one space, with that space, pushed onto `out`. A part is labelled by the space its centroid
-/// faces; when a point near one of its corners faces another, it is halved and each half
-/// labelled again, at most `splits` times deep. Without this, a lattice part that a thin wall
+/// faces; when a point near one of its corners faces another, it is halved across the axis along
+/// which those points lie and each half labelled again, at most `splits` times deep. Without this, a lattice part that a thin wall
 /// stands on (a floor running on under the wall, found in any level built of closed boxes) holds
 /// floor on both sides of the wall and one label, so the lit room's floor and the dark room's
 /// were one element and its light leaked through the wall.
