@@ -17,7 +17,7 @@ use thiserror::Error;
 use crate::matrix::DenseMatrix;
 use crate::patch::Quad;
 pub use crate::rays::{RayFate, RayScene, RayTally, Tracer};
-use crate::sky::{RowSky, SkyVisibility};
+use crate::sky::{RowSky, SkyVisibility, nearest_point};
 use bounce_types::sh::SH_COEFFICIENTS;
 
 #[derive(Debug, Error)]
@@ -60,19 +60,20 @@ fn cosine_direction(quad: &Quad, u1: f32, u2: f32) -> Vec3 {
 /// ([`crate::surface::SurfaceScene`]).
 pub trait RowTracer: Sync {
     fn patch_count(&self) -> usize;
-    /// Shoot `rays` rays from patch `row`, adding to `counts[j]` each that reached patch `j` and
-    /// to `sky` every ray, escaped or not ([`crate::sky`]).
+    /// Shoot `rays` rays from patch `row`, adding to `counts[j]` each that reached patch `j`,
+    /// to `seen.sky` every ray, escaped or not ([`crate::sky`]), and to `seen.near` each that
+    /// landed near its origin.
     fn trace_row_sky(
         &self,
         row: usize,
         rays: u32,
         seed: u64,
         counts: &mut [u32],
-        sky: &mut RowSky<'_>,
+        seen: &mut RowRays<'_>,
     ) -> RayTally;
     /// [`RowTracer::trace_row_sky`] without the sky.
     fn trace_row(&self, row: usize, rays: u32, seed: u64, counts: &mut [u32]) -> RayTally {
-        self.trace_row_sky(row, rays, seed, counts, &mut RowSky::new(&[]))
+        self.trace_row_sky(row, rays, seed, counts, &mut RowRays::plain())
     }
     /// Whether any of `rays` probe rays (other samples than the row's) from `row` reaches a
     /// patch.
@@ -90,7 +91,7 @@ impl RowTracer for RayScene {
         rays: u32,
         seed: u64,
         counts: &mut [u32],
-        sky: &mut RowSky<'_>,
+        seen: &mut RowRays<'_>,
     ) -> RayTally {
         let quad = self.patch(row);
         let s = row_seed(seed, row);
@@ -105,7 +106,7 @@ impl RowTracer for RayScene {
             match fate {
                 RayFate::Patch(j) => counts[j] += 1,
                 // Out of the voxel grid: nothing the scene holds stands in the way.
-                RayFate::Escaped => sky.escaped(dir),
+                RayFate::Escaped => seen.sky.escaped(dir),
                 RayFate::Occluder | RayFate::BackFace => {}
             }
             tally.count(fate);
@@ -123,6 +124,87 @@ impl RowTracer for RayScene {
                 RayFate::Patch(_)
             )
         })
+    }
+}
+
+/// What a row's form-factor rays leave besides their counts.
+pub struct RowRays<'a> {
+    /// The row's view of the sky and its samples' ([`crate::sky`]).
+    pub sky: RowSky<'a>,
+    /// Where the rays that land near their origin land ([`crate::nearfield`]).
+    pub near: NearRays<'a>,
+}
+
+impl RowRays<'_> {
+    /// Nothing kept but the row's own sky view.
+    pub fn plain() -> RowRays<'static> {
+        RowRays {
+            sky: RowSky::new(&[]),
+            near: NearRays::none(),
+        }
+    }
+}
+
+/// One row's rays that land within `radius` of their origin, each as the direct-light sample
+/// point, of the row it landed on, nearest to where it landed: a row of the near-field matrix,
+/// taken in the form factors' own pass so the rays are traced once.
+pub struct NearRays<'a> {
+    radius: f32,
+    /// Every row's sample points, `per_row` a row.
+    samples: &'a [Vec3],
+    per_row: usize,
+    hits: Vec<u32>,
+}
+
+impl<'a> NearRays<'a> {
+    /// Keeps nothing.
+    pub fn none() -> NearRays<'static> {
+        NearRays {
+            radius: 0.0,
+            samples: &[],
+            per_row: 0,
+            hits: Vec::new(),
+        }
+    }
+
+    /// Keeps the rays that land closer than `radius` (scene units), against `samples` (every
+    /// row's, `per_row` a row).
+    pub fn new(radius: f32, samples: &'a [Vec3], per_row: usize) -> NearRays<'a> {
+        NearRays {
+            radius,
+            samples,
+            per_row,
+            hits: Vec::new(),
+        }
+    }
+
+    /// A ray landed at `point`, `t` from its origin, on row `row`.
+    #[inline]
+    pub fn landed(&mut self, t: f32, point: Vec3, row: usize) {
+        let k = self.per_row;
+        if t < self.radius && k > 0 {
+            let own = &self.samples[row * k..(row + 1) * k];
+            self.hits
+                .push((row * k + nearest_point(own.iter().copied(), point)) as u32);
+        }
+    }
+
+    /// The row of the near-field matrix after `rays` rays: per sample point landed on
+    /// (ascending), the share of the rays.
+    pub fn finish(mut self, rays: u32) -> Vec<(u32, f32)> {
+        self.hits.sort_unstable();
+        let mut row: Vec<(u32, f32)> = Vec::new();
+        for &q in &self.hits {
+            match row.last_mut() {
+                Some((c, v)) if *c == q => *v += 1.0,
+                _ => row.push((q, 1.0)),
+            }
+        }
+        let inv = 1.0 / rays as f32;
+        for e in &mut row {
+            e.1 *= inv;
+        }
+        row
     }
 }
 
@@ -180,63 +262,88 @@ pub fn form_factor_rows_tallied(
     seed: u64,
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<(Vec<f32>, RayTally), FormFactorError> {
-    form_factor_rows_sampled(scene, rows, rays, seed, None, progress)
-        .map(|(f, tally, _, _)| (f, tally))
+    form_factor_rows_sampled(scene, rows, rays, seed, None, 0.0, progress).map(|t| (t.f, t.tally))
+}
+
+/// What [`form_factor_rows_sampled`] traced.
+pub struct Traced {
+    /// The rows of `F`, row-major.
+    pub f: Vec<f32>,
+    pub tally: RayTally,
+    /// Each row's view of the sky.
+    pub sky: SkyVisibility,
+    /// With samples, each sample's view of the sky, `per_row` a row in row order.
+    pub samples_sky: Option<SkyVisibility>,
+    /// With samples and a near radius, each row's near-field row ([`NearRays::finish`]).
+    pub near: Option<Vec<Vec<(u32, f32)>>>,
 }
 
 /// As [`form_factor_rows_tallied`], also each row's view of the sky from the same rays
-/// ([`crate::sky`]) and, with `samples` (every row's direct-light sample points,
-/// `per_row` a row), each sample's view of the sky from the row's rays that start nearest it
-/// ([`crate::sky::RowSky`]): `per_row` views a row of `rows`, in row order.
+/// ([`crate::sky`]) and, with `samples` (every row's direct-light sample points, `per_row` a
+/// row), each sample's view of the sky from the row's rays that start nearest it
+/// ([`crate::sky::RowSky`]) and, when `near_radius` is above 0, the rows of the near-field
+/// matrix ([`NearRays`]): the rays that land closer than `near_radius` to their origin.
 pub fn form_factor_rows_sampled(
     scene: &dyn RowTracer,
     rows: Range<usize>,
     rays: u32,
     seed: u64,
     samples: Option<(&[Vec3], u32)>,
+    near_radius: f32,
     progress: &(dyn Fn(u64) + Sync),
-) -> Result<(Vec<f32>, RayTally, SkyVisibility, Option<SkyVisibility>), FormFactorError> {
+) -> Result<Traced, FormFactorError> {
     let n = scene.patch_count();
     check_rows(&rows, rays, n)?;
     let k = samples.map_or(0, |(_, k)| k as usize);
     if let Some((points, _)) = samples {
         assert!(points.len() >= n * k, "sample points for every row");
     }
+    let keep_near = samples.is_some() && near_radius > 0.0;
     let mut out = vec![0.0f32; rows.len() * n];
     let mut sky = vec![[0.0f32; SH_COEFFICIENTS]; rows.len()];
     // One (unused) view a row without samples, so the rows zip in step.
     let mut per_sample = vec![[0.0f32; SH_COEFFICIENTS]; rows.len() * k.max(1)];
+    let mut near = vec![Vec::new(); rows.len()];
     let inv = 1.0 / rays as f32;
     let tally = out
         .par_chunks_mut(n.max(1))
         .zip(sky.par_iter_mut())
         .zip(per_sample.par_chunks_mut(k.max(1)))
+        .zip(near.par_iter_mut())
         .enumerate()
         .map_init(
             || vec![0u32; n],
-            |counts, (r, ((row_out, sky_out), samples_out))| {
+            |counts, (r, (((row_out, sky_out), samples_out), near_out))| {
                 counts.fill(0);
                 let row = rows.start + r;
                 let own = samples.map_or(&[][..], |(p, _)| &p[row * k..(row + 1) * k]);
-                let mut tallied = RowSky::new(own);
-                let tally = scene.trace_row_sky(row, rays, seed, counts, &mut tallied);
+                let mut seen = RowRays {
+                    sky: RowSky::new(own),
+                    near: match samples {
+                        Some((all, _)) if keep_near => NearRays::new(near_radius, all, k),
+                        _ => NearRays::none(),
+                    },
+                };
+                let tally = scene.trace_row_sky(row, rays, seed, counts, &mut seen);
                 for (o, &c) in row_out.iter_mut().zip(counts.iter()) {
                     *o = c as f32 * inv;
                 }
-                let (view, views) = tallied.finish(rays);
+                let (view, views) = seen.sky.finish(rays);
                 *sky_out = view;
                 samples_out[..views.len()].copy_from_slice(&views);
+                *near_out = seen.near.finish(rays);
                 progress(1);
                 tally
             },
         )
         .reduce(RayTally::default, |a, b| a + b);
-    Ok((
-        out,
+    Ok(Traced {
+        f: out,
         tally,
-        SkyVisibility { rows: sky },
-        samples.map(|_| SkyVisibility { rows: per_sample }),
-    ))
+        sky: SkyVisibility { rows: sky },
+        samples_sky: samples.map(|_| SkyVisibility { rows: per_sample }),
+        near: keep_near.then_some(near),
+    })
 }
 
 /// The whole single-bounce form-factor matrix.

@@ -152,6 +152,20 @@ impl NearField {
         Ok(())
     }
 
+    /// The matrix of `rows` (each a row's entries, columns ascending), without the samples'
+    /// sky view.
+    pub fn from_rows(per_row: u32, rows: Vec<Vec<(u32, f32)>>) -> NearField {
+        let mut out = NearField::empty(per_row);
+        for row in rows {
+            for (c, v) in row {
+                out.cols.push(c);
+                out.values.push(v);
+            }
+            out.row_ptr.push(out.cols.len() as u32);
+        }
+        out
+    }
+
     /// The rows of `parts` one after the other (shards of one bake, in row order). The samples'
     /// sky view is kept when every part has one.
     pub fn concat(per_row: u32, parts: impl IntoIterator<Item = NearField>) -> NearField {
@@ -242,8 +256,10 @@ impl NearField {
 /// Rows `rows` of the near-field matrix of `tracer`'s transport rows: form-factor rays (the
 /// bake's, by `rays` and `seed`) that land within `radius` (scene units) of their origin, each
 /// credited to the sample point of `surface` (its `per_patch` a row) nearest to where it landed.
-/// The samples' sky view comes from the form factors' pass, which traced these rays in full
-/// ([`crate::formfactor::form_factor_rows_sampled`]); the caller sets it.
+/// The bake keeps these rows in the form factors' own pass, which traces each ray once
+/// ([`crate::formfactor::NearRays`]); this retrace of the same rays up to `radius` is its twin
+/// (the test `the_form_factors_pass_keeps_the_near_field_a_retrace_finds` holds them to the same
+/// bits) and what the GPU near-field tests build their matrices with. It keeps no sky view.
 pub fn near_field_rows(
     tracer: &SurfaceScene,
     surface: &SurfaceData,
@@ -289,15 +305,7 @@ pub fn near_field_rows(
             row
         })
         .collect();
-    let mut out = NearField::empty(per_row);
-    for row in per {
-        for (c, v) in row {
-            out.cols.push(c);
-            out.values.push(v);
-        }
-        out.row_ptr.push(out.cols.len() as u32);
-    }
-    Ok(out)
+    Ok(NearField::from_rows(per_row, per))
 }
 
 /// A small matrix the tests of this module and of its file section share.

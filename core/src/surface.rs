@@ -17,11 +17,11 @@ use std::sync::Arc;
 use glam::Vec3;
 use serde::{Deserialize, Serialize};
 
-use crate::formfactor::{RowTracer, row_seed};
+use crate::formfactor::{RowRays, RowTracer, row_seed};
 use crate::patch::{PatchLayout, PieceTri, Pieces};
 use crate::rays::{RayFate, RayTally};
 use crate::scene::Scene;
-use crate::sky::RowSky;
+
 use crate::trimesh::{TriMesh, extent_of, offset_origin};
 
 /// Direct-light sample points per patch a bake stores unless asked otherwise.
@@ -205,19 +205,26 @@ impl SurfaceScene {
     /// Where a ray from a surface point ends.
     #[inline]
     fn fate(&self, origin: Vec3, dir: Vec3) -> RayFate {
+        self.fate_at(origin, dir).0
+    }
+
+    /// [`Self::fate`] and how far along `dir` the ray ended (infinite when it escaped).
+    #[inline]
+    fn fate_at(&self, origin: Vec3, dir: Vec3) -> (RayFate, f32) {
         let Some(hit) = self.mesh.closest(origin, dir, f32::INFINITY) else {
-            return RayFate::Escaped;
+            return (RayFate::Escaped, f32::INFINITY);
         };
         if !self.sides[hit.triangle as usize][usize::from(!hit.front)] {
-            return RayFate::BackFace;
+            return (RayFate::BackFace, hit.t);
         }
-        match self
+        let fate = match self
             .owners
             .row_at(origin + dir * hit.t, hit.triangle, !hit.front)
         {
             Some(j) => RayFate::Patch(j as usize),
             None => RayFate::Occluder,
-        }
+        };
+        (fate, hit.t)
     }
 
     /// Where a ray from a point in free space ends (a probe's: no surface to push off from).
@@ -302,7 +309,7 @@ impl RowTracer for SurfaceScene {
         rays: u32,
         seed: u64,
         counts: &mut [u32],
-        sky: &mut RowSky<'_>,
+        seen: &mut RowRays<'_>,
     ) -> RayTally {
         let s = row_seed(seed, row);
         let mut tally = RayTally::default();
@@ -312,11 +319,13 @@ impl RowTracer for SurfaceScene {
         }
         for k in 0..rays {
             let (origin, dir) = self.ray(row, k, 0, s);
-            let fate = self.fate(origin, dir);
+            let (fate, t) = self.fate_at(origin, dir);
             if let RayFate::Patch(j) = fate {
                 counts[j] += 1;
+                // The same point `near_landing` takes, for the same bits.
+                seen.near.landed(t, origin + dir * t, j);
             }
-            sky.ray(origin, dir, fate == RayFate::Escaped);
+            seen.sky.ray(origin, dir, fate == RayFate::Escaped);
             tally.count(fate);
         }
         tally

@@ -20,7 +20,7 @@ use crate::import::{self, ImportError};
 use crate::matrix::{DENSE_F32, DenseMatrix, EncodedMatrix};
 pub use crate::meta::SourceInfo;
 use crate::meta::{BakeMeta, BakeSettings, BakeStats, Bounces, StageTiming};
-use crate::nearfield::{self, NearField};
+use crate::nearfield::NearField;
 use crate::patch::PatchLayout;
 use crate::probe;
 use crate::rays::Tracer;
@@ -428,36 +428,19 @@ impl Rows {
             Rows::Voxels(v) => v.as_ref(),
         }
     }
+}
 
-    /// Rows `rows` of the near-field matrix, as the bake's `options` ask: `None` for voxel faces
-    /// and when the radius is 0.
-    pub fn near_field(
-        &self,
-        surface: Option<&SurfaceData>,
-        voxel_size: f32,
-        rows: std::ops::Range<usize>,
-        samples_sky: Option<SkyVisibility>,
-        options: &BakeOptions,
-        progress: &(dyn Fn(u64) + Sync),
-    ) -> Result<Option<NearField>, BakeError> {
-        let (Rows::Surface(scene), Some(surface)) = (self, surface) else {
-            return Ok(None);
-        };
-        if options.near_radius <= 0.0 {
-            return Ok(None);
-        }
-        let mut near = nearfield::near_field_rows(
-            scene,
-            surface,
-            rows,
-            options.rays,
-            options.seed,
-            options.near_radius * voxel_size,
-            progress,
-        )?;
-        near.sky = samples_sky;
-        Ok(Some(near))
-    }
+/// The near-field matrix of the rows the form factors' pass traced, with the samples' sky view:
+/// `None` where the pass kept none (voxel faces, or a radius of 0).
+pub(crate) fn near_field(
+    rows: Option<Vec<Vec<(u32, f32)>>>,
+    samples_sky: Option<SkyVisibility>,
+    samples: Option<&(Vec<glam::Vec3>, u32)>,
+) -> Option<NearField> {
+    let (rows, (_, per_row)) = (rows?, samples?);
+    let mut near = NearField::from_rows(*per_row, rows);
+    near.sky = samples_sky;
+    Some(near)
 }
 
 /// The form-factor checks a bake records; refuses a scene where no patch sees another.
@@ -646,31 +629,30 @@ fn bake_with(
     let rows = vox.transport_layout();
     let n = rows.len();
     let samples = samples_for_sky(surface.as_ref(), options);
-    let (f, tally, sky, samples_sky) = timer.run(Stage::FormFactors, n as u64, || {
+    let traced = timer.run(Stage::FormFactors, n as u64, || {
         formfactor::form_factor_rows_sampled(
             rays.tracer(),
             0..n,
             options.rays,
             options.seed,
             samples.as_ref().map(|(at, k)| (&at[..], *k)),
+            options.near_radius * rows.voxel_size,
             &advance,
         )
+    })?;
+    let (tally, sky) = (traced.tally, traced.sky);
+    let near_field = timer.run(Stage::NearField, 0, || {
+        Ok::<_, BakeError>(near_field(
+            traced.near,
+            traced.samples_sky,
+            samples.as_ref(),
+        ))
     })?;
     let f = DenseMatrix {
         n,
         channels: 1,
-        data: f,
+        data: traced.f,
     };
-    let near_field = timer.run(Stage::NearField, n as u64, || {
-        rays.near_field(
-            surface.as_ref(),
-            rows.voxel_size,
-            0..n,
-            samples_sky,
-            options,
-            &advance,
-        )
-    })?;
     let probes = match (&options.probes, &rays) {
         (None, _) => None,
         (Some(p), Rows::Surface(scene)) => Some(timer.run(Stage::Probes, 0, || {

@@ -173,6 +173,7 @@ pub fn form_factor_shard(
     let n = vox.transport_layout().len();
     let rows = shard_rows(n, spec.index, spec.count);
     let samples = bake::samples_for_sky(surface.as_ref(), options);
+    let voxel_size = vox.layout.voxel_size;
     let traced = timer.run(Stage::FormFactors, rows.len() as u64, || {
         formfactor::form_factor_rows_sampled(
             rays.tracer(),
@@ -180,20 +181,18 @@ pub fn form_factor_shard(
             options.rays,
             options.seed,
             samples.as_ref().map(|(at, k)| (&at[..], *k)),
+            options.near_radius * voxel_size,
             &|k| progress.advance(k),
         )
     });
-    let (f_rows, tally, sky_rows, samples_sky) = traced.map_err(BakeError::from)?;
-    let voxel_size = vox.layout.voxel_size;
-    let near_rows = timer.run(Stage::NearField, rows.len() as u64, || {
-        rays.near_field(
-            surface.as_ref(),
-            voxel_size,
-            rows.clone(),
-            samples_sky,
-            options,
-            &|k| progress.advance(k),
-        )
+    let traced = traced.map_err(BakeError::from)?;
+    let (f_rows, tally, sky_rows) = (traced.f, traced.tally, traced.sky);
+    let near_rows = timer.run(Stage::NearField, 0, || {
+        Ok::<_, BakeError>(bake::near_field(
+            traced.near,
+            traced.samples_sky,
+            samples.as_ref(),
+        ))
     })?;
     drop(rays);
     let meta = ShardMeta {

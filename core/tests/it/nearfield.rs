@@ -129,3 +129,62 @@ fn the_near_field_moves_the_first_bounce_towards_the_light_where_rays_land() {
         "the correction explains part of the pointwise shift"
     );
 }
+
+/// The bake takes the near field in the form factors' own pass (each ray traced once); the
+/// retrace `near_field_rows` traces the same rays again up to the radius. Both must keep the
+/// same entries, bit for bit, or a sharded bake and an older file's twin would disagree.
+#[test]
+fn the_form_factors_pass_keeps_the_near_field_a_retrace_finds() {
+    use std::sync::Arc;
+
+    use bounce_core::formfactor::form_factor_rows_sampled;
+    use bounce_core::nearfield::{NearField, near_field_rows};
+    use bounce_core::surface::{
+        SurfaceData, SurfaceScene, occluder_triangles_of, sample_points, scene_mesh,
+    };
+    use bounce_core::voxel::cluster_at;
+
+    let scene = import_path(cornell()).expect("the box imports");
+    let voxel = 0.25;
+    let vox = cluster_at(&scene, voxel).expect("the box clusters");
+    let pieces = vox.pieces.as_ref().expect("surface pieces");
+    let mesh = Arc::new(scene_mesh(&scene));
+    let per_patch = 8;
+    let data = SurfaceData {
+        triangles: occluder_triangles_of(&mesh),
+        per_patch,
+        points: sample_points(pieces, per_patch, 3),
+    };
+    let rows = vox.transport_layout();
+    let n = rows.len();
+    let tracer = SurfaceScene::new(&scene, mesh, rows, pieces);
+    let at: Vec<glam::Vec3> = data
+        .points
+        .iter()
+        .map(|p| glam::Vec3::from(p.position))
+        .collect();
+    for (radius, range) in [(voxel, 0..n), (2.5 * voxel, 3..n - 5)] {
+        let retraced = near_field_rows(&tracer, &data, range.clone(), 128, 5, radius, &|_| {})
+            .expect("the retrace");
+        let traced = form_factor_rows_sampled(
+            &tracer,
+            range.clone(),
+            128,
+            5,
+            Some((&at, per_patch)),
+            radius,
+            &|_| {},
+        )
+        .expect("the form factors");
+        let kept = NearField::from_rows(per_patch, traced.near.expect("a near field"));
+        assert!(kept.nnz() > range.len(), "{} entries", kept.nnz());
+        assert_eq!(kept.row_ptr, retraced.row_ptr, "radius {radius}");
+        assert_eq!(kept.cols, retraced.cols, "radius {radius}");
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert_eq!(
+            bits(&kept.values),
+            bits(&retraced.values),
+            "radius {radius}"
+        );
+    }
+}
