@@ -365,6 +365,8 @@ struct Checked {
     method_without_noise: f64,
     noise: f64,
     leak: f64,
+    /// The reference's own share of its light on the patches the leak share counts.
+    reference_leak: f64,
     dark_rooms: Vec<(f64, f64, f64)>,
 }
 
@@ -407,6 +409,8 @@ fn check(dir: &Path, house: &House, patches: u32) -> Checked {
 
     // Floor patches (facing up, at floor height) of each dark room.
     let mut sums = vec![(0.0f64, 0.0f64, 0.0f64); house.rooms.len()];
+    // Every patch's (reference, pipeline) sums, for the reference's own share of the leak set.
+    let mut all: Vec<(f64, f64)> = Vec::new();
     let text = std::fs::read_to_string(&csv).expect("verify --patches-out wrote its CSV");
     for line in text.lines().skip(1) {
         let v: Vec<f64> = line
@@ -417,11 +421,12 @@ fn check(dir: &Path, house: &House, patches: u32) -> Checked {
             })
             .collect();
         let (x, y, z, ny) = (v[1], v[2], v[3], v[5]);
+        let reference = v[7] + v[8] + v[9];
+        let exact = v[16] + v[17] + v[18];
+        all.push((reference, exact));
         if ny < 0.9 || y > 0.05 {
             continue;
         }
-        let reference = v[7] + v[8] + v[9];
-        let exact = v[16] + v[17] + v[18];
         // The channels' errors are one path's: correlated, so they add.
         let se = v[10] + v[11] + v[12];
         for (r, &([x0, z0], [x1, z1])) in house.rooms.iter().enumerate() {
@@ -440,6 +445,7 @@ fn check(dir: &Path, house: &House, patches: u32) -> Checked {
         method_without_noise: get("method_rel_l2_without_noise"),
         noise: get("reference_rel_stderr"),
         leak: get("leak_share"),
+        reference_leak: reference_share(&all),
         dark_rooms: sums
             .into_iter()
             .zip(&house.lit)
@@ -447,6 +453,19 @@ fn check(dir: &Path, house: &House, patches: u32) -> Checked {
             .map(|(s, _)| (s.0, s.1, s.2.sqrt()))
             .collect(),
     }
+}
+
+/// The share of the reference's light on the patches `verify`'s leak share counts (those the
+/// reference leaves under a tenth of its median): light the reference itself puts there, which a
+/// leak is measured beyond. In a house whose unlit rooms hold many patches the median is a lit
+/// room's, and the unlit rooms' own light is most of that set.
+fn reference_share(all: &[(f64, f64)]) -> f64 {
+    let mut refs: Vec<f64> = all.iter().map(|p| p.0).collect();
+    refs.sort_by(f64::total_cmp);
+    let median = refs.get(refs.len() / 2).copied().unwrap_or(0.0);
+    let total: f64 = refs.iter().sum();
+    let dark: f64 = refs.iter().filter(|&&r| r < 0.1 * median).sum();
+    if total > 0.0 { dark / total } else { 0.0 }
 }
 
 /// Patches a house is baked with, per room. What sets the error is how fine the voxels are
@@ -460,7 +479,7 @@ const PATCHES_A_ROOM: u32 = 250;
 #[test]
 fn generated_interiors_against_the_reference() {
     let mut table = String::from(
-        "house  rooms  lit  patches  method  (noise removed)  ref. noise  leak   dark rooms' floors, pipeline/reference\n",
+        "house  rooms  lit  patches  method  (noise removed)  ref. noise  leak (reference's)  dark rooms' floors, pipeline/reference\n",
     );
     let mut failures = Vec::new();
     for (seed, nx, nz) in [(1u64, 2, 2), (2, 3, 2), (3, 3, 3)] {
@@ -471,7 +490,7 @@ fn generated_interiors_against_the_reference() {
         let ratios: Vec<f64> = c.dark_rooms.iter().map(|(p, r, _)| p / r).collect();
         let _ = writeln!(
             table,
-            "{seed:>5}  {:>5}  {:>3}  {:>7}  {:>5.1}%  {:>14.1}%  {:>9.1}%  {:>4.2}%  {}",
+            "{seed:>5}  {:>5}  {:>3}  {:>7}  {:>5.1}%  {:>14.1}%  {:>9.1}%  {:>4.2}% ({:>4.2}%)  {}",
             house.rooms.len(),
             house.lit.iter().filter(|&&l| l).count(),
             c.patches,
@@ -479,6 +498,7 @@ fn generated_interiors_against_the_reference() {
             100.0 * c.method_without_noise,
             100.0 * c.noise,
             100.0 * c.leak,
+            100.0 * c.reference_leak,
             ratios
                 .iter()
                 .map(|r| format!("{r:.2}"))
@@ -493,8 +513,14 @@ fn generated_interiors_against_the_reference() {
                 100.0 * c.method_without_noise
             ));
         }
-        if c.leak > 0.01 {
-            failures.push(format!("house {seed}: leak share {:.2}%", 100.0 * c.leak));
+        // What the pipeline puts on the reference's darkest patches beyond what the reference
+        // itself puts there.
+        if c.leak - c.reference_leak > 0.01 {
+            failures.push(format!(
+                "house {seed}: leak share {:.2}% against the reference's {:.2}%",
+                100.0 * c.leak,
+                100.0 * c.reference_leak
+            ));
         }
         // A room lit through a wall reads several times its reference, a closed doorway black.
         // The reference's own sum is noisy in the darkest rooms (paths must find the light

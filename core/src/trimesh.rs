@@ -58,6 +58,8 @@ pub struct Hit {
     pub triangle: u32,
     /// Whether the ray met the triangle's front (the side its winding's normal faces).
     pub front: bool,
+    /// Whether the triangle is a surface on both sides.
+    pub double_sided: bool,
 }
 
 /// The triangles and their BVH.
@@ -179,6 +181,7 @@ impl TriMesh {
             t: hit.t,
             triangle: t.source,
             front: dir.dot(normal) < 0.0,
+            double_sided: t.double_sided != 0,
         })
     }
 

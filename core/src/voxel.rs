@@ -1015,7 +1015,7 @@ fn cluster_with(
                             .into_iter()
                             .map(|(space, poly, a, c)| {
                                 let open =
-                                    crate::openness::class(mesh, c.as_vec3(), normal, extent, size);
+                                    crate::openness::probe(mesh, c.as_vec3(), normal, extent, size);
                                 ((space, open), poly, a, c)
                             })
                             .collect::<Vec<_>>()
@@ -1045,6 +1045,11 @@ fn cluster_with(
         let tri = &scene.triangles[item.index];
         let face = dominant_face(item.normal.as_vec3());
         for (label, part, area, centroid) in split {
+            // Inside a closed solid: no light reaches it and no eye sees it.
+            if label.1 == crate::openness::ENCLOSED {
+                unassigned += area;
+                continue;
+            }
             let next = sides_of.len() as u32;
             let id = *sides_of
                 .entry((component[item.index], label))

@@ -196,7 +196,7 @@ pub(crate) fn sky_direct(mesh: &Mesh, sky: &Sky, y: Vec3, n: Vec3, rng: &mut Pcg
 
 /// A cosine-distributed unit direction about `n` (Malley's method: a uniform disc point lifted
 /// onto the hemisphere).
-fn cosine_direction(n: Vec3, rng: &mut Pcg32) -> Vec3 {
+pub(crate) fn cosine_direction(n: Vec3, rng: &mut Pcg32) -> Vec3 {
     let (u1, u2) = (rng.next_f32(), rng.next_f32());
     let r = u1.sqrt();
     let phi = std::f32::consts::TAU * u2;

@@ -3,7 +3,8 @@
 //! A patch's value is the area-weighted average over the pieces of original triangles inside its
 //! voxel whose surface side faces its direction more than any other axis direction (both sides
 //! of a double-sided triangle, each on its own; docs/design.md §2, restated here from the
-//! design, not called from `bounce_core::voxel`). That is what the patch's value means to a
+//! design, not called from `bounce_core::voxel`), leaving out surface inside a closed solid of
+//! single-sided faces, which glTF shows to no eye ([`enclosed`]). That is what the patch's value means to a
 //! viewer, whatever geometry the bake used, so voxel-face bakes are measured against the same
 //! footprints. One point cannot stand for it where the pieces lie at several depths (a ceiling
 //! and a panel a unit below it, in one 15-unit voxel): the pieces in a gap are dark, the others
@@ -22,6 +23,35 @@ use rayon::prelude::*;
 use crate::Point;
 use crate::mesh::Mesh;
 use crate::rng::{Pcg32, mix};
+
+/// Rays a footprint point looks around with before it is taken as inside a closed solid.
+const ENCLOSURE_RAYS: usize = 16;
+
+/// Whether the surface at `p` facing unit `n` lies inside a closed solid: three in four of a few
+/// rays over its hemisphere meet the back of a single-sided triangle. glTF draws no such face,
+/// so no eye sees that surface and no light reaches it (the floor running on under a wall built
+/// as a closed box): it is no part of what a patch's value means. Restated from glTF's
+/// sidedness, with rays of unbounded length, not taken from the bake (which looks a few voxels
+/// far: a surface inside a larger closed solid stays in the bake's patch and shows as error).
+fn enclosed(mesh: &Mesh, p: Vec3, n: Vec3, rng: &mut Pcg32) -> bool {
+    let origin = p + n * mesh.epsilon;
+    // Three rays in four, not all: where closed boxes overlap a ray from inside one meets
+    // another's outside.
+    let most = ENCLOSURE_RAYS * 3 / 4;
+    let mut behind = 0;
+    for k in 0..ENCLOSURE_RAYS {
+        // The rest cannot make it: stop.
+        if behind + (ENCLOSURE_RAYS - k) < most {
+            return false;
+        }
+        let dir = crate::estimate::cosine_direction(n, rng);
+        behind += usize::from(mesh.closest(origin, dir).is_some_and(|hit| {
+            let t = &mesh.tris[hit.tri as usize];
+            !t.double_sided && t.normal.dot(dir) > 0.0
+        }));
+    }
+    behind >= most
+}
 
 /// Lines per wanted point before a patch gives up (its pieces cover little of the voxel).
 const TRIES_PER_POINT: usize = 128;
@@ -103,6 +133,8 @@ pub(crate) fn footprints(
             // A hair beyond the voxel's faces, so a surface lying on one is crossed.
             let slack = size * 1e-6;
             let mut rng = Pcg32::new(mix(seed ^ 0x5EED_F007), mix(index as u64));
+            // Its own stream, so the points drawn elsewhere do not move.
+            let mut look = Pcg32::new(mix(seed ^ 0xC105_ED00), mix(index as u64));
             let mut tries = 0;
             while points.len() < count && tries < count * TRIES_PER_POINT {
                 tries += 1;
@@ -115,7 +147,12 @@ pub(crate) fn footprints(
                     if let Some(d) = t.intersect(start, along, 0.0, size + 2.0 * slack) {
                         let p = start + along * d;
                         let keep = rng.next_f32() * cos < MIN_DOMINANT_COS;
-                        if keep && p.cmpge(lo).all() && p.cmplt(hi).all() && points.len() < count {
+                        if keep
+                            && p.cmpge(lo).all()
+                            && p.cmplt(hi).all()
+                            && points.len() < count
+                            && !enclosed(mesh, p, n, &mut look)
+                        {
                             points.push(Point {
                                 position: p.to_array(),
                                 normal: n.to_array(),
@@ -213,5 +250,108 @@ mod tests {
             ..layout
         };
         assert!(footprints(&mesh, &empty, 8, 1)[0].is_empty());
+    }
+
+    #[test]
+    fn surface_inside_a_closed_single_sided_box_is_no_footprint() {
+        // A floor facing up at y = 0.25 and, standing on it over x in [0, 0.5), a closed box of
+        // single-sided faces looking out: the floor under the box is enclosed.
+        let v = Vec3::new;
+        let mut triangles = vec![
+            tri(
+                [v(-5., 0.25, -5.), v(-5., 0.25, 5.), v(5., 0.25, 5.)],
+                false,
+            ),
+            tri(
+                [v(-5., 0.25, -5.), v(5., 0.25, 5.), v(5., 0.25, -5.)],
+                false,
+            ),
+        ];
+        let (lo, hi) = (v(-3.0, 0.25, -3.0), v(0.5, 2.0, 3.0));
+        let c = |x: bool, y: bool, z: bool| {
+            v(
+                if x { hi.x } else { lo.x },
+                if y { hi.y } else { lo.y },
+                if z { hi.z } else { lo.z },
+            )
+        };
+        for [a, b, cc, d] in [
+            [
+                c(false, false, false),
+                c(false, false, true),
+                c(false, true, true),
+                c(false, true, false),
+            ],
+            [
+                c(true, false, false),
+                c(true, true, false),
+                c(true, true, true),
+                c(true, false, true),
+            ],
+            [
+                c(false, false, false),
+                c(true, false, false),
+                c(true, false, true),
+                c(false, false, true),
+            ],
+            [
+                c(false, true, false),
+                c(false, true, true),
+                c(true, true, true),
+                c(true, true, false),
+            ],
+            [
+                c(false, false, false),
+                c(false, true, false),
+                c(true, true, false),
+                c(true, false, false),
+            ],
+            [
+                c(false, false, true),
+                c(true, false, true),
+                c(true, true, true),
+                c(false, true, true),
+            ],
+        ] {
+            triangles.push(tri([a, b, cc], false));
+            triangles.push(tri([a, cc, d], false));
+        }
+        let scene = Scene {
+            triangles,
+            ..Scene::default()
+        };
+        let mesh = Mesh::new(&scene).unwrap();
+        let layout = PatchLayout {
+            origin: [-2.0, -2.0, -2.0],
+            voxel_size: 1.0,
+            dims: [4, 4, 4],
+            patches: vec![patch([2, 2, 2], Face::PosY)],
+        };
+        let up = &footprints(&mesh, &layout, 64, 1)[0];
+        assert_eq!(up.len(), 64);
+        // Every point on the floor beside the box, none under it (nor on its faces looking up:
+        // its top is above the voxel).
+        assert!(
+            up.iter()
+                .all(|p| (p.position[1] - 0.25).abs() < 1e-5 && p.position[0] >= 0.5),
+            "{:?}",
+            up.iter().find(|p| p.position[0] < 0.5)
+        );
+        // The same box two-sided is a surface inside as well: its floor stays.
+        let open = Scene {
+            triangles: scene
+                .triangles
+                .iter()
+                .enumerate()
+                .map(|(i, t)| Triangle {
+                    double_sided: i >= 2,
+                    ..*t
+                })
+                .collect(),
+            ..Scene::default()
+        };
+        let mesh = Mesh::new(&open).unwrap();
+        let up = &footprints(&mesh, &layout, 64, 1)[0];
+        assert!(up.iter().any(|p| p.position[0] < 0.5));
     }
 }
