@@ -470,10 +470,9 @@ fn reference_share(all: &[(f64, f64)]) -> f64 {
 
 /// Patches a house is baked with, per room. What sets the error is how fine the voxels are
 /// against a room, not the total: at 250 a room the voxel is about a sixth of a room's width.
-/// Coarser, a voxel is wider than a doorway and ten times a wall's thickness, and the elements
-/// that then span both sides of a wall carry a lit room's light into its dark neighbour (house 3
-/// at 1,000 patches, 111 a room: 13.4% method error, a dark room's floor at 2.0 times its
-/// reference, 0.9% of the light leaked; README, "Unseen interiors").
+/// Coarser, a voxel is wider than a doorway and ten times a wall's thickness, and the error grows
+/// (house 3 at 1,000 patches, 111 a room: 12.9% method error without the reference's noise, its
+/// dark rooms' floors at 0.94-0.98 of the reference; README, "Unseen interiors").
 const PATCHES_A_ROOM: u32 = 250;
 
 #[test]
