@@ -566,6 +566,10 @@ fn print_table(r: &Report) {
         pct(r.leak_share)
     );
     println!(
+        "| · the reference's own share of its light on those patches | {} |",
+        pct(r.leak_reference_share)
+    );
+    println!(
         "per patch (total, relative to the patch's reference): p50 {}, p90 {}, p99 {}, worst {} (patch {})",
         pct(r.patch_rel_p50),
         pct(r.patch_rel_p90),

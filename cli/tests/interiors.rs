@@ -365,7 +365,9 @@ struct Checked {
     method_without_noise: f64,
     noise: f64,
     leak: f64,
-    /// The reference's own share of its light on the patches the leak share counts.
+    /// The reference's own share of its light on the patches the leak share counts (in a house
+    /// whose unlit rooms hold many patches the median is a lit room's, and the unlit rooms' own
+    /// light is most of that set): a leak is measured beyond it.
     reference_leak: f64,
     dark_rooms: Vec<(f64, f64, f64)>,
 }
@@ -409,8 +411,6 @@ fn check(dir: &Path, house: &House, patches: u32) -> Checked {
 
     // Floor patches (facing up, at floor height) of each dark room.
     let mut sums = vec![(0.0f64, 0.0f64, 0.0f64); house.rooms.len()];
-    // Every patch's (reference, pipeline) sums, for the reference's own share of the leak set.
-    let mut all: Vec<(f64, f64)> = Vec::new();
     let text = std::fs::read_to_string(&csv).expect("verify --patches-out wrote its CSV");
     for line in text.lines().skip(1) {
         let v: Vec<f64> = line
@@ -423,7 +423,6 @@ fn check(dir: &Path, house: &House, patches: u32) -> Checked {
         let (x, y, z, ny) = (v[1], v[2], v[3], v[5]);
         let reference = v[7] + v[8] + v[9];
         let exact = v[16] + v[17] + v[18];
-        all.push((reference, exact));
         if ny < 0.9 || y > 0.05 {
             continue;
         }
@@ -445,7 +444,7 @@ fn check(dir: &Path, house: &House, patches: u32) -> Checked {
         method_without_noise: get("method_rel_l2_without_noise"),
         noise: get("reference_rel_stderr"),
         leak: get("leak_share"),
-        reference_leak: reference_share(&all),
+        reference_leak: get("leak_reference_share"),
         dark_rooms: sums
             .into_iter()
             .zip(&house.lit)
@@ -453,19 +452,6 @@ fn check(dir: &Path, house: &House, patches: u32) -> Checked {
             .map(|(s, _)| (s.0, s.1, s.2.sqrt()))
             .collect(),
     }
-}
-
-/// The share of the reference's light on the patches `verify`'s leak share counts (those the
-/// reference leaves under a tenth of its median): light the reference itself puts there, which a
-/// leak is measured beyond. In a house whose unlit rooms hold many patches the median is a lit
-/// room's, and the unlit rooms' own light is most of that set.
-fn reference_share(all: &[(f64, f64)]) -> f64 {
-    let mut refs: Vec<f64> = all.iter().map(|p| p.0).collect();
-    refs.sort_by(f64::total_cmp);
-    let median = refs.get(refs.len() / 2).copied().unwrap_or(0.0);
-    let total: f64 = refs.iter().sum();
-    let dark: f64 = refs.iter().filter(|&&r| r < 0.1 * median).sum();
-    if total > 0.0 { dark / total } else { 0.0 }
 }
 
 /// Patches a house is baked with, per room. What sets the error is how fine the voxels are

@@ -57,6 +57,10 @@ pub struct Report {
     /// channels) that falls on patches whose reference is below a tenth of the median
     /// reference. Light crossing walls shows here.
     pub leak_share: f64,
+    /// The reference's own share of its summed light on those same patches: what it puts there
+    /// itself (a room lit only through doorways can fall under a tenth of the median). A leak
+    /// is what `leak_share` adds beyond it.
+    pub leak_reference_share: f64,
     /// Largest per-patch error of the compressed `T` against the reference, relative to the
     /// patch's reference value (floored at 5% of the RMS value).
     pub worst_patch_rel: f64,
@@ -188,6 +192,7 @@ pub fn compare(
             .sqrt(),
         reference_rel_stderr,
         leak_share: leak_share(&exact, reference),
+        leak_reference_share: leak_share(reference, reference),
         worst_patch_rel: worst,
         worst_patch,
         patch_rel_p50: q(0.5),
@@ -360,6 +365,9 @@ mod tests {
     fn nothing_leaks_where_every_patch_is_lit() {
         let reference = [[1.0; 3], [1.0; 3], [0.5; 3]];
         assert_eq!(leak_share(&reference, &reference), 0.0);
+        // A dim patch under a tenth of the median holds its own share of the reference.
+        let dim = [[1.0; 3], [1.0; 3], [0.05; 3]];
+        assert!((leak_share(&dim, &dim) - 0.05 / 2.05).abs() < 1e-12);
         assert_eq!(leak_share(&[], &[]), 0.0);
         // A patch the reference leaves dark gets a third of the light: a third leaks.
         let dark = [[1.0; 3], [1.0; 3], [0.0; 3]];
