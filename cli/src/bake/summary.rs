@@ -26,8 +26,9 @@ pub fn print_summary(baked: &Baked, out: &Path, file_bytes: u64, total_s: f64) {
     );
     if m.settings.geometry == Geometry::Surface {
         println!(
-            "  surface       {} geometry: {:.4} of {:.4} units² ({:.2}%) belongs to no patch; {} \
-             direct-light samples a patch",
+            "  surface       {} geometry: {:.4} of {:.4} units² ({:.2}%) belongs to no patch (dropped \
+             patches that see nothing, surface inside closed solids, slivers); {} direct-light \
+             samples a patch",
             m.settings.geometry,
             s.unassigned_area,
             s.surface_area,
