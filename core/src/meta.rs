@@ -104,6 +104,10 @@ pub struct BakeSettings {
     /// and in files from before it.
     #[serde(default)]
     pub near_radius: f32,
+    /// How the bake placed irradiance probes ([`crate::probe`]); absent when it placed none, as
+    /// in files from before probes.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub probes: Option<crate::probe::ProbeOptions>,
 }
 
 fn default_patch_order() -> crate::voxel::PatchOrder {

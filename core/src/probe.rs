@@ -32,6 +32,8 @@
 //! rays says it is inside the scene: few of them meet the back of a one-sided surface (it would
 //! be inside a wall or behind the level) and not most of them escape.
 
+use std::ops::Range;
+
 use glam::Vec3;
 use rayon::prelude::*;
 
@@ -66,8 +68,9 @@ const MAX_REACH: f32 = 8.0;
 const GATHER_SET: u32 = 0;
 const TEST_SET: u32 = 1;
 
-/// How a bake places probes and gathers at them.
-#[derive(Debug, Clone, Copy, PartialEq)]
+/// How a bake places probes and gathers at them. Recorded in the bake's settings, so that the
+/// shards of a sharded bake can be checked to place the same probes.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct ProbeOptions {
     /// Grid spacing in scene units; `None`: [`DEFAULT_SPACING_VOXELS`] voxels.
     pub spacing: Option<f32>,
@@ -143,22 +146,7 @@ impl Probes {
     /// offsets in order and in range, columns ascending and inside the rows, values finite and
     /// positive, each direction's sum at most 1 (a little over for f32 rounding).
     pub fn check(&self, rows: usize) -> Result<(), String> {
-        if !(self.spacing.is_finite() && self.spacing > 0.0) {
-            return Err(format!("spacing {} is not a positive length", self.spacing));
-        }
-        if self.rays == 0 || self.rays > MAX_PROBE_RAYS {
-            return Err(format!("{} rays a direction", self.rays));
-        }
-        if self.len() > MAX_PROBES {
-            return Err(format!("{} probes, the most is {MAX_PROBES}", self.len()));
-        }
-        if let Some(i) = self
-            .positions
-            .iter()
-            .position(|p| !p.iter().all(|v| v.is_finite()))
-        {
-            return Err(format!("probe {i}'s position is not finite"));
-        }
+        check_placement(self.spacing, self.rays, &self.positions)?;
         let gathers = self.len() * DIRECTIONS;
         if self.row_ptr.len() != gathers + 1 {
             return Err(format!(
@@ -168,35 +156,7 @@ impl Probes {
                 gathers + 1
             ));
         }
-        if self.row_ptr[0] != 0 || self.row_ptr[gathers] as usize != self.cols.len() {
-            return Err("row offsets do not span the entries".into());
-        }
-        if self.cols.len() != self.values.len() {
-            return Err("columns and values differ in count".into());
-        }
-        for r in 0..gathers {
-            let (lo, hi) = (self.row_ptr[r] as usize, self.row_ptr[r + 1] as usize);
-            if lo > hi || hi > self.cols.len() {
-                return Err(format!("gather row {r}'s offsets are out of order"));
-            }
-            let cols = &self.cols[lo..hi];
-            if cols.windows(2).any(|w| w[0] >= w[1]) {
-                return Err(format!("gather row {r}'s columns are not ascending"));
-            }
-            if cols.last().is_some_and(|&c| c as usize >= rows) {
-                return Err(format!(
-                    "gather row {r} names a transport row past the last ({rows})"
-                ));
-            }
-            let values = &self.values[lo..hi];
-            if values.iter().any(|v| !(v.is_finite() && *v > 0.0)) {
-                return Err(format!("gather row {r} has a value that is not positive"));
-            }
-            let sum: f64 = values.iter().map(|&v| f64::from(v)).sum();
-            if sum > 1.0 + 1e-4 {
-                return Err(format!("gather row {r} sums to {sum}, over 1"));
-            }
-        }
+        check_gathers(&self.row_ptr, &self.cols, &self.values, 0, rows)?;
         if let Some(sky) = &self.sky {
             sky.check(gathers)
                 .map_err(|m| format!("the probes' sky view: {m}"))?;
@@ -233,6 +193,196 @@ impl Probes {
     }
 }
 
+/// The spacing, ray count and positions are what a file may hold.
+fn check_placement(spacing: f32, rays: u32, positions: &[[f32; 3]]) -> Result<(), String> {
+    if !(spacing.is_finite() && spacing > 0.0) {
+        return Err(format!("spacing {spacing} is not a positive length"));
+    }
+    if rays == 0 || rays > MAX_PROBE_RAYS {
+        return Err(format!("{rays} rays a direction"));
+    }
+    if positions.len() > MAX_PROBES {
+        return Err(format!(
+            "{} probes, the most is {MAX_PROBES}",
+            positions.len()
+        ));
+    }
+    if let Some(i) = positions
+        .iter()
+        .position(|p| !p.iter().all(|v| v.is_finite()))
+    {
+        return Err(format!("probe {i}'s position is not finite"));
+    }
+    Ok(())
+}
+
+/// Gather rows in CSR form (`row_ptr` one longer than the rows, the first of them gather row
+/// `first`) over a transport of `rows` rows: offsets spanning the entries in order, columns
+/// ascending within a row and inside the transport, values positive, each row's sum at most 1
+/// (a little over for f32 rounding).
+fn check_gathers(
+    row_ptr: &[u32],
+    cols: &[u32],
+    values: &[f32],
+    first: usize,
+    rows: usize,
+) -> Result<(), String> {
+    if row_ptr.first() != Some(&0) || row_ptr.last().map(|&e| e as usize) != Some(cols.len()) {
+        return Err("row offsets do not span the entries".into());
+    }
+    if cols.len() != values.len() {
+        return Err("columns and values differ in count".into());
+    }
+    for (k, w) in row_ptr.windows(2).enumerate() {
+        let r = first + k;
+        let (lo, hi) = (w[0] as usize, w[1] as usize);
+        if lo > hi || hi > cols.len() {
+            return Err(format!("gather row {r}'s offsets are out of order"));
+        }
+        let row_cols = &cols[lo..hi];
+        if row_cols.windows(2).any(|w| w[0] >= w[1]) {
+            return Err(format!("gather row {r}'s columns are not ascending"));
+        }
+        if row_cols.last().is_some_and(|&c| c as usize >= rows) {
+            return Err(format!(
+                "gather row {r} names a transport row past the last ({rows})"
+            ));
+        }
+        let row_values = &values[lo..hi];
+        if row_values.iter().any(|v| !(v.is_finite() && *v > 0.0)) {
+            return Err(format!("gather row {r} has a value that is not positive"));
+        }
+        let sum: f64 = row_values.iter().map(|&v| f64::from(v)).sum();
+        if sum > 1.0 + 1e-4 {
+            return Err(format!("gather row {r} sums to {sum}, over 1"));
+        }
+    }
+    Ok(())
+}
+
+/// A consecutive range of a bake's gather rows: what one shard of a sharded bake gathers and
+/// carries ([`crate::bake::shard`]). Every shard places all the probes (placement depends only
+/// on the scene, the options and the seed), so each carries every position and the merge can
+/// check that they agree.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ProbeRows {
+    pub spacing: f32,
+    pub rays: u32,
+    /// Every probe's position, not only those of the rows held.
+    pub positions: Vec<[f32; 3]>,
+    /// The gather rows held (`6 · probe + direction`).
+    pub range: Range<usize>,
+    /// `range.len() + 1` offsets into `cols` and `values`, from 0.
+    pub row_ptr: Vec<u32>,
+    pub cols: Vec<u32>,
+    pub values: Vec<f32>,
+    /// The rows' view of the sky, one per row held.
+    pub sky: SkyVisibility,
+}
+
+impl ProbeRows {
+    /// Why these rows do not fit a transport of `rows` rows, if they do not: as
+    /// [`Probes::check`], over the rows held, which lie within the probes' gather rows.
+    pub fn check(&self, rows: usize) -> Result<(), String> {
+        check_placement(self.spacing, self.rays, &self.positions)?;
+        let gathers = self.positions.len() * DIRECTIONS;
+        if self.range.start > self.range.end || self.range.end > gathers {
+            return Err(format!(
+                "gather rows {}..{} of {} probes' {gathers}",
+                self.range.start,
+                self.range.end,
+                self.positions.len()
+            ));
+        }
+        if self.row_ptr.len() != self.range.len() + 1 {
+            return Err(format!(
+                "{} row offsets for gather rows {}..{}",
+                self.row_ptr.len(),
+                self.range.start,
+                self.range.end
+            ));
+        }
+        check_gathers(
+            &self.row_ptr,
+            &self.cols,
+            &self.values,
+            self.range.start,
+            rows,
+        )?;
+        self.sky
+            .check(self.range.len())
+            .map_err(|m| format!("the probes' sky view: {m}"))
+    }
+
+    /// Consecutive parts joined into the probes: each part's placement the same, their ranges
+    /// in order, from the first gather row to the last.
+    pub fn join(parts: impl IntoIterator<Item = ProbeRows>) -> Result<Probes, String> {
+        let mut parts = parts.into_iter();
+        let first = parts.next().ok_or("no probe rows")?;
+        let mut probes = Probes {
+            spacing: first.spacing,
+            rays: first.rays,
+            positions: first.positions.clone(),
+            row_ptr: vec![0],
+            cols: Vec::new(),
+            values: Vec::new(),
+            sky: Some(SkyVisibility { rows: Vec::new() }),
+        };
+        let mut end = 0;
+        for part in std::iter::once(first).chain(parts) {
+            if (part.spacing, part.rays) != (probes.spacing, probes.rays)
+                || part.positions != probes.positions
+            {
+                return Err("the parts placed different probes".into());
+            }
+            if part.range.start != end {
+                return Err(format!(
+                    "gather rows {}..{} follow row {end}",
+                    part.range.start, part.range.end
+                ));
+            }
+            end = part.range.end;
+            let base = probes.cols.len() as u32;
+            probes
+                .row_ptr
+                .extend(part.row_ptr[1..].iter().map(|&p| base + p));
+            probes.cols.extend(part.cols);
+            probes.values.extend(part.values);
+            if let Some(sky) = probes.sky.as_mut() {
+                sky.rows.extend(part.sky.rows);
+            }
+        }
+        if end != probes.len() * DIRECTIONS {
+            return Err(format!(
+                "the parts end at gather row {end} of {}",
+                probes.len() * DIRECTIONS
+            ));
+        }
+        Ok(probes)
+    }
+}
+
+impl Probes {
+    /// Gather rows `range` of these probes, with every position. `None` when the probes have
+    /// no sky view (a file from before it), which a bake's never lack.
+    pub fn rows(&self, range: Range<usize>) -> Option<ProbeRows> {
+        let (lo, hi) = (self.row_ptr[range.start], self.row_ptr[range.end]);
+        Some(ProbeRows {
+            spacing: self.spacing,
+            rays: self.rays,
+            positions: self.positions.clone(),
+            row_ptr: self.row_ptr[range.start..=range.end]
+                .iter()
+                .map(|&p| p - lo)
+                .collect(),
+            cols: self.cols[lo as usize..hi as usize].to_vec(),
+            values: self.values[lo as usize..hi as usize].to_vec(),
+            sky: self.sky.as_ref()?.slice(range.clone()),
+            range,
+        })
+    }
+}
+
 /// Why probes cannot be placed.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum ProbeError {
@@ -259,18 +409,81 @@ pub fn bake_probes(
     seed: u64,
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<Probes, ProbeError> {
+    let placed = place_probes(layout, occupied, scene, options, seed)?;
+    let all = 0..placed.positions.len() * DIRECTIONS;
+    let ProbeRows {
+        spacing,
+        rays,
+        positions,
+        row_ptr,
+        cols,
+        values,
+        sky,
+        ..
+    } = gather_rows(scene, placed, all, seed, progress);
+    Ok(Probes {
+        spacing,
+        rays,
+        positions,
+        row_ptr,
+        cols,
+        values,
+        sky: Some(sky),
+    })
+}
+
+/// Where a bake's probes are, before any gather.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Placed {
+    pub spacing: f32,
+    pub rays: u32,
+    pub positions: Vec<[f32; 3]>,
+}
+
+impl Placed {
+    /// Gather rows: six a probe.
+    pub fn gather_rows(&self) -> usize {
+        self.positions.len() * DIRECTIONS
+    }
+}
+
+/// The probes' positions over `layout`'s grid: every shard of a bake places them all, alike.
+pub fn place_probes(
+    layout: &PatchLayout,
+    occupied: &[u64],
+    scene: &SurfaceScene,
+    options: &ProbeOptions,
+    seed: u64,
+) -> Result<Placed, ProbeError> {
     let spacing = options
         .spacing
         .unwrap_or(layout.voxel_size * DEFAULT_SPACING_VOXELS);
-    let positions = place(layout, occupied, scene, spacing, seed)?;
-    let rows: Vec<GatherRow> = (0..positions.len() * DIRECTIONS)
+    Ok(Placed {
+        spacing,
+        rays: options.rays,
+        positions: place(layout, occupied, scene, spacing, seed)?,
+    })
+}
+
+/// Gather rows `range` (`6 · probe + direction`) of the probes `placed`. A row depends only on
+/// its index, the position and the seed, so rows gathered in parts join into the rows gathered
+/// at once. `progress` counts probes whose last direction is among the rows.
+pub fn gather_rows(
+    scene: &SurfaceScene,
+    placed: Placed,
+    range: Range<usize>,
+    seed: u64,
+    progress: &(dyn Fn(u64) + Sync),
+) -> ProbeRows {
+    let rows: Vec<GatherRow> = range
+        .clone()
         .into_par_iter()
         .map(|r| {
             let row = gather(
                 scene,
-                Vec3::from(positions[r / DIRECTIONS]),
+                Vec3::from(placed.positions[r / DIRECTIONS]),
                 r,
-                options.rays,
+                placed.rays,
                 seed,
             );
             if r % DIRECTIONS == DIRECTIONS - 1 {
@@ -279,29 +492,28 @@ pub fn bake_probes(
             row
         })
         .collect();
-    let mut probes = Probes {
-        spacing,
-        rays: options.rays,
-        positions,
+    let mut out = ProbeRows {
+        spacing: placed.spacing,
+        rays: placed.rays,
+        positions: placed.positions,
+        range,
         row_ptr: Vec::with_capacity(rows.len() + 1),
         cols: Vec::new(),
         values: Vec::new(),
-        sky: None,
+        sky: SkyVisibility {
+            rows: Vec::with_capacity(rows.len()),
+        },
     };
-    let mut sky = SkyVisibility {
-        rows: Vec::with_capacity(rows.len()),
-    };
-    probes.row_ptr.push(0);
+    out.row_ptr.push(0);
     for (row, view) in rows {
         for (c, v) in row {
-            probes.cols.push(c);
-            probes.values.push(v);
+            out.cols.push(c);
+            out.values.push(v);
         }
-        probes.row_ptr.push(probes.cols.len() as u32);
-        sky.rows.push(view);
+        out.row_ptr.push(out.cols.len() as u32);
+        out.sky.rows.push(view);
     }
-    probes.sky = Some(sky);
-    Ok(probes)
+    out
 }
 
 /// Grid points over the layout's box at `spacing`, centred in it, that are probes.

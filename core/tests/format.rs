@@ -105,6 +105,7 @@ fn sample_meta() -> BakeMeta {
             direct_samples: 0,
             max_grey_error: 0.02,
             near_radius: 0.0,
+            probes: None,
         },
         stats: BakeStats {
             patches: 5,

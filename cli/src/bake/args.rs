@@ -175,9 +175,6 @@ impl BakeArgs {
             if let Err(e) = probes.check() {
                 bail!("{e}");
             }
-            if self.shard.is_some() {
-                bail!("a sharded bake places no probes yet: bake in one process for --probes");
-            }
             if matches!(self.geometry, Geometry::VoxelFaces) {
                 bail!("--probes needs surface geometry, not --geometry voxel-faces");
             }

@@ -76,6 +76,21 @@ pub enum CodecRequest {
     Auto { max_error: f64 },
 }
 
+/// Probe options a bake can run with.
+pub(crate) fn check_probe_options(options: &BakeOptions) -> Result<(), BakeError> {
+    match &options.probes {
+        Some(p) => p.check().map_err(BakeError::Options),
+        None => Ok(()),
+    }
+}
+
+pub(crate) fn probes_need_surface() -> BakeError {
+    BakeError::Options(
+        "probes need surface geometry: bake without --geometry voxel-faces, or without probes"
+            .into(),
+    )
+}
+
 /// Light configurations the bake measures codec error with (see `codec::error::probe_light_sets`).
 pub const PROBE_LIGHT_SETS: usize = 8;
 
@@ -514,6 +529,10 @@ pub(crate) fn settings(options: &BakeOptions, tracer: Tracer) -> BakeSettings {
             Geometry::VoxelFaces => 0,
         },
         max_grey_error: options.max_grey_error,
+        probes: match options.geometry {
+            Geometry::Surface => options.probes,
+            Geometry::VoxelFaces => None,
+        },
         near_radius: match options.geometry {
             Geometry::Surface => options.near_radius,
             Geometry::VoxelFaces => 0.0,
@@ -549,8 +568,7 @@ pub fn options_of(settings: &BakeSettings, keep_form_factors: bool) -> BakeOptio
         direct_samples: settings.direct_samples,
         max_grey_error: settings.max_grey_error,
         near_radius: settings.near_radius,
-        // Sharded bakes place none.
-        probes: None,
+        probes: settings.probes,
     }
 }
 
@@ -613,9 +631,7 @@ fn bake_with(
     options: &BakeOptions,
     mut timer: Timer<'_>,
 ) -> Result<Baked, BakeError> {
-    if let Some(p) = &options.probes {
-        p.check().map_err(BakeError::Options)?;
-    }
+    check_probe_options(options)?;
     let progress = timer.progress;
     let advance = |n: u64| progress.advance(n);
 
@@ -658,13 +674,7 @@ fn bake_with(
         (Some(p), Rows::Surface(scene)) => Some(timer.run(Stage::Probes, 0, || {
             probe::bake_probes(rows, &vox.occupied, scene, p, options.seed, &advance)
         })?),
-        (Some(_), Rows::Voxels(_)) => {
-            return Err(BakeError::Options(
-                "probes need surface geometry: bake without --geometry voxel-faces, or without \
-                 probes"
-                    .into(),
-            ));
-        }
+        (Some(_), Rows::Voxels(_)) => return Err(probes_need_surface()),
     };
     drop(rays);
     let ff = check_form_factors(&f, rows, options.geometry)?;

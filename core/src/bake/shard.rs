@@ -30,6 +30,7 @@ use crate::formfactor;
 use crate::matrix::{DenseMatrix, EncodedMatrix};
 use crate::meta::StageTiming;
 use crate::nearfield::NearField;
+use crate::probe::{self, ProbeRows, Probes};
 use crate::rays::RayTally;
 use crate::sky::SkyVisibility;
 use crate::transport;
@@ -152,14 +153,7 @@ pub fn form_factor_shard(
 ) -> Result<ShardFile, ShardError> {
     // The merge encodes, but a codec it would refuse is better refused before the tracing.
     bake::check_codec_options(options)?;
-    if options.probes.is_some() {
-        // The probes' gathers need the whole scene's rows, which no shard has alone; a sharded
-        // bake could trace them in the merge, which does not load the scene yet.
-        return Err(BakeError::Options(
-            "a sharded bake places no probes yet: bake in one process for probes".into(),
-        )
-        .into());
-    }
+    bake::check_probe_options(options)?;
     let mut timer = Timer::new(progress);
     let (scene, source) = bake::import_timed(path, &mut timer)?;
     let Prepared {
@@ -194,6 +188,23 @@ pub fn form_factor_shard(
             samples.as_ref(),
         ))
     })?;
+    // Every shard places all the probes (the placement is cheap beside the gathers, and the
+    // merge checks that they agree) and gathers its share of their rows, split as the rows.
+    let probe_rows = match (&options.probes, &rays) {
+        (None, _) => None,
+        (Some(p), bake::Rows::Surface(scene)) => Some(timer.run(Stage::Probes, 0, || {
+            let placed = probe::place_probes(&vox.layout, &vox.occupied, scene, p, options.seed)?;
+            let range = shard_rows(placed.gather_rows(), spec.index, spec.count);
+            Ok::<_, BakeError>(probe::gather_rows(
+                scene,
+                placed,
+                range,
+                options.seed,
+                &|k| progress.advance(k),
+            ))
+        })?),
+        (Some(_), bake::Rows::Voxels(_)) => return Err(bake::probes_need_surface().into()),
+    };
     drop(rays);
     let meta = ShardMeta {
         phase: Phase::FormFactors,
@@ -230,6 +241,7 @@ pub fn form_factor_shard(
         form_factor_rows: None,
         near_rows,
         sky_rows,
+        probe_rows,
         // The caller packs the model when the bake keeps it ([`crate::import::pack_glb`]).
         model: None,
     })
@@ -247,7 +259,11 @@ pub fn transport_shard(
     let first = members[0].header.clone();
     let n = first.meta.patches;
     let Assembled {
-        rows: f, near, sky, ..
+        rows: f,
+        near,
+        sky,
+        probes,
+        ..
     } = timer.run(Stage::ReadShards, n as u64, || {
         assemble(&members, 1, false, progress)
     })?;
@@ -315,6 +331,9 @@ pub fn transport_shard(
         form_factor_rows,
         near_rows: near.map(|all| slice_rows(&all, rows.clone())),
         sky_rows: sky.slice(rows.clone()),
+        probe_rows: probes
+            .map(|p| probe_share(&p, spec, &members[0].path))
+            .transpose()?,
         model,
     })
 }
@@ -330,13 +349,14 @@ pub fn merge(inputs: &[PathBuf], progress: &dyn Progress) -> Result<Baked, Shard
     let n = m0.patches;
     let options = bake::options_of(&m0.settings, m0.keep_form_factors);
     bake::check_codec_options(&options)?;
-    let (t, f, near_field, sky, stats, rays, mut timings, grey_rel_l2) = match m0.phase {
+    let (t, f, near_field, sky, probes, stats, rays, mut timings, grey_rel_l2) = match m0.phase {
         Phase::Transport => {
             let Assembled {
                 rows: t,
                 form_factors: f,
                 near,
                 sky,
+                probes,
             } = timer.run(Stage::ReadShards, n as u64, || {
                 assemble(&members, m0.channels, m0.keep_form_factors, progress)
             })?;
@@ -347,11 +367,25 @@ pub fn merge(inputs: &[PathBuf], progress: &dyn Progress) -> Result<Baked, Shard
             })?;
             let mut timings = m0.inherited_timings.clone();
             timings.extend(sum_timings(members.iter().map(|m| &m.header.meta.timings)));
-            (t, f, near, sky, stats, m0.rays, timings, m0.grey_rel_l2)
+            (
+                t,
+                f,
+                near,
+                sky,
+                probes,
+                stats,
+                m0.rays,
+                timings,
+                m0.grey_rel_l2,
+            )
         }
         Phase::FormFactors => {
             let Assembled {
-                rows: f, near, sky, ..
+                rows: f,
+                near,
+                sky,
+                probes,
+                ..
             } = timer.run(Stage::ReadShards, n as u64, || {
                 assemble(&members, 1, false, progress)
             })?;
@@ -375,6 +409,7 @@ pub fn merge(inputs: &[PathBuf], progress: &dyn Progress) -> Result<Baked, Shard
                 m0.keep_form_factors.then_some(f),
                 near,
                 sky,
+                probes,
                 stats,
                 rays,
                 timings,
@@ -414,8 +449,7 @@ pub fn merge(inputs: &[PathBuf], progress: &dyn Progress) -> Result<Baked, Shard
         near_field,
         sky: Some(sky),
         emitters: first.emitters,
-        // A sharded bake places no probes (refused up front, see `form_factor_shard`).
-        probes: None,
+        probes,
         occupancy: first.surface.is_none().then_some(first.occupancy),
         surface: first.surface,
         elements: first.elements,
@@ -615,6 +649,7 @@ fn assemble(
     // The reader requires NROW exactly when the bake has a near field: all or none have it.
     let mut near: Option<Vec<NearField>> = Some(Vec::with_capacity(members.len()));
     let mut sky = Vec::with_capacity(members.len());
+    let mut probe_parts = Vec::new();
     for m in members {
         let read_err = |error| ShardError::Read {
             path: m.path.clone(),
@@ -641,6 +676,7 @@ fn assemble(
             parts
         });
         sky.push(file.sky_rows);
+        probe_parts.extend(file.probe_rows);
         progress.advance(rows.len() as u64);
     }
     let near = match (
@@ -652,11 +688,22 @@ fn assemble(
         }
         _ => None,
     };
+    // The reader requires PROW exactly when the bake places probes, and the settings agree.
+    let probes = if probe_parts.is_empty() {
+        None
+    } else {
+        let joined = ProbeRows::join(probe_parts).map_err(|m| ShardError::Read {
+            path: members[0].path.clone(),
+            error: FormatError::BadShard(format!("the shards' probes do not join: {m}")),
+        })?;
+        Some(joined)
+    };
     Ok(Assembled {
         rows: out,
         form_factors: ff,
         near,
         sky: SkyVisibility::concat(sky),
+        probes,
     })
 }
 
@@ -669,6 +716,17 @@ struct Assembled {
     near: Option<NearField>,
     /// Every row's sky view.
     sky: SkyVisibility,
+    /// The probes, gather rows joined, when the bake places them.
+    probes: Option<Probes>,
+}
+
+/// Shard `spec`'s share of the probes' gather rows (split as the transport's rows are).
+fn probe_share(p: &Probes, spec: ShardSpec, path: &Path) -> Result<ProbeRows, ShardError> {
+    let range = shard_rows(p.len() * probe::DIRECTIONS, spec.index, spec.count);
+    p.rows(range).ok_or_else(|| ShardError::Read {
+        path: path.to_path_buf(),
+        error: FormatError::BadShard("probes without their sky view".to_string()),
+    })
 }
 
 /// Rows `rows` of every channel of `m` from `src` (channel-major, as a shard stores them). The

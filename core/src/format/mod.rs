@@ -70,8 +70,9 @@ pub const OLDEST_FORMAT_VERSION: u32 = 1;
 /// The bake-shard version this build writes, and the only one it reads. Shards are
 /// intermediate files of one bake, written and read by the same release, so there is no reason
 /// to read older ones. Version 5 added each shard's rows of the sky view (`SROW`), version 6 the
-/// emitters (`SEMT`), version 7 the samples' sky view in `NROW`.
-pub const SHARD_FORMAT_VERSION: u32 = 7;
+/// emitters (`SEMT`), version 7 the samples' sky view in `NROW`, version 8 the probes' gather
+/// rows (`PROW`).
+pub const SHARD_FORMAT_VERSION: u32 = 8;
 
 /// Everything that can go wrong reading or writing a baked file.
 ///

@@ -24,6 +24,10 @@
 //! - `SROW`: the shard's rows of the sky view, laid out as a baked file's `SKYV` over the
 //!   shard's rows. Phase 1 traces them with its rows of `F`, phase 2 carries its own rows, the
 //!   merge joins them.
+//! - `PROW` (a bake with probes): every probe's position and the shard's range of the probes'
+//!   gather rows with their sky view ([`crate::probe::ProbeRows`], laid out in `super::probe`).
+//!   Phase 1 places every probe and gathers its range (the gather rows split as the transport's
+//!   rows are), phase 2 carries its own range of the same split, the merge joins them.
 //! - `SEMT` (surface geometry): the bake's emitters, laid out as a baked file's `EMIT` over all
 //!   rows: every shard computes them from the same layout, and the merge takes the first's.
 //! - `MODL` (flagged optional, when the bake keeps the model): the scene as one GLB, as in a
@@ -51,9 +55,11 @@ use super::container::{
 };
 use super::emit::{decode_emitters, encode_emitters};
 use super::near::{decode_near, encode_near};
+use super::probe::{PROW, decode_probe_rows, encode_probe_rows};
 use super::shard_meta::{Phase, ShardMeta, shard_rows};
 use super::sky::{decode_sky, encode_sky};
 use crate::nearfield::NearField;
+use crate::probe::ProbeRows;
 use crate::sky::SkyVisibility;
 use crate::surface::SurfaceData;
 use crate::voxel::Geometry;
@@ -102,6 +108,8 @@ pub struct ShardFile {
     pub near_rows: Option<NearField>,
     /// The same rows of the sky view.
     pub sky_rows: SkyVisibility,
+    /// The shard's range of the probes' gather rows, when the bake places probes.
+    pub probe_rows: Option<ProbeRows>,
     /// The scene as one self-contained GLB, for the baked file's `MODL` section.
     pub model: Option<Vec<u8>>,
 }
@@ -186,6 +194,15 @@ impl ShardFile {
             SROW,
             encode_sky(SROW, &self.sky_rows, h.meta.end_row - h.meta.first_row)?,
         ));
+        match (&self.probe_rows, wants_probe_rows(&h.meta)) {
+            (Some(p), true) => {
+                check_probe_range(p, &h.meta)?;
+                sections.push(owned(PROW, encode_probe_rows(p, h.meta.patches)?));
+            }
+            (None, false) => {}
+            (Some(_), false) => return Err(bad("probe rows in a shard of a bake without probes")),
+            (None, true) => return Err(bad("a shard of a bake with probes lacks its probe rows")),
+        }
         // Before the rows, which stay last as they are the bulk of the file.
         if let Some(model) = &self.model {
             sections.push(model_section(model)?);
@@ -233,6 +250,16 @@ impl ShardFile {
             (None, _, true) => return Err(FormatError::MissingSection { kind: NROW }),
         };
         let sky_rows = decode_sky(SROW, section(&c, SROW)?, m.end_row - m.first_row)?;
+        let probe_rows = match (c.entry(PROW), wants_probe_rows(m)) {
+            (Some(e), true) => {
+                let p = decode_probe_rows(c.section(e)?, m.patches)?;
+                check_probe_range(&p, m)?;
+                Some(p)
+            }
+            (None, false) => None,
+            (Some(_), false) => return Err(bad("probe rows in a shard of a bake without probes")),
+            (None, true) => return Err(FormatError::MissingSection { kind: PROW }),
+        };
         let model = model_of(&c)?;
         Ok(ShardFile {
             header,
@@ -240,6 +267,7 @@ impl ShardFile {
             form_factor_rows,
             near_rows,
             sky_rows,
+            probe_rows,
             model,
         })
     }
@@ -326,6 +354,7 @@ fn header_from(c: &Container<'_>) -> Result<ShardHeader, FormatError> {
             NROW,
             SROW,
             SEMT,
+            PROW,
         ]
         .contains(&e.kind);
         if e.kind == SectionKind::MODL {
@@ -395,6 +424,24 @@ fn decode_meta(bytes: &[u8]) -> Result<ShardMeta, FormatError> {
 /// A surface bake with a near-field radius carries its rows of the matrix in every shard.
 fn wants_near_rows(m: &ShardMeta) -> bool {
     m.settings.geometry == Geometry::Surface && m.settings.near_radius > 0.0
+}
+
+/// A surface bake with probes carries its range of their gather rows in every shard.
+fn wants_probe_rows(m: &ShardMeta) -> bool {
+    m.settings.geometry == Geometry::Surface && m.settings.probes.is_some()
+}
+
+/// The probe rows are the shard's share of the gather rows, split as the transport's rows are.
+fn check_probe_range(p: &ProbeRows, m: &ShardMeta) -> Result<(), FormatError> {
+    let gathers = p.positions.len() * crate::probe::DIRECTIONS;
+    let want = shard_rows(gathers, m.index, m.count);
+    if p.range != want {
+        return Err(bad(format!(
+            "holds gather rows {}..{} of the probes, but shard {}/{} of {gathers} owns rows {}..{}",
+            p.range.start, p.range.end, m.index, m.count, want.start, want.end
+        )));
+    }
+    Ok(())
 }
 
 fn wants_form_factor_rows(m: &ShardMeta) -> bool {

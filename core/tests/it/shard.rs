@@ -9,6 +9,7 @@ use bounce_core::bake::{BakeOptions, CodecRequest, NoProgress, bake_file};
 use bounce_core::format::{Baked, FormatError, ShardFile};
 use bounce_core::import::pack_glb;
 use bounce_core::meta::Bounces;
+use bounce_core::probe::ProbeOptions;
 use bounce_core::voxel::Resolution;
 
 fn cornell() -> PathBuf {
@@ -87,6 +88,7 @@ fn assert_same_bake(one: &Baked, merged: &Baked, what: &str) {
         "{what}: the bake lists its emitters"
     );
     assert_eq!(one.emitters, merged.emitters, "{what}: emitters");
+    assert_eq!(one.probes, merged.probes, "{what}: probes");
     let stages =
         |b: &Baked| -> Vec<String> { b.meta.timings.iter().map(|t| t.stage.clone()).collect() };
     assert!(
@@ -158,6 +160,46 @@ fn an_emissive_scene_shards_with_its_emitters() {
     let t = phase2(&ff, 3, &dir.path().join("t"));
     let merged = shard::merge(&t, &NoProgress).unwrap();
     assert_same_bake(&one, &merged, "the emissive box");
+}
+
+#[test]
+fn probes_shard_too() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = cornell();
+    let options = BakeOptions {
+        probes: Some(ProbeOptions {
+            spacing: None,
+            rays: 64,
+        }),
+        ..options()
+    };
+    let one = bake_one(&scene, &options);
+    let probes = one.probes.as_ref().expect("the bake places probes");
+    let gathers = probes.len() * bounce_core::probe::DIRECTIONS;
+    assert!(
+        probes.len() >= 4,
+        "{} probes: enough for three shards",
+        probes.len()
+    );
+    let ff = phase1(&scene, &options, 3, &dir.path().join("ff"));
+    // Each phase-1 shard gathers its share of the rows, and places every probe.
+    for (i, path) in ff.iter().enumerate() {
+        let rows = ShardFile::read(path).unwrap().probe_rows.unwrap();
+        assert_eq!(rows.range, shard_rows(gathers, i as u32, 3));
+        assert_eq!(rows.positions, probes.positions);
+    }
+    let t = phase2(&ff, 2, &dir.path().join("t"));
+    assert_same_bake(&one, &shard::merge(&t, &NoProgress).unwrap(), "probes");
+    assert_same_bake(
+        &one,
+        &shard::merge(&ff, &NoProgress).unwrap(),
+        "probes, merge of phase-1 shards",
+    );
+    // A shard holding another shard's share of the probes is refused on reading.
+    let mut wrong = ShardFile::read(&ff[0]).unwrap();
+    wrong.probe_rows = ShardFile::read(&ff[1]).unwrap().probe_rows;
+    let e = wrong.to_bytes().unwrap_err().to_string();
+    assert!(e.contains("gather rows"), "{e}");
 }
 
 #[test]
