@@ -81,6 +81,7 @@ pub fn run(args: &InspectArgs) -> Result<()> {
             "sky_view_escaped_share": sky_escaped,
             "emitters": baked.emitters.as_ref().map(|e| e.groups.iter().map(|g| json!({
                 "material": g.name,
+                "node": g.node,
                 "color": g.color,
                 "strength": g.strength,
             })).collect::<Vec<_>>()),
@@ -212,16 +213,30 @@ pub fn run(args: &InspectArgs) -> Result<()> {
                 .iter()
                 .map(|g| {
                     format!(
-                        "'{}' ({:.3}, {:.3}, {:.3}) × {}",
-                        g.name, g.color[0], g.color[1], g.color[2], g.strength
+                        "'{}'{} ({:.3}, {:.3}, {:.3}) × {}",
+                        g.name,
+                        g.node
+                            .as_ref()
+                            .map_or_else(String::new, |n| format!(" on node '{n}'")),
+                        g.color[0],
+                        g.color[1],
+                        g.color[2],
+                        g.strength
                     )
                 })
                 .collect();
             println!(
-                "  emitters      {} over {covered} rows, a light set may change them: {}",
+                "  emitters      {} over {covered} rows, a light set may change them by \
+                 material or node: {}",
                 e.groups.len(),
                 names.join(", ")
             );
+            if e.groups.iter().all(|g| g.node.is_none()) {
+                println!(
+                    "                (baked before emitters knew their nodes: changed by \
+                     material only; bake again to change them by node)"
+                );
+            }
         }
         None => println!(
             "  emitters      none listed (voxel faces, or baked by an older bounce): emissive \

@@ -615,6 +615,7 @@ fn emissive_surfaces_change_at_run_time() {
     let j = inspect_json(&baked);
     assert_eq!(j["emitters"][0]["material"], "Emitter_Light_temp");
     assert_eq!(j["emitters"][0]["strength"], 100.0);
+    assert_eq!(j["emitters"][0]["node"], "Light");
     let text =
         String::from_utf8_lossy(&run(bounce().arg("inspect").arg(&baked)).stdout).into_owned();
     assert!(text.contains("emitters      1 over"), "{text}");
@@ -629,6 +630,11 @@ fn emissive_surfaces_change_at_run_time() {
         "half.json",
         r#"{"lights": [{"type": "emissive", "material": "Emitter_Light_temp", "strength": 50}]}"#,
     );
+    // The same lamp by its node.
+    let half_node = write(
+        "half-node.json",
+        r#"{"lights": [{"type": "emissive", "node": "Light", "strength": 50}]}"#,
+    );
     let out_json = dir.path().join("out.json");
     let out = run(bounce()
         .arg("relight")
@@ -637,6 +643,8 @@ fn emissive_surfaces_change_at_run_time() {
         .arg(&none)
         .arg("--lights")
         .arg(&half)
+        .arg("--lights")
+        .arg(&half_node)
         .arg("--out")
         .arg(&out_json));
     assert!(out.status.success(), "{}", stderr(&out));
@@ -649,6 +657,10 @@ fn emissive_surfaces_change_at_run_time() {
             .flat_map(|p| p.as_array().unwrap().iter().map(|x| x.as_f64().unwrap()))
             .sum()
     };
+    assert_eq!(
+        v["sets"][1]["indirect"], v["sets"][2]["indirect"],
+        "by node"
+    );
     // Half the strength, half the light: the lamp is the box's only source.
     assert!(total(0) > 0.0);
     assert!(
@@ -678,8 +690,8 @@ fn emissive_surfaces_change_at_run_time() {
     assert!(!out.status.success());
     assert!(
         stderr(&out).contains(
-            "lights[0].material: the scene has no emissive material 'Lamp' (its emitters: \
-             Emitter_Light_temp)"
+            "lights[0].material: the scene has no emissive material 'Lamp' (its emissive \
+             materials: Emitter_Light_temp; on nodes: Light)"
         ),
         "{}",
         stderr(&out)

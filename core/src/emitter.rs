@@ -17,22 +17,30 @@
 //! zero channel the texture's share of that channel is unknown (glTF multiplies it away), and
 //! the other channels' mean stands for it: exact for untextured emitters, whose `t` is 1.
 //!
-//! Groups are materials, not names: two materials of one name are two groups, and a change by
+//! A group is one emissive material on one glTF node (the importer gives each such pair its own
+//! material entry, [`crate::scene::MaterialInfo::node`]), so a change may name a material (every
+//! node made of it), a node (every emissive material it places) or both
+//! ([`crate::light::EmissiveChange::reaches`]): two lamps sharing a shade's material are
+//! switched apart by their nodes. Two materials of one name are two groups, and a change by
 //! that name changes both. This module owns the weights, their checks and what a light set's
 //! changes make of them; the `EMIT` section's bytes are [`crate::format`]'s, and the light JSON is
 //! `bounce_types::light`'s.
 
-use crate::light::{Light, LightError, LightSet, MAX_NAME_BYTES};
+use crate::light::{EmissiveChange, Light, LightError, LightSet, MAX_NAME_BYTES};
 use glam::{DVec3, Vec3};
 
 use crate::patch::Pieces;
 use crate::scene::Scene;
 
-/// One emissive material of the scene.
+/// One emissive material of the scene on one node.
 #[derive(Debug, Clone, PartialEq)]
 pub struct EmitterGroup {
     /// The glTF material's name (`material #i` for an unnamed one, as the importer names it).
     pub name: String,
+    /// The glTF node that places it (`node #i` for an unnamed one); `None` in a file from
+    /// before emitters knew their nodes (format version 10), which a change by node cannot
+    /// reach.
+    pub node: Option<String>,
     /// glTF's `emissiveFactor`.
     pub color: [f32; 3],
     /// `KHR_materials_emissive_strength` (1 without it).
@@ -95,13 +103,14 @@ impl Emitters {
     /// or longer than a light's names may be) is no group: its surfaces keep their baked
     /// emission, and the bake does not fail over a name.
     pub fn of_pieces(scene: &Scene, pieces: &Pieces) -> Emitters {
+        let addressable = |name: &str| !name.is_empty() && name.len() <= MAX_NAME_BYTES;
         let emissive: Vec<bool> = scene
             .materials
             .iter()
             .map(|m| {
                 Vec3::from(m.emission).max_element() > 0.0
-                    && !m.name.is_empty()
-                    && m.name.len() <= MAX_NAME_BYTES
+                    && addressable(&m.name)
+                    && m.node.as_deref().is_none_or(addressable)
             })
             .collect();
         let mut group_of: Vec<Option<u32>> = vec![None; scene.materials.len()];
@@ -132,6 +141,7 @@ impl Emitters {
                     };
                     groups.push(EmitterGroup {
                         name: info.name.clone(),
+                        node: info.node.clone(),
                         color,
                         strength: if strength > 0.0 { strength } else { 1.0 },
                     });
@@ -175,8 +185,10 @@ impl Emitters {
     /// share of the row's area, up to rounding), groups named and emitting something.
     pub fn check(&self, rows: usize) -> Result<(), String> {
         for (i, g) in self.groups.iter().enumerate() {
-            if g.name.is_empty() || g.name.len() > MAX_NAME_BYTES {
-                return Err(format!("group {i}'s name has {} bytes", g.name.len()));
+            for name in std::iter::once(&g.name).chain(&g.node) {
+                if name.is_empty() || name.len() > MAX_NAME_BYTES {
+                    return Err(format!("group {i}'s name has {} bytes", name.len()));
+                }
             }
             if !(g.color.iter().all(|c| c.is_finite() && *c >= 0.0)
                 && g.strength.is_finite()
@@ -189,6 +201,11 @@ impl Emitters {
                     g.name, g.color, g.strength
                 ));
             }
+        }
+        if self.groups.iter().any(|g| g.node.is_some())
+            && self.groups.iter().any(|g| g.node.is_none())
+        {
+            return Err("some groups name their node and some do not".into());
         }
         if self.rows() != rows {
             return Err(format!(
@@ -240,29 +257,25 @@ impl Emitters {
         Ok(())
     }
 
-    /// The groups a light set's changes name, each with its new emission, or the first change
-    /// that names no group (the error's path is the light's, `lights[i].material`).
+    /// The groups a light set's changes reach, each with its new emission, in the set's order
+    /// (a later change to a group wins), or the first change that reaches no group (the error's
+    /// path is the light's, `lights[i].material` or `lights[i].node`).
     pub fn resolve(&self, set: &LightSet) -> Result<Vec<(usize, Vec3)>, LightError> {
         let mut out = Vec::new();
-        for (i, light) in set.lights.iter().enumerate() {
-            let Light::Emissive {
-                material,
-                color,
-                strength,
-                ..
-            } = light
-            else {
-                continue;
-            };
+        let changes = set.lights.iter().enumerate().filter_map(|(i, l)| match l {
+            Light::Emissive { .. } => Some(i),
+            _ => None,
+        });
+        for (i, change) in changes.zip(set.emissive()) {
             let before = out.len();
             for (g, group) in self.groups.iter().enumerate() {
-                if group.name == *material {
-                    let color = Vec3::from(color.unwrap_or(group.color));
-                    out.push((g, color * strength.unwrap_or(group.strength)));
+                if change.reaches(&group.name, group.node.as_deref()) {
+                    let color = Vec3::from(change.color.unwrap_or(group.color));
+                    out.push((g, color * change.strength.unwrap_or(group.strength)));
                 }
             }
             if out.len() == before {
-                return Err(unknown_material(i, material, Some(self)));
+                return Err(unknown_emitter(i, &change, Some(&self.names())));
             }
         }
         Ok(out)
@@ -325,70 +338,109 @@ impl Emitters {
     }
 }
 
-/// The error for an emissive change naming no emitter of the scene: `emitters` is `None` for a
-/// file that lists none (baked before emitters were kept).
-pub fn unknown_material(index: usize, material: &str, emitters: Option<&Emitters>) -> LightError {
-    let reason = match emitters {
+/// One group's names: what a change can reach it by.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct EmitterName {
+    pub material: String,
+    /// `None` in a file from before emitters knew their nodes.
+    pub node: Option<String>,
+}
+
+/// The distinct materials of `names`, in order.
+pub fn materials_of(names: &[EmitterName]) -> Vec<String> {
+    let mut out: Vec<String> = Vec::new();
+    for n in names {
+        if !out.contains(&n.material) {
+            out.push(n.material.clone());
+        }
+    }
+    out
+}
+
+/// The distinct nodes of `names`, in order.
+pub fn nodes_of(names: &[EmitterName]) -> Vec<String> {
+    let mut out: Vec<String> = Vec::new();
+    for n in names.iter().filter_map(|n| n.node.as_ref()) {
+        if !out.contains(n) {
+            out.push(n.clone());
+        }
+    }
+    out
+}
+
+/// The error for an emissive change (light `index`) reaching no emitter of the scene, whose
+/// emitters are `names` (`None` for a file that lists none, baked before emitters were kept).
+pub fn unknown_emitter(
+    index: usize,
+    change: &EmissiveChange<'_>,
+    names: Option<&[EmitterName]>,
+) -> LightError {
+    let what = change.describe();
+    let reason = match names {
         None => "this baked file lists no emitters (it predates them: bake it again to change \
                  emissive surfaces at run time)"
             .to_string(),
-        Some(e) if e.groups.is_empty() => {
-            format!("the scene has no emissive material '{material}' (it has none)")
-        }
-        Some(e) => {
-            let mut names: Vec<&str> = e.groups.iter().map(|g| g.name.as_str()).collect();
-            names.dedup();
+        Some([]) => format!("the scene has no {what} (it has none)"),
+        Some(names) if change.node.is_some() && names.iter().all(|n| n.node.is_none()) => {
             format!(
-                "the scene has no emissive material '{material}' (its emitters: {})",
-                names.join(", ")
+                "the scene has no {what}: this baked file does not know its emitters' nodes (it \
+                 predates them: bake it again to change emitters by node; its emissive \
+                 materials: {})",
+                materials_of(names).join(", ")
+            )
+        }
+        Some(names) => {
+            let nodes = nodes_of(names);
+            format!(
+                "the scene has no {what} (its emissive materials: {}{})",
+                materials_of(names).join(", "),
+                if nodes.is_empty() {
+                    String::new()
+                } else {
+                    format!("; on nodes: {}", nodes.join(", "))
+                }
             )
         }
     };
     LightError::Invalid {
-        path: format!("lights[{index}].material"),
+        path: format!("lights[{index}].{}", change.field()),
         reason,
     }
 }
 
 impl Emitters {
-    /// The emissive materials' names, each once, in the order of the groups.
-    pub fn names(&self) -> Vec<String> {
-        let mut out: Vec<String> = Vec::with_capacity(self.groups.len());
+    /// Each group's names, each pair once, in the order of the groups.
+    pub fn names(&self) -> Vec<EmitterName> {
+        let mut out: Vec<EmitterName> = Vec::with_capacity(self.groups.len());
         for g in &self.groups {
-            if !out.contains(&g.name) {
-                out.push(g.name.clone());
+            let name = EmitterName {
+                material: g.name.clone(),
+                node: g.node.clone(),
+            };
+            if !out.contains(&name) {
+                out.push(name);
             }
         }
         out
     }
 }
 
-/// Checks that every emissive change of `set` names one of a scene's emissive materials,
-/// `names` ([`Emitters::names`]; `None` for a file that lists none), as [`Emitters::resolve`]
-/// would: what a server checks when a session's lights are set, before any relight.
-pub fn check_names(names: Option<&[String]>, set: &LightSet) -> Result<(), LightError> {
-    for (i, light) in set.lights.iter().enumerate() {
-        let Light::Emissive { material, .. } = light else {
-            continue;
-        };
-        match names {
-            Some(names) if names.contains(material) => {}
-            Some(names) => {
-                let listed = Emitters {
-                    groups: names
-                        .iter()
-                        .map(|n| EmitterGroup {
-                            name: n.clone(),
-                            color: [1.0; 3],
-                            strength: 1.0,
-                        })
-                        .collect(),
-                    row_ptr: vec![0],
-                    entries: Vec::new(),
-                };
-                return Err(unknown_material(i, material, Some(&listed)));
-            }
-            None => return Err(unknown_material(i, material, None)),
+/// Checks that every emissive change of `set` reaches one of a scene's emitters, `names`
+/// ([`Emitters::names`]; `None` for a file that lists none), as [`Emitters::resolve`] would:
+/// what a server checks when a session's lights are set, before any relight.
+pub fn check_names(names: Option<&[EmitterName]>, set: &LightSet) -> Result<(), LightError> {
+    let changes = set.lights.iter().enumerate().filter_map(|(i, l)| match l {
+        Light::Emissive { .. } => Some(i),
+        _ => None,
+    });
+    for (i, change) in changes.zip(set.emissive()) {
+        let known = names.is_some_and(|names| {
+            names
+                .iter()
+                .any(|n| change.reaches(&n.material, n.node.as_deref()))
+        });
+        if !known {
+            return Err(unknown_emitter(i, &change, names));
         }
     }
     Ok(())
@@ -399,47 +451,36 @@ pub fn check_names(names: Option<&[String]>, set: &LightSet) -> Result<(), Light
 /// [`Emitters::resolve`] refuses, naming the emissive materials the scene has.
 pub fn apply_to_scene(scene: &mut Scene, set: &LightSet) -> Result<(), LightError> {
     let mut new: Vec<Option<Vec3>> = vec![None; scene.materials.len()];
-    for (i, light) in set.lights.iter().enumerate() {
-        let Light::Emissive {
-            material,
-            color,
-            strength,
-            ..
-        } = light
-        else {
-            continue;
-        };
+    let changes = set.lights.iter().enumerate().filter_map(|(i, l)| match l {
+        Light::Emissive { .. } => Some(i),
+        _ => None,
+    });
+    for (i, change) in changes.zip(set.emissive()) {
         let mut found = false;
         for (m, info) in scene.materials.iter().enumerate() {
             let baked = Vec3::from(info.emission);
-            if info.name == *material && baked.max_element() > 0.0 {
+            if change.reaches(&info.name, info.node.as_deref()) && baked.max_element() > 0.0 {
                 let s = if info.emissive_strength > 0.0 {
                     info.emissive_strength
                 } else {
                     1.0
                 };
-                let c = color.map_or(baked / s, Vec3::from);
-                new[m] = Some(c * strength.unwrap_or(s));
+                let c = change.color.map_or(baked / s, Vec3::from);
+                new[m] = Some(c * change.strength.unwrap_or(s));
                 found = true;
             }
         }
         if !found {
-            let groups = scene
+            let names: Vec<EmitterName> = scene
                 .materials
                 .iter()
                 .filter(|m| Vec3::from(m.emission).max_element() > 0.0)
-                .map(|m| EmitterGroup {
-                    name: m.name.clone(),
-                    color: m.emission,
-                    strength: 1.0,
+                .map(|m| EmitterName {
+                    material: m.name.clone(),
+                    node: m.node.clone(),
                 })
                 .collect();
-            let listed = Emitters {
-                groups,
-                row_ptr: vec![0],
-                entries: Vec::new(),
-            };
-            return Err(unknown_material(i, material, Some(&listed)));
+            return Err(unknown_emitter(i, &change, Some(&names)));
         }
     }
     for tri in &mut scene.triangles {
@@ -466,6 +507,7 @@ mod tests {
             emission,
             emissive_strength: 2.0,
             double_sided: false,
+            node: None,
         }
     }
 
@@ -506,7 +548,7 @@ mod tests {
         };
         let e = Emitters::of_pieces(&scene, &pieces);
         e.check(1).unwrap();
-        assert_eq!(e.names(), vec!["Lamp".to_string()]);
+        assert_eq!(materials_of(&e.names()), vec!["Lamp".to_string()]);
         assert_eq!(e.groups[0].color, [2.0, 1.0, 0.0]);
         assert_eq!(e.groups[0].strength, 2.0);
         // A quarter of the row's area; the blue channel the lamp does not emit takes the

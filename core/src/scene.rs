@@ -55,6 +55,12 @@ pub struct MaterialInfo {
     #[serde(default = "unit_strength")]
     pub emissive_strength: f32,
     pub double_sided: bool,
+    /// For an emissive material: the glTF node whose mesh uses this entry (`node #i` when the
+    /// node has no name). The importer gives each (emissive material, node) pair an entry of
+    /// its own, so a session can change one lamp of many sharing a material; `None` for every
+    /// other material, which is one entry however many nodes use it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub node: Option<String>,
 }
 
 fn unit_strength() -> f32 {

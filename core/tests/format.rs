@@ -400,7 +400,7 @@ fn layout_on_disk_matches_the_documentation() {
     let baked = sample(3, true);
     let b = baked.to_bytes().unwrap();
     assert_eq!(&b[..8], b"BOUNCE\0B");
-    assert_eq!(get_u32(&b, 8), 9);
+    assert_eq!(get_u32(&b, 8), 10);
     assert_eq!(get_u32(&b, 12), 5);
     assert_eq!(get_u64(&b, 16), b.len() as u64);
     let kinds: Vec<&[u8]> = (0..5).map(|i| &b[entry_at(i)..entry_at(i) + 4]).collect();
@@ -647,23 +647,23 @@ fn bad_magic() {
 #[test]
 fn future_version() {
     let mut b = sample_bytes();
-    put_u32(&mut b, 8, 10);
+    put_u32(&mut b, 8, 11);
     reseal(&mut b);
     let err = refuse(&b);
     assert!(
         matches!(
             err,
             FormatError::UnsupportedVersion {
-                found: 10,
+                found: 11,
                 oldest: 1,
-                supported: 9
+                supported: 10
             }
         ),
         "{err:?}"
     );
     assert_eq!(
         err.to_string(),
-        "unsupported format version 10 (this build reads versions 1 to 9); bake the scene again \
+        "unsupported format version 11 (this build reads versions 1 to 10); bake the scene again \
          with this bounce"
     );
 }
@@ -951,6 +951,7 @@ fn emitters_round_trip_and_are_checked() {
     b.emitters = Some(Emitters {
         groups: vec![EmitterGroup {
             name: "Lamp".into(),
+            node: Some("Desk".into()),
             color: [1.0, 0.5, 0.25],
             strength: 8.0,
         }],
@@ -982,6 +983,12 @@ fn emitters_round_trip_and_are_checked() {
             .to_string()
             .contains("a version-5 file cannot hold emitters")
     );
+    // Node names (flag bit 0) in a version-9 file, which cannot hold them.
+    assert_eq!(get_u32(&bytes, o + 12), 1, "the groups carry their nodes");
+    let mut nine = bytes.clone();
+    put_u32(&mut nine, 8, 9);
+    reseal(&mut nine);
+    assert!(matches!(refuse(&nine), FormatError::Reserved { .. }));
     // The writer refuses weights over other rows, as the reader would.
     let mut wrong = b.clone();
     wrong.emitters.as_mut().unwrap().row_ptr.push(1);

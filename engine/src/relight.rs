@@ -616,9 +616,9 @@ impl Scene {
         self.sky.is_some()
     }
 
-    /// The emissive materials a light set may change, by name; `None` for a file that lists
+    /// The emitters a light set may change, by material and node; `None` for a file that lists
     /// none (a voxel-face bake, or one from before format version 6).
-    pub fn emitter_names(&self) -> Option<Vec<String>> {
+    pub fn emitter_names(&self) -> Option<Vec<bounce_core::emitter::EmitterName>> {
         self.emitters.as_ref().map(Emitters::names)
     }
 

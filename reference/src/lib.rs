@@ -44,9 +44,9 @@ pub enum ReferenceError {
     BadPoint { index: usize, reason: String },
     #[error("--spp must be at least 2 (a standard error needs two samples)")]
     TooFewSamples,
-    /// An emissive change names no emissive material of the scene.
-    #[error("lights[{index}].material: the scene has no emissive material '{material}'")]
-    UnknownEmitter { index: usize, material: String },
+    /// An emissive change reaches no emissive surface of the scene.
+    #[error("lights[{index}]: the scene has no {what}")]
+    UnknownEmitter { index: usize, what: String },
 }
 
 /// Where to estimate: a point on a surface and the side it faces.
@@ -336,20 +336,15 @@ impl Reference {
     fn illumination(&self, lights: &LightSet) -> Result<Illumination, ReferenceError> {
         let mut out = Illumination::new(lights);
         let mut changed: Vec<Option<Vec3>> = vec![None; self.materials.len()];
-        for (index, light) in lights.lights.iter().enumerate() {
-            let bounce_core::light::Light::Emissive {
-                material,
-                color,
-                strength,
-                ..
-            } = light
-            else {
-                continue;
-            };
+        let indices = lights.lights.iter().enumerate().filter_map(|(i, l)| {
+            matches!(l, bounce_core::light::Light::Emissive { .. }).then_some(i)
+        });
+        for (index, change) in indices.zip(lights.emissive()) {
+            let (color, strength) = (change.color, change.strength);
             let mut found = false;
             for (m, info) in self.materials.iter().enumerate() {
                 let baked = Vec3::from(info.emission);
-                if info.name != *material || baked.max_element() <= 0.0 {
+                if !change.reaches(&info.name, info.node.as_deref()) || baked.max_element() <= 0.0 {
                     continue;
                 }
                 let s = if info.emissive_strength > 0.0 {
@@ -364,7 +359,7 @@ impl Reference {
             if !found {
                 return Err(ReferenceError::UnknownEmitter {
                     index,
-                    material: material.clone(),
+                    what: change.describe(),
                 });
             }
         }

@@ -148,8 +148,8 @@ impl Stage {
 
     /// The surfaces' emission as `lights`' emissive changes leave it
     /// (`bounce_core::emitter::apply_to_scene`), uploaded only when the changes differ from
-    /// those drawn: moving a light costs no vertex upload. A change naming no emissive material
-    /// of this scene is left out: the engine refuses such lights, and a viewer drawing a scene
+    /// those drawn: moving a light costs no vertex upload. A change reaching no emitter of this
+    /// scene is left out: the engine refuses such lights, and a viewer drawing a scene
     /// other than the one a server relights draws what it can rather than stop.
     fn set_emission(
         &mut self,
@@ -160,11 +160,16 @@ impl Stage {
         let changes: Vec<bounce_core::light::Light> = lights
             .lights
             .iter()
-            .filter(|l| match l {
-                bounce_core::light::Light::Emissive { material, .. } => materials
-                    .iter()
-                    .any(|m| m.name == *material && m.emission.iter().any(|&c| c > 0.0)),
-                _ => false,
+            .filter(|l| {
+                let one = LightSet {
+                    lights: vec![(*l).clone()],
+                };
+                one.emissive().next().is_some_and(|change| {
+                    materials.iter().any(|m| {
+                        change.reaches(&m.name, m.node.as_deref())
+                            && m.emission.iter().any(|&c| c > 0.0)
+                    })
+                })
             })
             .cloned()
             .collect();

@@ -27,9 +27,9 @@ pub struct SceneInfo {
     /// Whether the file has each row's view of the sky, without which a session's sky adds
     /// nothing (a file from before format version 5).
     pub sky_view: bool,
-    /// The emissive materials a light set may change, by name; `None` for a file baked before
-    /// emitters were kept (format version 6) or a voxel-face bake.
-    pub emitters: Option<Vec<String>>,
+    /// The emitters a light set may change, by material and node; `None` for a file baked
+    /// before emitters were kept (format version 6) or a voxel-face bake.
+    pub emitters: Option<Vec<bounce_core::emitter::EmitterName>>,
     /// Where the scene's irradiance probes are; empty for a file baked without them.
     pub probes: Vec<[f32; 3]>,
 }

@@ -660,27 +660,42 @@ fn solve_scene(
     }
 }
 
-/// `set` without the emissive changes that name no emissive material of the scene, each left
-/// out with a warning. Lights are checked against the scene when they are set, so this only
-/// happens to a session whose scene file was replaced by one without that material: it keeps
-/// being solved with its other lights rather than failing every batch it shares with others.
-fn usable_lights(scene: &str, emitters: Option<&[String]>, mut set: LightSet) -> LightSet {
-    set.lights.retain(|l| match l {
-        bounce_core::light::Light::Emissive { material, .. } => {
-            let known = emitters.is_some_and(|names| names.contains(material));
+/// `set` without the emissive changes that reach no emitter of the scene, each left out with a
+/// warning. Lights are checked against the scene when they are set, so this only happens to a
+/// session whose scene file was replaced by one without that emitter: it keeps being solved
+/// with its other lights rather than failing every batch it shares with others.
+fn usable_lights(
+    scene: &str,
+    emitters: Option<&[bounce_core::emitter::EmitterName]>,
+    set: LightSet,
+) -> LightSet {
+    let lights = set
+        .lights
+        .into_iter()
+        .filter(|l| {
+            let one = LightSet {
+                lights: vec![l.clone()],
+            };
+            let Some(change) = one.emissive().next() else {
+                return true;
+            };
+            let known = emitters.is_some_and(|names| {
+                names
+                    .iter()
+                    .any(|n| change.reaches(&n.material, n.node.as_deref()))
+            });
             if !known {
                 warn!(
                     scene,
-                    material = material.as_str(),
-                    "an emissive change names no emissive material of the scene as it is now \
-                     (the file was replaced?): left out"
+                    emitter = change.describe(),
+                    "an emissive change reaches no emitter of the scene as it is now (the file \
+                     was replaced?): left out"
                 );
             }
             known
-        }
-        _ => true,
-    });
-    set
+        })
+        .collect();
+    LightSet { lights }
 }
 
 /// A patch frame, with its probe frame beside it when the scene has probes.
@@ -738,17 +753,39 @@ mod tests {
                            {"type": "emissive", "material": "Screen", "strength": 2}]}"#,
         )
         .unwrap();
-        let names = vec!["Screen".to_string()];
+        let names = vec![bounce_core::emitter::EmitterName {
+            material: "Screen".to_string(),
+            node: Some("Tv".to_string()),
+        }];
         let kept = usable_lights("s", Some(&names), set.clone());
         assert_eq!(kept.lights.len(), 2);
         assert!(
-            matches!(&kept.lights[1], Light::Emissive { material, .. } if material == "Screen")
+            matches!(&kept.lights[1], Light::Emissive { material: Some(m), .. } if m == "Screen")
         );
         assert!(kept.validate().is_ok());
         // A file that lists no emitters keeps only the punctual light.
         assert_eq!(usable_lights("s", None, set.clone()).lights.len(), 1);
         // A set the scene takes whole is untouched.
-        let names = vec!["Lamp".to_string(), "Screen".to_string()];
+        let names: Vec<_> = ["Lamp", "Screen"]
+            .map(|m| bounce_core::emitter::EmitterName {
+                material: m.to_string(),
+                node: None,
+            })
+            .to_vec();
         assert_eq!(usable_lights("s", Some(&names), set.clone()), set);
+        // By node: kept where a node of that name places an emitter.
+        let by_node = LightSet::from_json(
+            r#"{"lights": [{"type": "emissive", "node": "Tv", "strength": 0},
+                           {"type": "emissive", "node": "Desk", "strength": 0}]}"#,
+        )
+        .unwrap();
+        let names = vec![bounce_core::emitter::EmitterName {
+            material: "Screen".to_string(),
+            node: Some("Tv".to_string()),
+        }];
+        assert_eq!(
+            usable_lights("s", Some(&names), by_node.clone()).lights,
+            by_node.lights[..1]
+        );
     }
 }

@@ -10,7 +10,8 @@
 //! It also holds the fixtures more than one crate's tests use: the scenes in `assets/`
 //! ([`cornell_gltf`]), and behind features the Cornell box as the server and client tests bake
 //! it ([`fixtures::baked_cornell_box`], feature `bake`) and one GPU adapter a test binary
-//! ([`fixtures::gpu_context`], feature `gpu`).
+//! ([`fixtures::gpu_context`], feature `gpu`), and scenes written from the assets for one test's
+//! need ([`scenes`], feature `scenes`).
 
 use std::fmt::Display;
 use std::path::{Path, PathBuf};
@@ -18,6 +19,8 @@ use std::process::Command;
 
 #[cfg(any(feature = "bake", feature = "gpu"))]
 pub mod fixtures;
+#[cfg(feature = "scenes")]
+pub mod scenes;
 
 /// The repository's `assets/` directory: the test scenes and their licences.
 pub fn assets() -> PathBuf {

@@ -12,13 +12,16 @@
 //! ([`crate::sh`], world axes). A set holds at most one sky.
 //!
 //! An **emissive** entry changes, for this light set only, the emission of the scene's emissive
-//! surfaces made of one glTF material, named as the file names it:
-//! `{"type": "emissive", "material": "Lamp", "color": [1, 0.2, 0.2], "strength": 40}`. Its
-//! emission becomes `color × strength` (glTF's `emissiveFactor` × `KHR_materials_emissive_strength`);
-//! either may be left out to keep the file's value, so `{"strength": 0}` switches a lamp off and
-//! keeps its colour for later. Whether the scene has such a material is the scene's business
-//! (a baked file lists its emitters): this module checks the values alone. A set changes a
-//! material at most once.
+//! surfaces made of one glTF material, or placed by one glTF node, named as the file names them:
+//! `{"type": "emissive", "material": "Lamp", "color": [1, 0.2, 0.2], "strength": 40}`, or
+//! `{"type": "emissive", "node": "DeskLamp", "strength": 0}` for one lamp of many that share a
+//! material (both names: that material on that node). Its emission becomes `color × strength`
+//! (glTF's `emissiveFactor` × `KHR_materials_emissive_strength`); either may be left out to keep
+//! the file's value, so `{"strength": 0}` switches a lamp off and keeps its colour for later.
+//! Whether the scene has such an emitter is the scene's business (a baked file lists its
+//! emitters): this module checks the values alone. A set names a (material, node) pair at most
+//! once; where two of its changes reach one surface (a material, and a node made of it), the
+//! later change wins.
 //!
 //! This module owns the types, their JSON form and their validation ([`LightSet::from_json`],
 //! [`LightSet::validate`]): whatever reaches a light engine has passed these checks. What a light
@@ -93,7 +96,12 @@ pub enum Light {
     /// both): their emission becomes `color × strength`, each defaulting to the file's.
     Emissive {
         /// The glTF material's name, as the baked file lists it among its emitters.
-        material: String,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        material: Option<String>,
+        /// The glTF node's name (`node #i` for an unnamed one), as the baked file lists it
+        /// among its emitters' nodes.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        node: Option<String>,
         /// Linear RGB, as glTF's `emissiveFactor`.
         #[serde(default, skip_serializing_if = "Option::is_none")]
         color: Option<[f32; 3]>,
@@ -220,14 +228,20 @@ impl LightSet {
             light.validate().map_err(|(field, reason)| {
                 LightError::invalid(format!("lights[{i}].{field}"), reason)
             })?;
-            if let Light::Emissive { material, .. } = light
-                && let Some(first) = self.lights[..i]
-                    .iter()
-                    .position(|l| matches!(l, Light::Emissive { material: m, .. } if m == material))
+            if let Light::Emissive { material, node, .. } = light
+                && let Some(first) = self.lights[..i].iter().position(|l| {
+                    matches!(l, Light::Emissive { material: m, node: n, .. } if m == material && n == node)
+                })
             {
+                let (field, what) = match (material, node) {
+                    (Some(m), None) => ("material", format!("'{m}'")),
+                    (None, Some(n)) => ("node", format!("node '{n}'")),
+                    (Some(m), Some(n)) => ("node", format!("'{m}' on node '{n}'")),
+                    (None, None) => ("material", "nothing".to_string()),
+                };
                 return Err(LightError::invalid(
-                    format!("lights[{i}].material"),
-                    format!("'{material}' is already changed by lights[{first}]"),
+                    format!("lights[{i}].{field}"),
+                    format!("{what} is already changed by lights[{first}]"),
                 ));
             }
             if matches!(light, Light::Sky { .. }) {
@@ -243,16 +257,21 @@ impl LightSet {
         Ok(())
     }
 
-    /// The set's changes to emissive materials: (material name, new colour, new strength), each
-    /// `None` where the file's value stays.
-    pub fn emissive(&self) -> impl Iterator<Item = (&str, Option<[f32; 3]>, Option<f32>)> {
+    /// The set's changes to emissive surfaces, in order.
+    pub fn emissive(&self) -> impl Iterator<Item = EmissiveChange<'_>> {
         self.lights.iter().filter_map(|l| match l {
             Light::Emissive {
                 material,
+                node,
                 color,
                 strength,
                 ..
-            } => Some((material.as_str(), *color, *strength)),
+            } => Some(EmissiveChange {
+                material: material.as_deref(),
+                node: node.as_deref(),
+                color: *color,
+                strength: *strength,
+            }),
             _ => None,
         })
     }
@@ -260,6 +279,44 @@ impl LightSet {
     /// The set's sky as radiance coefficients ([`Light::sky_sh`]), if it has one.
     pub fn sky_sh(&self) -> Option<[[f32; 3]; SH_COEFFICIENTS]> {
         self.lights.iter().find_map(Light::sky_sh)
+    }
+}
+
+/// One emissive change of a light set: which emitters it names (a material, a node, or that
+/// material on that node) and its new colour and strength, each `None` where the file's value
+/// stays.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EmissiveChange<'a> {
+    pub material: Option<&'a str>,
+    pub node: Option<&'a str>,
+    pub color: Option<[f32; 3]>,
+    pub strength: Option<f32>,
+}
+
+impl EmissiveChange<'_> {
+    /// Whether the change reaches an emitter of material `material` placed by node `node`
+    /// (`None`: a file that does not know its emitters' nodes, which no change by node reaches).
+    pub fn reaches(&self, material: &str, node: Option<&str>) -> bool {
+        self.material.is_none_or(|m| m == material) && self.node.is_none_or(|n| node == Some(n))
+    }
+
+    /// What the change names, for messages: `material 'Lamp'`, `node 'Desk'`, or both.
+    pub fn describe(&self) -> String {
+        match (self.material, self.node) {
+            (Some(m), None) => format!("emissive material '{m}'"),
+            (None, Some(n)) => format!("emissive node '{n}'"),
+            (Some(m), Some(n)) => format!("emissive material '{m}' on node '{n}'"),
+            (None, None) => "no emitter".to_string(),
+        }
+    }
+
+    /// The field an error about what it names points at: `node` when it names one.
+    pub fn field(&self) -> &'static str {
+        if self.node.is_some() {
+            "node"
+        } else {
+            "material"
+        }
     }
 }
 
@@ -343,10 +400,16 @@ impl Light {
             Light::Sky { color, sh, .. } => check_sky(color.as_ref(), sh.as_deref()),
             Light::Emissive {
                 material,
+                node,
                 color,
                 strength,
                 ..
-            } => check_emissive(material, color.as_ref(), *strength),
+            } => check_emissive(
+                material.as_deref(),
+                node.as_deref(),
+                color.as_ref(),
+                *strength,
+            ),
         }
     }
 }
@@ -398,24 +461,34 @@ fn check_sky(color: Option<&[f32; 3]>, sh: Option<&[[f32; 3]]>) -> Result<(), Fi
 
 /// An emissive change names a material and changes something about it.
 fn check_emissive(
-    material: &str,
+    material: Option<&str>,
+    node: Option<&str>,
     color: Option<&[f32; 3]>,
     strength: Option<f32>,
 ) -> Result<(), FieldError> {
-    if material.is_empty() {
+    if material.is_none() && node.is_none() {
         return Err((
             "material",
-            "must name the emissive material to change".into(),
+            "missing: an emissive change names the material or the node (or both) to change".into(),
         ));
     }
-    if material.len() > MAX_NAME_BYTES {
-        return Err((
-            "material",
-            format!(
-                "{} bytes, more than the {MAX_NAME_BYTES} a name may hold",
-                material.len()
-            ),
-        ));
+    for (field, name, what) in [
+        ("material", material, "the emissive material"),
+        ("node", node, "the node"),
+    ] {
+        match name {
+            Some("") => return Err((field, format!("must name {what} to change"))),
+            Some(n) if n.len() > MAX_NAME_BYTES => {
+                return Err((
+                    field,
+                    format!(
+                        "{} bytes, more than the {MAX_NAME_BYTES} a name may hold",
+                        n.len()
+                    ),
+                ));
+            }
+            _ => {}
+        }
     }
     if color.is_none() && strength.is_none() {
         return Err((
@@ -857,12 +930,15 @@ mod tests {
                            {"type":"emissive","material":"Screen","color":[1,0.2,0.2]}]}"#,
         )
         .unwrap();
-        let changes: Vec<_> = set.emissive().collect();
+        let changes: Vec<_> = set
+            .emissive()
+            .map(|c| (c.material, c.node, c.color, c.strength))
+            .collect();
         assert_eq!(
             changes,
             vec![
-                ("Lamp", None, Some(0.0)),
-                ("Screen", Some([1.0, 0.2, 0.2]), None)
+                (Some("Lamp"), None, None, Some(0.0)),
+                (Some("Screen"), None, Some([1.0, 0.2, 0.2]), None)
             ]
         );
         assert_refused(
@@ -888,7 +964,12 @@ mod tests {
         assert_refused(
             0,
             r#"{"type":"emissive","strength":1}"#,
-            "lights[0]: missing field `material`",
+            "lights[0].material: missing: an emissive change names the material or the node",
+        );
+        assert_refused(
+            0,
+            r#"{"type":"emissive","node":"","strength":1}"#,
+            "lights[0].node: must name the node",
         );
         assert_refused(
             0,
@@ -910,6 +991,39 @@ mod tests {
             e.to_string(),
             "lights[1].material: 'Lamp' is already changed by lights[0]"
         );
+        let e = LightSet::from_json(
+            r#"{"lights": [{"type":"emissive","node":"Desk","strength":1},
+                           {"type":"emissive","node":"Desk","color":[1,0,0]}]}"#,
+        )
+        .unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "lights[1].node: node 'Desk' is already changed by lights[0]"
+        );
+    }
+
+    #[test]
+    fn emissive_changes_by_node_reach_what_they_name() {
+        // A material, a node, and that material on that node: each a change of its own.
+        let set = LightSet::from_json(
+            r#"{"lights": [{"type":"emissive","material":"Shade","strength":2},
+                           {"type":"emissive","node":"Desk","strength":0},
+                           {"type":"emissive","material":"Shade","node":"Hall","color":[1,0,0]}]}"#,
+        )
+        .unwrap();
+        let c: Vec<EmissiveChange<'_>> = set.emissive().collect();
+        assert!(c[0].reaches("Shade", Some("Desk")) && c[0].reaches("Shade", None));
+        assert!(!c[0].reaches("Bulb", Some("Desk")));
+        assert!(c[1].reaches("Bulb", Some("Desk")) && c[1].reaches("Shade", Some("Desk")));
+        assert!(!c[1].reaches("Shade", Some("Hall")));
+        // A file that does not know its emitters' nodes: no change by node reaches them.
+        assert!(!c[1].reaches("Shade", None));
+        assert!(c[2].reaches("Shade", Some("Hall")) && !c[2].reaches("Bulb", Some("Hall")));
+        assert_eq!(c[2].describe(), "emissive material 'Shade' on node 'Hall'");
+        assert_eq!((c[0].field(), c[1].field()), ("material", "node"));
+        // Written back as read: no `node` where none was given.
+        let json = serde_json::to_string(&set.lights[0]).unwrap();
+        assert!(!json.contains("node"), "{json}");
     }
 
     #[test]

@@ -46,6 +46,7 @@ fn light(l: &proto::Light) -> Result<Light, FieldError> {
     if matches!(l.r#type.as_str(), "point" | "directional" | "spot") {
         unused(l.sh.is_empty(), "sh", &l.r#type)?;
         unused(l.material.is_none(), "material", &l.r#type)?;
+        unused(l.node.is_none(), "node", &l.r#type)?;
         unused(l.strength.is_none(), "strength", &l.r#type)?;
     }
     let intensity = l.intensity.ok_or(("intensity", "missing".to_string()))?;
@@ -122,12 +123,13 @@ fn sky(l: &proto::Light, name: Option<String>) -> Result<Light, FieldError> {
         }
     };
     unused(l.material.is_none(), "material", "sky")?;
+    unused(l.node.is_none(), "node", "sky")?;
     unused(l.strength.is_none(), "strength", "sky")?;
     Ok(Light::Sky { color, sh, name })
 }
 
-/// A change to an emissive material: its name, and a colour, a strength or both (which is
-/// [`LightSet::validate`]'s check).
+/// A change to emissive surfaces: a material's name, a node's or both, and a colour, a
+/// strength or both (which is [`LightSet::validate`]'s check).
 fn emissive(l: &proto::Light, name: Option<String>) -> Result<Light, FieldError> {
     unused(l.position.is_empty(), "position", "emissive")?;
     unused(l.direction.is_empty(), "direction", "emissive")?;
@@ -135,16 +137,14 @@ fn emissive(l: &proto::Light, name: Option<String>) -> Result<Light, FieldError>
     unused(l.range.is_none(), "range", "emissive")?;
     unused(l.sh.is_empty(), "sh", "emissive")?;
     no_cones(l, "emissive")?;
-    let material = l
-        .material
-        .clone()
-        .ok_or(("material", "missing".to_string()))?;
     let color = match l.color.as_slice() {
         [] => None,
         c => Some(vec3("color", c)?),
     };
+    // That at least one name is given is `Light::validate`'s check, as it is for JSON.
     Ok(Light::Emissive {
-        material,
+        material: l.material.clone(),
+        node: l.node.clone(),
         color,
         strength: l.strength,
         name,
@@ -244,12 +244,14 @@ fn light_to_proto(l: &Light) -> proto::Light {
         },
         Light::Emissive {
             material,
+            node,
             color,
             strength,
             name,
         } => proto::Light {
             r#type: "emissive".into(),
-            material: Some(material.clone()),
+            material: material.clone(),
+            node: node.clone(),
             color: color.map(|c| c.to_vec()).unwrap_or_default(),
             strength: *strength,
             name: name.clone(),
@@ -390,10 +392,24 @@ mod tests {
         .unwrap();
         assert_eq!(got, want);
         assert_eq!(light_set(&to_proto(&got)).unwrap(), got);
-        assert_eq!(
-            refused(emissive(None, vec![], Some(1.0))),
-            "lights[1].material: missing"
+        assert!(
+            refused(emissive(None, vec![], Some(1.0)))
+                .starts_with("lights[1].material: missing: an emissive change names")
         );
+        // By node: as its JSON, and back.
+        let mut by_node = emissive(None, vec![], Some(0.0));
+        by_node.node = Some("Desk".into());
+        let got = light_set(&[point(), by_node]).unwrap();
+        let want = LightSet::from_json(
+            r#"{"lights": [{"type": "point", "position": [0, 1.5, 0], "intensity": 10},
+                {"type": "emissive", "node": "Desk", "strength": 0}]}"#,
+        )
+        .unwrap();
+        assert_eq!(got, want);
+        assert_eq!(light_set(&to_proto(&got)).unwrap(), got);
+        let mut l = point();
+        l.node = Some("Desk".into());
+        assert_eq!(refused(l), "lights[1].node: not used by a point light");
         assert!(
             refused(emissive(Some("Lamp"), vec![], None))
                 .starts_with("lights[1].color: missing: an emissive change needs")

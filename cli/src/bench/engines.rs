@@ -657,8 +657,7 @@ fn light_variants(baked: &Baked, sets: &[LightSet]) -> Vec<(&'static str, Vec<Li
         out.push((" + sky", with(&[sky])));
     }
     if let Some(e) = baked.emitters.as_ref().filter(|e| !e.groups.is_empty()) {
-        let changes: Vec<Light> = e
-            .names()
+        let changes: Vec<Light> = bounce_core::emitter::materials_of(&e.names())
             .into_iter()
             .map(|material| {
                 let strength = e
@@ -667,7 +666,8 @@ fn light_variants(baked: &Baked, sets: &[LightSet]) -> Vec<(&'static str, Vec<Li
                     .find(|g| g.name == material)
                     .map_or(1.0, |g| g.strength);
                 Light::Emissive {
-                    material,
+                    material: Some(material),
+                    node: None,
                     color: None,
                     strength: Some(0.5 * strength),
                     name: None,

@@ -68,11 +68,17 @@ pub fn describe(light: &Light) -> String {
         Light::Sky { .. } => "sky (SH environment)".to_string(),
         Light::Emissive {
             material,
+            node,
             color,
             strength,
             ..
         } => {
-            let mut out = format!("emissive '{material}'");
+            let mut out = match (material, node) {
+                (Some(m), Some(n)) => format!("emissive '{m}' on node '{n}'"),
+                (Some(m), None) => format!("emissive '{m}'"),
+                (None, Some(n)) => format!("emissive node '{n}'"),
+                (None, None) => "emissive".to_string(),
+            };
             if let Some(c) = color {
                 out += &format!(" colour {}", v(c));
             }

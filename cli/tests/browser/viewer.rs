@@ -390,6 +390,65 @@ async fn a_scene_without_normals_facing_away_is_drawn_as_bounce_render_draws_it(
     assert_draws_as_native(&browser, &serve, &gltf, sun).await;
 }
 
+/// Two lamps sharing a material (`bounce_testkit::scenes::two_lamps`), one switched off by its
+/// node: the page darkens that lamp alone (its material per node), and draws what `bounce
+/// render` draws, the room lit by the other lamp through the session's indirect light.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_emissive_change_by_node_darkens_one_lamp_in_both_viewers() {
+    let Some(browser) = crate::browser().await else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let gltf = bounce_testkit::scenes::two_lamps(&dir.path().join("model"));
+    let scenes = dir.path().join("scenes");
+    std::fs::create_dir_all(&scenes).unwrap();
+    crate::fixture::bake_small(&gltf, &scenes.join("box.bounce"));
+    let serve = Serve::start(ServeOptions {
+        dir: Some(dir),
+        ..ServeOptions::default()
+    });
+    let lights = json!([{"type": "emissive", "node": "Lamp 2", "strength": 0}]);
+    let session = serve.create_session(lights.clone(), None).await;
+    // From the open side, below both lamps.
+    let camera = "-278,274,1100,-278,300,-280,45".to_string();
+    let page = browser.new_page(W, H).await.expect("a page");
+    page.goto(&serve.page_url(&session, &picture_params_from(&camera)))
+        .await
+        .expect("the page loads");
+    wait_drawn(&page).await;
+    let mut drawn = page
+        .eval("window.bounce.emissive")
+        .await
+        .expect("the emissive materials");
+    let drawn = drawn.as_array_mut().expect("a list");
+    drawn.sort_by_key(|e| e["node"].as_str().unwrap_or_default().to_string());
+    assert_eq!(drawn.len(), 2, "one material per lamp: {drawn:?}");
+    assert_eq!(drawn[0]["node"], "Lamp 2");
+    assert!(
+        drawn[0]["emissive"]
+            .as_array()
+            .is_some_and(|c| c.iter().all(|v| v.as_f64() == Some(0.0))),
+        "switched off: {drawn:?}"
+    );
+    assert_eq!(drawn[1]["node"], "Light");
+    assert!(
+        drawn[1]["emissive"][0].as_f64().is_some_and(|v| v > 1.0),
+        "the other lamp glows as the file says: {drawn:?}"
+    );
+    let picture = Picture {
+        camera,
+        width: W,
+        height: H,
+    };
+    let (mean, large) = difference_from_native(&browser, &serve, &gltf, &session, &picture).await;
+    assert!(
+        mean <= 4.0 && large <= 0.03,
+        "two lamps, one off by node: browser against native: mean difference {mean:.2}/255, \
+         {:.2}% of pixels off by more than 32",
+        large * 100.0
+    );
+}
+
 /// A session of `serve` with `lights`, drawn by the page and by `bounce render --server` (its
 /// indirect light from the same session's frame) from the test camera: the same picture, up to
 /// a small mean difference and a few pixels on edges.

@@ -344,7 +344,12 @@ impl Baked {
                     c.header.format_version
                 )));
             }
-            Some(e) => Some(decode_emitters(SectionKind::EMIT, c.section(e)?, n)?),
+            Some(e) => Some(decode_emitters(
+                SectionKind::EMIT,
+                c.section(e)?,
+                n,
+                c.header.format_version >= 10,
+            )?),
         };
         let probes = match c.entry(SectionKind::PROB) {
             None => None,

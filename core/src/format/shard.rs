@@ -401,7 +401,9 @@ fn header_from(c: &Container<'_>) -> Result<ShardHeader, FormatError> {
         }
     };
     let emitters = match (c.entry(SEMT), meta.settings.geometry) {
-        (Some(e), Geometry::Surface) => Some(decode_emitters(SEMT, c.section(e)?, rows.len())?),
+        (Some(e), Geometry::Surface) => {
+            Some(decode_emitters(SEMT, c.section(e)?, rows.len(), true)?)
+        }
         (Some(_), Geometry::VoxelFaces) => {
             return Err(bad("a voxel-face bake's shard holds emitters"));
         }

@@ -38,6 +38,9 @@ pub(super) struct Materials {
     entries: Vec<Entry>,
     /// Index of the glTF default material, appended on first use.
     default: Option<usize>,
+    /// The entry of each (emissive material, node) pair after the material's first node, which
+    /// takes the material's own entry.
+    by_node: std::collections::HashMap<(usize, String), usize>,
     images: Vec<ImageSlot>,
 }
 
@@ -80,6 +83,7 @@ impl Materials {
                 emission: emission.into(),
                 emissive_strength: strength,
                 double_sided: m.double_sided(),
+                node: None,
             });
             entries.push(Entry {
                 albedo: Vec3::new(r, g, b),
@@ -93,6 +97,7 @@ impl Materials {
             infos,
             entries,
             default: None,
+            by_node: std::collections::HashMap::new(),
             images: (0..document.images().len())
                 .map(|_| ImageSlot::NotLoaded)
                 .collect(),
@@ -115,6 +120,7 @@ impl Materials {
                 emission: [0.0; 3],
                 emissive_strength: 1.0,
                 double_sided: false,
+                node: None,
             });
             self.entries.push(Entry {
                 albedo: Vec3::ONE,
@@ -125,6 +131,36 @@ impl Materials {
             });
             self.entries.len() - 1
         })
+    }
+
+    /// The entry of material `index` as placed by node `node`: the material's own for a
+    /// material that emits nothing; for an emissive one, an entry of this node's own (the
+    /// material's first node takes the material's entry, later nodes a copy each), so emitters
+    /// can be told apart by node ([`crate::emitter`]).
+    pub(super) fn for_node(&mut self, index: usize, node: &str) -> usize {
+        let info = &self.infos[index];
+        if info.emission.iter().all(|&c| c <= 0.0) {
+            return index;
+        }
+        match &info.node {
+            None => {
+                self.infos[index].node = Some(node.to_string());
+                index
+            }
+            Some(first) if first == node => index,
+            Some(_) => {
+                if let Some(&i) = self.by_node.get(&(index, node.to_string())) {
+                    return i;
+                }
+                let mut copy = self.infos[index].clone();
+                copy.node = Some(node.to_string());
+                self.infos.push(copy);
+                self.entries.push(self.entries[index]);
+                let i = self.entries.len() - 1;
+                self.by_node.insert((index, node.to_string()), i);
+                i
+            }
+        }
     }
 
     pub(super) fn entry(&self, index: usize) -> Entry {

@@ -31,10 +31,11 @@ impl From<&str> for Problem {
 }
 
 impl Importer<'_> {
-    /// Adds the triangles of one instance of `mesh` placed by `world`.
+    /// Adds the triangles of one instance of `mesh` placed by `world`, by the node named `node`.
     pub(super) fn mesh_instance(
         &mut self,
         mesh: &gltf::Mesh<'_>,
+        node: &str,
         world: Mat4,
     ) -> Result<(), ImportError> {
         // Report lines and counts once per mesh, however often it is instanced.
@@ -48,7 +49,7 @@ impl Importer<'_> {
                 self.scene.report.primitives += 1;
             }
             let mut warnings = Vec::new();
-            let result = self.primitive(&label, &primitive, world, &mut warnings);
+            let result = self.primitive(&label, &primitive, node, world, &mut warnings);
             if first {
                 let prefix = format!("{label} primitive {}", primitive.index());
                 self.scene
@@ -73,6 +74,7 @@ impl Importer<'_> {
         &mut self,
         mesh_label: &str,
         primitive: &gltf::Primitive<'_>,
+        node: &str,
         world: Mat4,
         warnings: &mut Vec<String>,
     ) -> Result<(), Problem> {
@@ -134,6 +136,7 @@ impl Importer<'_> {
         }
 
         let material = self.materials.index_for(primitive);
+        let material = self.materials.for_node(material, node);
         let entry = self.materials.entry(material);
         let colors = self.colors(primitive, n, warnings);
         let base = self.texture_input(primitive, entry.base, n, "base-colour", warnings);

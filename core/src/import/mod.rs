@@ -398,7 +398,10 @@ impl Importer<'_> {
                         .warnings
                         .push("skinned meshes were imported in their bind pose".into());
                 }
-                self.mesh_instance(&mesh, world)?;
+                let name = node
+                    .name()
+                    .map_or_else(|| format!("node #{}", node.index()), str::to_owned);
+                self.mesh_instance(&mesh, &name, world)?;
             }
             self.place_light(node, world);
             for child in node.children().collect::<Vec<_>>().into_iter().rev() {

@@ -5,7 +5,7 @@
 use std::path::{Path, PathBuf};
 
 use bounce_core::bake::{BakeOptions, NoProgress, bake_scene, simplify};
-use bounce_core::emitter::{Emitters, apply_to_scene, check_names};
+use bounce_core::emitter::{Emitters, apply_to_scene, check_names, materials_of, nodes_of};
 use bounce_core::format::Baked;
 use bounce_core::import::import_path;
 use bounce_core::light::LightSet;
@@ -43,7 +43,7 @@ fn weights_give_back_each_rows_baked_emission() {
     let rows = vox.transport_layout();
     let e = Emitters::of_pieces(&scene, pieces);
     e.check(rows.len()).unwrap();
-    assert_eq!(e.names(), vec![LAMP.to_string()]);
+    assert_eq!(materials_of(&e.names()), vec![LAMP.to_string()]);
     assert_eq!(e.groups[0].color, [1.0; 3]);
     assert_eq!(e.groups[0].strength, 100.0);
     let covered = (0..rows.len()).filter(|&r| !e.row(r).is_empty()).count();
@@ -103,7 +103,8 @@ fn weights_give_back_each_rows_baked_emission() {
     assert_eq!(
         err,
         format!(
-            "lights[1].material: the scene has no emissive material 'Lamp' (its emitters: {LAMP})"
+            "lights[1].material: the scene has no emissive material 'Lamp' (its emissive \
+             materials: {LAMP}; on nodes: Light)"
         )
     );
     assert_eq!(
@@ -143,7 +144,7 @@ fn a_baked_file_keeps_its_emitters_and_a_bake_without_emission_has_none() {
         .emitters
         .as_ref()
         .expect("a surface bake lists its emitters");
-    assert_eq!(e.names(), vec![LAMP.to_string()]);
+    assert_eq!(materials_of(&e.names()), vec![LAMP.to_string()]);
     let back = Baked::from_bytes(&baked.to_bytes().unwrap()).unwrap();
     assert_eq!(back.emitters, baked.emitters);
 
@@ -160,4 +161,123 @@ fn a_baked_file_keeps_its_emitters_and_a_bake_without_emission_has_none() {
         .as_ref()
         .expect("an empty list, not a missing one");
     assert!(none.groups.is_empty() && none.entries.is_empty());
+}
+
+#[test]
+fn emitters_sharing_a_material_are_changed_apart_by_node() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = import_path(&bounce_testkit::scenes::two_lamps(dir.path())).unwrap();
+    // One material entry per (emissive material, node): the lamp's own for its first node.
+    let lamps: Vec<(usize, Option<&str>)> = scene
+        .materials
+        .iter()
+        .enumerate()
+        .filter(|(_, m)| m.name == LAMP)
+        .map(|(i, m)| (i, m.node.as_deref()))
+        .collect();
+    assert_eq!(lamps, vec![(0, Some("Light")), (5, Some("Lamp 2"))]);
+    assert!(
+        scene.materials[1..5].iter().all(|m| m.node.is_none()),
+        "materials that emit nothing are one entry whatever places them"
+    );
+
+    let baked = bake_scene(&scene, "two-lamps.glb", &options(), &NoProgress).unwrap();
+    let e = baked.emitters.as_ref().unwrap();
+    assert_eq!(materials_of(&e.names()), vec![LAMP.to_string()]);
+    let mut nodes = nodes_of(&e.names());
+    nodes.sort();
+    assert_eq!(nodes, vec!["Lamp 2", "Light"]);
+    let back = Baked::from_bytes(&baked.to_bytes().unwrap()).unwrap();
+    assert_eq!(back.emitters, baked.emitters, "the nodes survive the file");
+
+    let rows = baked.transport_layout();
+    let base: Vec<[f32; 3]> = rows.patches.iter().map(|p| p.emission).collect();
+    let emission = |json: &str| {
+        e.emission(base.iter().copied(), &set(json))
+            .unwrap()
+            .unwrap()
+    };
+    let off = |what: &str| {
+        emission(&format!(
+            r#"{{"lights":[{{"type":"emissive",{what},"strength":0}}]}}"#
+        ))
+    };
+    let first_off = off(r#""node":"Light""#);
+    let second_off = off(r#""node":"Lamp 2""#);
+    let both_off = off(&format!(r#""material":"{LAMP}""#));
+    let lit = |v: &[[f32; 3]]| v.iter().filter(|e| e[0] > 0.0).count();
+    let (all, first, second) = (lit(&base), lit(&first_off), lit(&second_off));
+    assert!(
+        first > 0 && second > 0 && first < all && second < all,
+        "each lamp covers rows of its own: {all} lit, {first} with the first off, {second} with \
+         the second off"
+    );
+    assert_eq!(lit(&both_off), 0, "the material reaches both lamps");
+    // Emission is linear in the groups: each lamp's own light adds up to the whole.
+    for r in 0..base.len() {
+        for c in 0..3 {
+            let sum = first_off[r][c] + second_off[r][c] - both_off[r][c];
+            assert!(
+                (sum - base[r][c]).abs() <= 1e-4 * base[r][c].max(1.0),
+                "row {r}: {sum} against {}",
+                base[r][c]
+            );
+        }
+    }
+    // The material on one node reaches what that node alone reaches.
+    assert_eq!(
+        off(&format!(r#""material":"{LAMP}","node":"Lamp 2""#)),
+        second_off
+    );
+    // A later change wins where two reach the same lamp.
+    let both = emission(&format!(
+        r#"{{"lights":[{{"type":"emissive","material":"{LAMP}","strength":0}},
+                       {{"type":"emissive","node":"Light","strength":100}}]}}"#
+    ));
+    assert_eq!(both, second_off);
+
+    // An unknown node is refused naming what the scene has.
+    let wrong = set(r#"{"lights":[{"type":"emissive","node":"Desk","strength":2}]}"#);
+    let err = e.resolve(&wrong).unwrap_err().to_string();
+    assert_eq!(
+        err,
+        format!(
+            "lights[0].node: the scene has no emissive node 'Desk' (its emissive materials: \
+             {LAMP}; on nodes: Lamp 2, Light)"
+        )
+    );
+    assert_eq!(
+        check_names(Some(&e.names()), &wrong)
+            .unwrap_err()
+            .to_string(),
+        err
+    );
+    // A file from before nodes: its groups have none, and a change by node says to bake again.
+    let mut old = e.clone();
+    for g in &mut old.groups {
+        g.node = None;
+    }
+    let err = old.resolve(&wrong).unwrap_err().to_string();
+    assert!(
+        err.contains("bake it again to change emitters by node"),
+        "{err}"
+    );
+
+    // The reference's scene: only the second lamp's triangles go dark.
+    let mut changed = scene.clone();
+    apply_to_scene(
+        &mut changed,
+        &set(r#"{"lights":[{"type":"emissive","node":"Lamp 2","strength":0}]}"#),
+    )
+    .unwrap();
+    let mut dark = 0;
+    for (a, b) in scene.triangles.iter().zip(&changed.triangles) {
+        if scene.materials[a.material as usize].node.as_deref() == Some("Lamp 2") {
+            assert_eq!(b.emission, Vec3::ZERO);
+            dark += 1;
+        } else {
+            assert_eq!(a.emission, b.emission);
+        }
+    }
+    assert!(dark > 0);
 }

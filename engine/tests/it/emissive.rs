@@ -41,7 +41,8 @@ fn baked() -> &'static Baked {
 fn lamp(color: Option<[f32; 3]>, strength: Option<f32>) -> LightSet {
     let set = LightSet {
         lights: vec![Light::Emissive {
-            material: LAMP.to_string(),
+            material: Some(LAMP.to_string()),
+            node: None,
             color,
             strength,
             name: None,
@@ -74,7 +75,12 @@ fn a_changed_lamp_matches_the_reference() {
     let baked = baked();
     let engine = Engine::new(EngineChoice::Cpu).unwrap();
     let scene = engine.load(baked).unwrap();
-    assert_eq!(scene.emitter_names(), Some(vec![LAMP.to_string()]));
+    assert_eq!(
+        scene
+            .emitter_names()
+            .map(|n| bounce_core::emitter::materials_of(&n)),
+        Some(vec![LAMP.to_string()])
+    );
     let orange = lamp(Some([1.0, 0.4, 0.1]), Some(60.0));
     let lit = engine
         .relight(&scene, std::slice::from_ref(&orange))
@@ -137,7 +143,8 @@ fn a_changed_lamp_matches_the_reference() {
 fn lamp_named(material: &str) -> LightSet {
     LightSet {
         lights: vec![Light::Emissive {
-            material: material.to_string(),
+            material: Some(material.to_string()),
+            node: None,
             color: None,
             strength: Some(1.0),
             name: None,
@@ -196,7 +203,8 @@ fn a_change_naming_no_emitter_is_refused() {
         .to_string();
     assert!(
         err.contains(&format!(
-            "lights[0].material: the scene has no emissive material 'Lamp' (its emitters: {LAMP})"
+            "lights[0].material: the scene has no emissive material 'Lamp' (its emissive \
+             materials: {LAMP}; on nodes: Light)"
         )),
         "{err}"
     );

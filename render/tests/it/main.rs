@@ -648,7 +648,8 @@ fn emissive_changes_redraw_the_lamp() {
     let renderer = Renderer::new(ctx).unwrap();
     let lamp = |color: Option<[f32; 3]>, strength: Option<f32>| LightSet {
         lights: vec![Light::Emissive {
-            material: "Emitter_Light_temp".into(),
+            material: Some("Emitter_Light_temp".into()),
+            node: None,
             color,
             strength,
             name: None,
@@ -680,11 +681,67 @@ fn emissive_changes_redraw_the_lamp() {
     // A change naming no material of the scene is left out: the file's glow, nothing else.
     let bad = LightSet {
         lights: vec![Light::Emissive {
-            material: "Lamp".into(),
+            material: Some("Lamp".into()),
+            node: None,
             color: None,
             strength: Some(0.0),
             name: None,
         }],
     };
     assert_eq!(draw(&bad), file);
+}
+
+/// Two lamps sharing one material, told apart by node (the emissive box with its lamp placed
+/// again lower, `bounce_testkit::scenes::two_lamps`): a change naming one node darkens that
+/// lamp alone, and with emission the only light each pixel shows one lamp's glow, so the two
+/// pictures with one lamp off add up to the file's.
+#[test]
+fn emissive_changes_by_node_redraw_one_lamp() {
+    let Some(ctx) = context() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let path = bounce_testkit::scenes::two_lamps(dir.path());
+    let scene = import_path_with(&path, &ImportOptions { shading: true }).unwrap();
+    let camera = Camera::framing(scene.bounds().unwrap());
+    let v = volume(&spot());
+    let renderer = Renderer::new(ctx).unwrap();
+    let off = |node: &str| LightSet {
+        lights: vec![Light::Emissive {
+            material: None,
+            node: Some(node.into()),
+            color: None,
+            strength: Some(0.0),
+            name: None,
+        }],
+    };
+    let options = RenderOptions {
+        width: 96,
+        height: 72,
+        exposure: 1.0,
+        indirect: false,
+        direct: true,
+    };
+    let draw = |lights: &LightSet| {
+        renderer
+            .render_linear(&scene, &camera, lights, &v, &options)
+            .unwrap()
+            .pixels
+    };
+    let file = draw(&LightSet::default());
+    let first_off = draw(&off("Light"));
+    let second_off = draw(&off("Lamp 2"));
+    let glowing = |p: &[[f32; 3]]| p.iter().filter(|p| p[0] > 0.0).count();
+    let (all, first, second) = (glowing(&file), glowing(&first_off), glowing(&second_off));
+    assert!(
+        first > 10 && second > 10 && first < all && second < all,
+        "each lamp in view and darkened alone: {all} glowing, {first} with the first off, \
+         {second} with the second off"
+    );
+    for ((f, a), b) in file.iter().zip(&first_off).zip(&second_off) {
+        for c in 0..3 {
+            assert!(
+                (a[c] + b[c] - f[c]).abs() <= 1e-5 * f[c].max(1.0),
+                "{a:?} + {b:?} against {f:?}"
+            );
+        }
+    }
 }

@@ -101,7 +101,16 @@ impl Bounce for BounceService {
                 patch_count: u32::try_from(s.layout.len()).unwrap_or(u32::MAX),
                 codec: s.codec.clone(),
                 sky_view: s.sky_view,
-                emitters: s.emitters.clone().unwrap_or_default(),
+                emitters: s
+                    .emitters
+                    .as_deref()
+                    .map(bounce_core::emitter::materials_of)
+                    .unwrap_or_default(),
+                emitter_nodes: s
+                    .emitters
+                    .as_deref()
+                    .map(bounce_core::emitter::nodes_of)
+                    .unwrap_or_default(),
             })
             .collect();
         Ok(Response::new(proto::ListScenesResponse {

@@ -7,6 +7,7 @@ use axum::extract::rejection::BytesRejection;
 use axum::extract::{ConnectInfo, Path, Query, State};
 use axum::http::{HeaderMap, StatusCode, header};
 use axum::response::{IntoResponse, Response};
+use bounce_core::emitter::{materials_of, nodes_of};
 use bounce_core::light::LightSet;
 use bytes::Bytes;
 use serde::{Deserialize, Serialize};
@@ -70,6 +71,9 @@ pub(super) struct SceneEntry {
     /// The emissive materials a light set may change (`{"type": "emissive", "material": ...}`);
     /// empty for a scene without any or a file baked before them (bake again).
     emitters: Vec<String>,
+    /// The nodes that place them (`{"type": "emissive", "node": ...}`); empty for a file baked
+    /// before emitters knew their nodes.
+    emitter_nodes: Vec<String>,
 }
 
 pub(super) async fn list_scenes(State(state): State<AppState>) -> Json<SceneList> {
@@ -84,7 +88,8 @@ pub(super) async fn list_scenes(State(state): State<AppState>) -> Json<SceneList
             has_model: s.model.is_some(),
             fallback: state.hub.scene_fallback(&s.name),
             sky_view: s.sky_view,
-            emitters: s.emitters.clone().unwrap_or_default(),
+            emitters: s.emitters.as_deref().map(materials_of).unwrap_or_default(),
+            emitter_nodes: s.emitters.as_deref().map(nodes_of).unwrap_or_default(),
         })
         .collect();
     Json(SceneList {

@@ -49,6 +49,11 @@ async fn a_session_dims_and_recolours_the_lamp() {
         .await
         .expect("JSON");
     assert_eq!(scenes["scenes"][0]["emitters"], json!([LAMP]), "{scenes}");
+    assert_eq!(
+        scenes["scenes"][0]["emitter_nodes"],
+        json!(["Light"]),
+        "{scenes}"
+    );
 
     // No lights of its own: the file's lamp lights the box.
     let created: Value = http
@@ -102,6 +107,29 @@ async fn a_session_dims_and_recolours_the_lamp() {
     let answer: Value = put(&off).await.expect("PUT").json().await.expect("JSON");
     let dark = frame_for(&mut ws, answer["lights_version"].as_u64().unwrap()).await;
     assert!(dark.iter().flatten().all(|&v| v == 0.0), "the lamp is off");
+
+    // The lamp by its node: green light only.
+    let green = LightSet::from_json(
+        r#"{"lights": [{"type": "emissive", "node": "Light", "color": [0, 1, 0]}]}"#,
+    )
+    .unwrap();
+    let answer: Value = put(&green).await.expect("PUT").json().await.expect("JSON");
+    let greened = frame_for(&mut ws, answer["lights_version"].as_u64().unwrap()).await;
+    assert!(greened.iter().all(|v| v[0] == 0.0 && v[2] == 0.0));
+    assert!(greened.iter().any(|v| v[1] > 0.0));
+    let r = http
+        .put(server.url(&format!("/v1/sessions/{id}/lights")))
+        .json(&json!({"lights": [{"type": "emissive", "node": "Desk", "strength": 1}]}))
+        .send()
+        .await
+        .expect("PUT");
+    assert_eq!(r.status(), reqwest::StatusCode::BAD_REQUEST);
+    let body: Value = r.json().await.expect("JSON");
+    let message = body["message"].as_str().unwrap_or_default();
+    assert!(
+        message.contains("no emissive node 'Desk'") && message.contains("on nodes: Light"),
+        "{body}"
+    );
 
     // Another material is refused, naming the lamp; the session keeps its lights.
     let r = http

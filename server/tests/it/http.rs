@@ -102,7 +102,7 @@ async fn scenes_and_layout_match_grpc() {
         .scenes
         .iter()
         // `has_model` is HTTP's alone: the browser page is its client.
-        .map(|s| json!({"name": s.name, "patch_count": s.patch_count, "codec": s.codec, "has_model": true, "fallback": null, "sky_view": s.sky_view, "emitters": s.emitters}))
+        .map(|s| json!({"name": s.name, "patch_count": s.patch_count, "codec": s.codec, "has_model": true, "fallback": null, "sky_view": s.sky_view, "emitters": s.emitters, "emitter_nodes": s.emitter_nodes}))
         .collect();
     assert_eq!(scenes["scenes"], Value::Array(want));
     assert_eq!(

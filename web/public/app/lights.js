@@ -50,17 +50,21 @@ export function buildLights(group, set, bounds) {
 }
 
 // The scene's emissive materials as `set`'s emissive changes leave them: a change names a glTF
-// material and gives a new emissive factor (`color`), a new strength, or both; a material no
-// change names keeps the file's. `materials` holds {material, name, factor: [r, g, b], strength}
-// per converted emissive material. Emission is drawn as convertMaterial draws the file's: factor
-// × strength / π.
+// material, a node, or that material on that node, and gives a new emissive factor (`color`), a
+// new strength, or both; where two changes reach one material the later wins, and a material no
+// change reaches keeps the file's. `materials` holds {material, name, node, factor: [r, g, b],
+// strength} per converted emissive material and node. Emission is drawn as convertMaterial draws
+// the file's: factor × strength / π.
 export function applyEmissive(materials, set) {
-  const changes = new Map();
-  for (const l of set.lights) {
-    if (l.type === 'emissive') changes.set(l.material, l);
-  }
+  const changes = set.lights.filter((l) => l.type === 'emissive');
   for (const e of materials) {
-    const change = changes.get(e.name);
+    let change;
+    for (const l of changes) {
+      const reaches =
+        (l.material === undefined || l.material === e.name) &&
+        (l.node === undefined || l.node === e.node);
+      if (reaches) change = l;
+    }
     const factor = change?.color ?? e.factor;
     const strength = change?.strength ?? e.strength;
     e.material.emissive.setRGB(factor[0], factor[1], factor[2]).multiplyScalar(strength / Math.PI);

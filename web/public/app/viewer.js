@@ -83,6 +83,14 @@ function testHooks(viewer) {
     get message() {
       return viewer.messageText;
     },
+    // The emissive materials as drawn: {name, node, emissive: [r, g, b]} (applyEmissive).
+    get emissive() {
+      return (viewer.emissive ?? []).map((e) => ({
+        name: e.name,
+        node: e.node,
+        emissive: e.material.emissive.toArray(),
+      }));
+    },
     setTerms: (t) => viewer.setTerms(t),
     // Sets the lights as a local edit would; resolves to the server's answer and when the edit
     // was made (epoch ms, comparable across tabs).
@@ -196,14 +204,21 @@ export class Viewer {
       if (o.isLight) fileLights.push(o);
     });
     for (const l of fileLights) l.parent.remove(l);
+    // One converted material per source material, and per (emissive material, node): a session
+    // may change one lamp of many that share a material by naming its node, as the bake keeps
+    // them apart (one emitter group per pair).
     const converted = new Map();
     const shadowDepth = shadowDepthMaterials();
     model.traverse((o) => {
       if (!o.isMesh) return;
       const materials = Array.isArray(o.material) ? o.material : [o.material];
       const mine = materials.map((m) => {
-        if (!converted.has(m)) converted.set(m, convertMaterial(m, this.uniforms));
-        return converted.get(m);
+        const node = emits(m) ? nodeName(gltf, o) : null;
+        const key = node === null ? m : `${m.uuid}\u0000${node}`;
+        if (!converted.has(key)) {
+          converted.set(key, { source: m, node, material: convertMaterial(m, this.uniforms) });
+        }
+        return converted.get(key).material;
       });
       o.material = Array.isArray(o.material) ? mine : mine[0];
       if (!o.geometry.attributes.normal) {
@@ -218,14 +233,15 @@ export class Viewer {
       o.customDepthMaterial = shadowDepth.depth;
       o.customDistanceMaterial = shadowDepth.distance;
     });
-    // The emissive materials, by glTF name, with the file's factor and strength: what a
-    // session's emissive changes replace (applyEmissive).
+    // The emissive materials, by glTF material and node name, with the file's factor and
+    // strength: what a session's emissive changes replace (applyEmissive).
     this.emissive = [];
-    for (const [source, material] of converted) {
-      if (!source.emissive || source.emissive.getHex() === 0) continue;
+    for (const { source, node, material } of converted.values()) {
+      if (node === null) continue;
       this.emissive.push({
         material,
         name: source.name,
+        node,
         factor: source.emissive.toArray(),
         strength: source.emissiveIntensity ?? 1,
       });
@@ -688,3 +704,18 @@ export function framing(bounds) {
 }
 
 export { defaultLights };
+
+function emits(material) {
+  return Boolean(material.emissive) && material.emissive.getHex() !== 0;
+}
+
+// The glTF name of the node that places mesh `o` (`node #i` for an unnamed one, as the importer
+// names it): the nearest object up the tree the loader associates with a node. A mesh of one
+// primitive is its node's object, a mesh of several the node's children.
+function nodeName(gltf, o) {
+  for (let x = o; x; x = x.parent) {
+    const index = gltf.parser.associations.get(x)?.nodes;
+    if (index !== undefined) return gltf.parser.json.nodes[index]?.name ?? `node #${index}`;
+  }
+  return '';
+}
