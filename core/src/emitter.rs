@@ -26,7 +26,7 @@
 //! changes make of them; the `EMIT` section's bytes are [`crate::format`]'s, and the light JSON is
 //! `bounce_types::light`'s.
 
-use crate::light::{EmissiveChange, Light, LightError, LightSet, MAX_NAME_BYTES};
+use crate::light::{EmissiveChange, LightError, LightSet, MAX_NAME_BYTES};
 use glam::{DVec3, Vec3};
 
 use crate::patch::Pieces;
@@ -262,11 +262,7 @@ impl Emitters {
     /// path is the light's, `lights[i].material` or `lights[i].node`).
     pub fn resolve(&self, set: &LightSet) -> Result<Vec<(usize, Vec3)>, LightError> {
         let mut out = Vec::new();
-        let changes = set.lights.iter().enumerate().filter_map(|(i, l)| match l {
-            Light::Emissive { .. } => Some(i),
-            _ => None,
-        });
-        for (i, change) in changes.zip(set.emissive()) {
+        for (i, change) in set.emissive_indexed() {
             let before = out.len();
             for (g, group) in self.groups.iter().enumerate() {
                 if change.reaches(&group.name, group.node.as_deref()) {
@@ -429,11 +425,7 @@ impl Emitters {
 /// ([`Emitters::names`]; `None` for a file that lists none), as [`Emitters::resolve`] would:
 /// what a server checks when a session's lights are set, before any relight.
 pub fn check_names(names: Option<&[EmitterName]>, set: &LightSet) -> Result<(), LightError> {
-    let changes = set.lights.iter().enumerate().filter_map(|(i, l)| match l {
-        Light::Emissive { .. } => Some(i),
-        _ => None,
-    });
-    for (i, change) in changes.zip(set.emissive()) {
+    for (i, change) in set.emissive_indexed() {
         let known = names.is_some_and(|names| {
             names
                 .iter()
@@ -451,11 +443,7 @@ pub fn check_names(names: Option<&[EmitterName]>, set: &LightSet) -> Result<(), 
 /// [`Emitters::resolve`] refuses, naming the emissive materials the scene has.
 pub fn apply_to_scene(scene: &mut Scene, set: &LightSet) -> Result<(), LightError> {
     let mut new: Vec<Option<Vec3>> = vec![None; scene.materials.len()];
-    let changes = set.lights.iter().enumerate().filter_map(|(i, l)| match l {
-        Light::Emissive { .. } => Some(i),
-        _ => None,
-    });
-    for (i, change) in changes.zip(set.emissive()) {
+    for (i, change) in set.emissive_indexed() {
         let mut found = false;
         for (m, info) in scene.materials.iter().enumerate() {
             let baked = Vec3::from(info.emission);

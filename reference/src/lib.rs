@@ -336,10 +336,7 @@ impl Reference {
     fn illumination(&self, lights: &LightSet) -> Result<Illumination, ReferenceError> {
         let mut out = Illumination::new(lights);
         let mut changed: Vec<Option<Vec3>> = vec![None; self.materials.len()];
-        let indices = lights.lights.iter().enumerate().filter_map(|(i, l)| {
-            matches!(l, bounce_core::light::Light::Emissive { .. }).then_some(i)
-        });
-        for (index, change) in indices.zip(lights.emissive()) {
+        for (index, change) in lights.emissive_indexed() {
             let (color, strength) = (change.color, change.strength);
             let mut found = false;
             for (m, info) in self.materials.iter().enumerate() {

@@ -161,10 +161,7 @@ impl Stage {
             .lights
             .iter()
             .filter(|l| {
-                let one = LightSet {
-                    lights: vec![(*l).clone()],
-                };
-                one.emissive().next().is_some_and(|change| {
+                bounce_core::light::EmissiveChange::of(l).is_some_and(|change| {
                     materials.iter().any(|m| {
                         change.reaches(&m.name, m.node.as_deref())
                             && m.emission.iter().any(|&c| c > 0.0)

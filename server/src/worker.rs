@@ -673,10 +673,7 @@ fn usable_lights(
         .lights
         .into_iter()
         .filter(|l| {
-            let one = LightSet {
-                lights: vec![l.clone()],
-            };
-            let Some(change) = one.emissive().next() else {
+            let Some(change) = bounce_core::light::EmissiveChange::of(l) else {
                 return true;
             };
             let known = emitters.is_some_and(|names| {

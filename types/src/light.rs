@@ -259,21 +259,16 @@ impl LightSet {
 
     /// The set's changes to emissive surfaces, in order.
     pub fn emissive(&self) -> impl Iterator<Item = EmissiveChange<'_>> {
-        self.lights.iter().filter_map(|l| match l {
-            Light::Emissive {
-                material,
-                node,
-                color,
-                strength,
-                ..
-            } => Some(EmissiveChange {
-                material: material.as_deref(),
-                node: node.as_deref(),
-                color: *color,
-                strength: *strength,
-            }),
-            _ => None,
-        })
+        self.lights.iter().filter_map(EmissiveChange::of)
+    }
+
+    /// The set's changes to emissive surfaces with their index among its lights (the `i` of
+    /// `lights[i]` in an error), in order.
+    pub fn emissive_indexed(&self) -> impl Iterator<Item = (usize, EmissiveChange<'_>)> {
+        self.lights
+            .iter()
+            .enumerate()
+            .filter_map(|(i, l)| Some((i, EmissiveChange::of(l)?)))
     }
 
     /// The set's sky as radiance coefficients ([`Light::sky_sh`]), if it has one.
@@ -293,7 +288,26 @@ pub struct EmissiveChange<'a> {
     pub strength: Option<f32>,
 }
 
-impl EmissiveChange<'_> {
+impl<'a> EmissiveChange<'a> {
+    /// `light`'s change, if it is an emissive one.
+    pub fn of(light: &'a Light) -> Option<EmissiveChange<'a>> {
+        match light {
+            Light::Emissive {
+                material,
+                node,
+                color,
+                strength,
+                ..
+            } => Some(EmissiveChange {
+                material: material.as_deref(),
+                node: node.as_deref(),
+                color: *color,
+                strength: *strength,
+            }),
+            _ => None,
+        }
+    }
+
     /// Whether the change reaches an emitter of material `material` placed by node `node`
     /// (`None`: a file that does not know its emitters' nodes, which no change by node reaches).
     pub fn reaches(&self, material: &str, node: Option<&str>) -> bool {
