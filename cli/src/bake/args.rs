@@ -92,9 +92,10 @@ pub struct BakeArgs {
     /// 0 stores none.
     #[arg(long, value_name = "R", default_value_t = DEFAULT_NEAR_RADIUS)]
     pub near_field: f32,
-    /// Place irradiance probes for moving objects (surface geometry, one process): on a grid of
-    /// 2 voxels in the empty space near surfaces, each gathering the surfaces' light from six
-    /// directions (docs/design.md §2, "Probes"). --probe-spacing implies it.
+    /// Place irradiance probes for moving objects (surface geometry; with --shard, each shard
+    /// gathers its share): on a grid of 2 voxels in the empty space near surfaces, each
+    /// gathering the surfaces' light from six directions (docs/design.md §2, "Probes").
+    /// --probe-spacing implies it.
     #[arg(long)]
     pub probes: bool,
     /// The probes' grid spacing in scene units (default 2 voxels).
