@@ -108,6 +108,21 @@ impl Serve {
         }
     }
 
+    /// A server of one scene, `box`: the glTF `model` writes into the directory it is given,
+    /// baked as [`bake_small`] bakes; with that glTF's path.
+    pub fn scene_of(model: impl FnOnce(&Path) -> PathBuf) -> (Serve, PathBuf) {
+        let dir = tempfile::tempdir().expect("a temporary directory");
+        let gltf = model(&dir.path().join("model"));
+        let scenes = dir.path().join("scenes");
+        std::fs::create_dir_all(&scenes).expect("scenes dir");
+        bake_small(&gltf, &scenes.join("box.bounce"));
+        let serve = Serve::start(ServeOptions {
+            dir: Some(dir),
+            ..ServeOptions::default()
+        });
+        (serve, gltf)
+    }
+
     /// SIGKILL: nothing of the server's shutdown runs, as in a crash. The directory (scenes and
     /// stored sessions) is kept for a restart.
     pub fn kill(self) -> tempfile::TempDir {

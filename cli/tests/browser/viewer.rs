@@ -372,15 +372,7 @@ async fn a_scene_without_normals_facing_away_is_drawn_as_bounce_render_draws_it(
     let Some(browser) = crate::browser().await else {
         return;
     };
-    let dir = tempfile::tempdir().unwrap();
-    let gltf = crate::fixture::cornell_reversed(&dir.path().join("model"));
-    let scenes = dir.path().join("scenes");
-    std::fs::create_dir_all(&scenes).unwrap();
-    crate::fixture::bake_small(&gltf, &scenes.join("box.bounce"));
-    let serve = Serve::start(ServeOptions {
-        dir: Some(dir),
-        ..ServeOptions::default()
-    });
+    let (serve, gltf) = Serve::scene_of(crate::fixture::cornell_reversed);
     assert_draws_as_native(&browser, &serve, &gltf, ceiling_light()).await;
     let spot = json!([{"type": "spot", "position": [0.3, 1.9, 0.2], "direction": [0.0, -1.0, 0.0],
         "intensity": 15.0, "inner_cone_angle": 0.5, "outer_cone_angle": 0.9}]);
@@ -398,15 +390,7 @@ async fn an_emissive_change_by_node_darkens_one_lamp_in_both_viewers() {
     let Some(browser) = crate::browser().await else {
         return;
     };
-    let dir = tempfile::tempdir().unwrap();
-    let gltf = bounce_testkit::scenes::two_lamps(&dir.path().join("model"));
-    let scenes = dir.path().join("scenes");
-    std::fs::create_dir_all(&scenes).unwrap();
-    crate::fixture::bake_small(&gltf, &scenes.join("box.bounce"));
-    let serve = Serve::start(ServeOptions {
-        dir: Some(dir),
-        ..ServeOptions::default()
-    });
+    let (serve, gltf) = Serve::scene_of(bounce_testkit::scenes::two_lamps);
     let lights = json!([{"type": "emissive", "node": "Lamp 2", "strength": 0}]);
     let session = serve.create_session(lights.clone(), None).await;
     // From the open side, below both lamps.

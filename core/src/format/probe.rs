@@ -31,13 +31,6 @@ fn bad(m: impl std::fmt::Display) -> FormatError {
 /// The section's bytes for a transport of `rows` rows, checked as a reader will check them.
 pub(crate) fn encode_probes(p: &Probes, rows: usize) -> Result<Vec<u8>, FormatError> {
     p.check(rows).map_err(bad)?;
-    let count = |what, n: usize| {
-        u32::try_from(n).map_err(|_| FormatError::TooLarge {
-            what,
-            value: n as u64,
-            max: u64::from(u32::MAX),
-        })
-    };
     let mut out =
         Vec::with_capacity(PROBE_HEADER_LEN + p.len() * 12 + p.row_ptr.len() * 4 + p.nnz() * 8);
     for v in [
@@ -50,19 +43,63 @@ pub(crate) fn encode_probes(p: &Probes, rows: usize) -> Result<Vec<u8>, FormatEr
     }
     out.extend_from_slice(&p.spacing.to_le_bytes());
     out.extend_from_slice(&0u32.to_le_bytes());
-    for v in p.positions.iter().flatten() {
-        out.extend_from_slice(&v.to_le_bytes());
-    }
-    for v in &p.row_ptr {
-        out.extend_from_slice(&v.to_le_bytes());
-    }
-    for v in &p.cols {
-        out.extend_from_slice(&v.to_le_bytes());
-    }
-    for v in &p.values {
-        out.extend_from_slice(&v.to_le_bytes());
-    }
+    write_gathers(&mut out, &p.positions, &p.row_ptr, &p.cols, &p.values);
     Ok(out)
+}
+
+/// Positions, row offsets, entries' rows and values, as both sections lay them out.
+fn write_gathers(
+    out: &mut Vec<u8>,
+    positions: &[[f32; 3]],
+    row_ptr: &[u32],
+    cols: &[u32],
+    values: &[f32],
+) {
+    for v in positions.iter().flatten() {
+        out.extend_from_slice(&v.to_le_bytes());
+    }
+    for v in row_ptr.iter().chain(cols) {
+        out.extend_from_slice(&v.to_le_bytes());
+    }
+    for v in values {
+        out.extend_from_slice(&v.to_le_bytes());
+    }
+}
+
+/// What [`write_gathers`] wrote, for `probes` probes, `rows` gather rows and `entries` entries;
+/// the caller has checked the counts against the section's length.
+struct Gathers {
+    positions: Vec<[f32; 3]>,
+    row_ptr: Vec<u32>,
+    cols: Vec<u32>,
+    values: Vec<f32>,
+}
+
+fn read_gathers(
+    r: &mut FieldReader<'_>,
+    probes: u32,
+    rows: u64,
+    entries: u32,
+) -> Result<Gathers, FormatError> {
+    let mut g = Gathers {
+        positions: Vec::with_capacity(probes as usize),
+        row_ptr: Vec::with_capacity(rows as usize + 1),
+        cols: Vec::with_capacity(entries as usize),
+        values: Vec::with_capacity(entries as usize),
+    };
+    for _ in 0..probes {
+        g.positions.push(r.f32x3("probe position")?);
+    }
+    for _ in 0..=rows {
+        g.row_ptr.push(r.u32("probe row offset")?);
+    }
+    for _ in 0..entries {
+        g.cols.push(r.u32("probe entry row")?);
+    }
+    for _ in 0..entries {
+        g.values.push(r.f32("probe entry value")?);
+    }
+    Ok(g)
 }
 
 /// The probes of a `PROB` section over a transport of `rows` rows.
@@ -92,28 +129,17 @@ pub(crate) fn decode_probes(bytes: &[u8], rows: usize) -> Result<Probes, FormatE
             r.remaining().len()
         )));
     }
-    let mut out = Probes {
+    let g = read_gathers(&mut r, probes, gathers, entries)?;
+    let out = Probes {
         spacing,
         rays,
-        positions: Vec::with_capacity(probes as usize),
-        row_ptr: Vec::with_capacity(gathers as usize + 1),
-        cols: Vec::with_capacity(entries as usize),
-        values: Vec::with_capacity(entries as usize),
+        positions: g.positions,
+        row_ptr: g.row_ptr,
+        cols: g.cols,
+        values: g.values,
         // In its own section (`PSKY`), read beside this one.
         sky: None,
     };
-    for _ in 0..probes {
-        out.positions.push(r.f32x3("probe position")?);
-    }
-    for _ in 0..=gathers {
-        out.row_ptr.push(r.u32("probe row offset")?);
-    }
-    for _ in 0..entries {
-        out.cols.push(r.u32("probe entry row")?);
-    }
-    for _ in 0..entries {
-        out.values.push(r.f32("probe entry value")?);
-    }
     out.check(rows).map_err(bad)?;
     Ok(out)
 }
@@ -162,13 +188,8 @@ pub(crate) fn encode_probe_rows(p: &ProbeRows, rows: usize) -> Result<Vec<u8>, F
     ] {
         out.extend_from_slice(&v.to_le_bytes());
     }
-    for v in p.positions.iter().flatten() {
-        out.extend_from_slice(&v.to_le_bytes());
-    }
-    for v in p.row_ptr.iter().chain(&p.cols) {
-        out.extend_from_slice(&v.to_le_bytes());
-    }
-    for v in p.values.iter().chain(p.sky.rows.iter().flatten()) {
+    write_gathers(&mut out, &p.positions, &p.row_ptr, &p.cols, &p.values);
+    for v in p.sky.rows.iter().flatten() {
         out.extend_from_slice(&v.to_le_bytes());
     }
     Ok(out)
@@ -211,30 +232,19 @@ pub(crate) fn decode_probe_rows(bytes: &[u8], rows: usize) -> Result<ProbeRows, 
             r.remaining().len()
         )));
     }
+    let g = read_gathers(&mut r, probes, held, entries)?;
     let mut out = ProbeRows {
         spacing,
         rays,
-        positions: Vec::with_capacity(probes as usize),
+        positions: g.positions,
         range: first as usize..end as usize,
-        row_ptr: Vec::with_capacity(held as usize + 1),
-        cols: Vec::with_capacity(entries as usize),
-        values: Vec::with_capacity(entries as usize),
+        row_ptr: g.row_ptr,
+        cols: g.cols,
+        values: g.values,
         sky: SkyVisibility {
             rows: Vec::with_capacity(held as usize),
         },
     };
-    for _ in 0..probes {
-        out.positions.push(r.f32x3("probe position")?);
-    }
-    for _ in 0..=held {
-        out.row_ptr.push(r.u32("probe row offset")?);
-    }
-    for _ in 0..entries {
-        out.cols.push(r.u32("probe entry row")?);
-    }
-    for _ in 0..entries {
-        out.values.push(r.f32("probe entry value")?);
-    }
     for _ in 0..held {
         let mut c = [0.0f32; SH_COEFFICIENTS];
         for v in &mut c {

@@ -632,6 +632,28 @@ fn albedo_maps_are_sampled_through_the_uvs() {
     assert_eq!((white, black), (6, 6));
 }
 
+/// The scene at `path` framed whole and drawn small with direct light and emission only (no
+/// indirect light, so the volume is never read), under any light set: its linear pixels.
+fn emission_pictures(ctx: &'static GpuContext, path: &Path) -> impl Fn(&LightSet) -> Vec<[f32; 3]> {
+    let scene = import_path_with(path, &ImportOptions { shading: true }).unwrap();
+    let camera = Camera::framing(scene.bounds().unwrap());
+    let v = volume(&spot());
+    let renderer = Renderer::new(ctx).unwrap();
+    let options = RenderOptions {
+        width: 96,
+        height: 72,
+        exposure: 1.0,
+        indirect: false,
+        direct: true,
+    };
+    move |lights: &LightSet| {
+        renderer
+            .render_linear(&scene, &camera, lights, &v, &options)
+            .unwrap()
+            .pixels
+    }
+}
+
 /// A light set's emissive change redraws the surfaces of that material: the emissive Cornell
 /// box's ceiling lamp (no other light, direct light and emission only) glows at the file's
 /// emission, goes dark at strength 0 and red with a red colour; nothing else changes, and a
@@ -641,11 +663,7 @@ fn emissive_changes_redraw_the_lamp() {
     let Some(ctx) = context() else { return };
     let path =
         Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/cornell-box-emissive/CornellBox.glb");
-    let scene = import_path_with(&path, &ImportOptions { shading: true }).unwrap();
-    let camera = Camera::framing(scene.bounds().unwrap());
-    // Indirect light is off: the volume is never read.
-    let v = volume(&spot());
-    let renderer = Renderer::new(ctx).unwrap();
+    let draw = emission_pictures(ctx, &path);
     let lamp = |color: Option<[f32; 3]>, strength: Option<f32>| LightSet {
         lights: vec![Light::Emissive {
             material: Some("Emitter_Light_temp".into()),
@@ -654,19 +672,6 @@ fn emissive_changes_redraw_the_lamp() {
             strength,
             name: None,
         }],
-    };
-    let options = RenderOptions {
-        width: 96,
-        height: 72,
-        exposure: 1.0,
-        indirect: false,
-        direct: true,
-    };
-    let draw = |lights: &LightSet| {
-        renderer
-            .render_linear(&scene, &camera, lights, &v, &options)
-            .unwrap()
-            .pixels
     };
     let file = draw(&LightSet::default());
     let off = draw(&lamp(None, Some(0.0)));
@@ -700,10 +705,7 @@ fn emissive_changes_by_node_redraw_one_lamp() {
     let Some(ctx) = context() else { return };
     let dir = tempfile::tempdir().unwrap();
     let path = bounce_testkit::scenes::two_lamps(dir.path());
-    let scene = import_path_with(&path, &ImportOptions { shading: true }).unwrap();
-    let camera = Camera::framing(scene.bounds().unwrap());
-    let v = volume(&spot());
-    let renderer = Renderer::new(ctx).unwrap();
+    let draw = emission_pictures(ctx, &path);
     let off = |node: &str| LightSet {
         lights: vec![Light::Emissive {
             material: None,
@@ -712,19 +714,6 @@ fn emissive_changes_by_node_redraw_one_lamp() {
             strength: Some(0.0),
             name: None,
         }],
-    };
-    let options = RenderOptions {
-        width: 96,
-        height: 72,
-        exposure: 1.0,
-        indirect: false,
-        direct: true,
-    };
-    let draw = |lights: &LightSet| {
-        renderer
-            .render_linear(&scene, &camera, lights, &v, &options)
-            .unwrap()
-            .pixels
     };
     let file = draw(&LightSet::default());
     let first_off = draw(&off("Light"));

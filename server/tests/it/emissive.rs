@@ -108,6 +108,19 @@ async fn a_session_dims_and_recolours_the_lamp() {
     let dark = frame_for(&mut ws, answer["lights_version"].as_u64().unwrap()).await;
     assert!(dark.iter().flatten().all(|&v| v == 0.0), "the lamp is off");
 
+    // A light the scene has no emitter for: refused with 400, and its message.
+    let refused = |light: Value| {
+        let request = http
+            .put(server.url(&format!("/v1/sessions/{id}/lights")))
+            .json(&json!({ "lights": [light] }));
+        async move {
+            let r = request.send().await.expect("PUT");
+            assert_eq!(r.status(), reqwest::StatusCode::BAD_REQUEST);
+            let body: Value = r.json().await.expect("JSON");
+            body["message"].as_str().unwrap_or_default().to_string()
+        }
+    };
+
     // The lamp by its node: green light only.
     let green = LightSet::from_json(
         r#"{"lights": [{"type": "emissive", "node": "Light", "color": [0, 1, 0]}]}"#,
@@ -117,33 +130,17 @@ async fn a_session_dims_and_recolours_the_lamp() {
     let greened = frame_for(&mut ws, answer["lights_version"].as_u64().unwrap()).await;
     assert!(greened.iter().all(|v| v[0] == 0.0 && v[2] == 0.0));
     assert!(greened.iter().any(|v| v[1] > 0.0));
-    let r = http
-        .put(server.url(&format!("/v1/sessions/{id}/lights")))
-        .json(&json!({"lights": [{"type": "emissive", "node": "Desk", "strength": 1}]}))
-        .send()
-        .await
-        .expect("PUT");
-    assert_eq!(r.status(), reqwest::StatusCode::BAD_REQUEST);
-    let body: Value = r.json().await.expect("JSON");
-    let message = body["message"].as_str().unwrap_or_default();
+    let message = refused(json!({"type": "emissive", "node": "Desk", "strength": 1})).await;
     assert!(
         message.contains("no emissive node 'Desk'") && message.contains("on nodes: Light"),
-        "{body}"
+        "{message}"
     );
 
     // Another material is refused, naming the lamp; the session keeps its lights.
-    let r = http
-        .put(server.url(&format!("/v1/sessions/{id}/lights")))
-        .json(&json!({"lights": [{"type": "emissive", "material": "Screen", "strength": 1}]}))
-        .send()
-        .await
-        .expect("PUT");
-    assert_eq!(r.status(), reqwest::StatusCode::BAD_REQUEST);
-    let body: Value = r.json().await.expect("JSON");
-    let message = body["message"].as_str().unwrap_or_default();
+    let message = refused(json!({"type": "emissive", "material": "Screen", "strength": 1})).await;
     assert!(
         message.contains("no emissive material 'Screen'") && message.contains(LAMP),
-        "{body}"
+        "{message}"
     );
     server.stop().await;
 }
