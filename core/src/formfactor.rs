@@ -17,7 +17,8 @@ use thiserror::Error;
 use crate::matrix::DenseMatrix;
 use crate::patch::Quad;
 pub use crate::rays::{RayFate, RayScene, RayTally, Tracer};
-use crate::sky::{RowSky, SkyVisibility, nearest_point};
+use crate::sky::{RowSky, SkyVisibility, nearest_sample};
+use crate::surface::SamplePoint;
 use bounce_types::sh::SH_COEFFICIENTS;
 
 #[derive(Debug, Error)]
@@ -146,12 +147,13 @@ impl RowRays<'_> {
 }
 
 /// One row's rays that land within `radius` of their origin, each as the direct-light sample
-/// point, of the row it landed on, nearest to where it landed: a row of the near-field matrix,
-/// taken in the form factors' own pass so the rays are traced once.
+/// point of the row it landed on that stands for where it landed ([`nearest_sample`]: the
+/// nearest facing as the surface met does): a row of the near-field matrix, taken in the form
+/// factors' own pass so the rays are traced once.
 pub struct NearRays<'a> {
     radius: f32,
     /// Every row's sample points, `per_row` a row.
-    samples: &'a [Vec3],
+    samples: &'a [SamplePoint],
     per_row: usize,
     hits: Vec<u32>,
 }
@@ -169,7 +171,7 @@ impl<'a> NearRays<'a> {
 
     /// Keeps the rays that land closer than `radius` (scene units), against `samples` (every
     /// row's, `per_row` a row).
-    pub fn new(radius: f32, samples: &'a [Vec3], per_row: usize) -> NearRays<'a> {
+    pub fn new(radius: f32, samples: &'a [SamplePoint], per_row: usize) -> NearRays<'a> {
         NearRays {
             radius,
             samples,
@@ -178,14 +180,21 @@ impl<'a> NearRays<'a> {
         }
     }
 
-    /// A ray landed at `point`, `t` from its origin, on row `row`.
+    /// Whether a ray that lands `t` from its origin is near.
     #[inline]
-    pub fn landed(&mut self, t: f32, point: Vec3, row: usize) {
+    pub fn is_near(&self, t: f32) -> bool {
+        t < self.radius && self.per_row > 0
+    }
+
+    /// A ray landed at `point`, `t` from its origin, on row `row`'s surface of unit normal
+    /// `normal` (the side it met).
+    #[inline]
+    pub fn landed(&mut self, t: f32, point: Vec3, normal: Vec3, row: usize) {
         let k = self.per_row;
-        if t < self.radius && k > 0 {
+        if self.is_near(t) {
             let own = &self.samples[row * k..(row + 1) * k];
             self.hits
-                .push((row * k + nearest_point(own.iter().copied(), point)) as u32);
+                .push((row * k + nearest_sample(own, point, normal)) as u32);
         }
     }
 
@@ -288,7 +297,7 @@ pub fn form_factor_rows_sampled(
     rows: Range<usize>,
     rays: u32,
     seed: u64,
-    samples: Option<(&[Vec3], u32)>,
+    samples: Option<(&[SamplePoint], u32)>,
     near_radius: f32,
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<Traced, FormFactorError> {

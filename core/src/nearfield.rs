@@ -7,7 +7,8 @@
 //! over many rays; near, it does not (`bounce verify`'s first-bounce split measured almost all of
 //! it within half a voxel). So the bake records, per transport row `i`, where its form-factor rays
 //! that land within `radius` of their origin land: on which direct-light sample point of the
-//! element they met (the nearest one to the hit). That is a sparse matrix `C` (rows: transport
+//! element they met (the nearest one facing as the surface hit does, [`nearest_sample`]: an
+//! element groups pieces of different planes). That is a sparse matrix `C` (rows: transport
 //! rows; columns: sample points, `j · per_row + k` for sample `k` of row `j`; value: the share of
 //! row `i`'s rays), and a relight adds
 //!
@@ -25,8 +26,7 @@
 //! A sky needs the same correction: a surface sees more of it where it is open than in its
 //! corners, and the corners are where near rays land. A row's sky view ([`crate::sky`]) is one
 //! per row, so the matrix keeps a finer one for its sources: per sample point, the view of the
-//! row's form-factor rays that start nearer to it than to the row's other samples (format
-//! version 9). A relight with a sky then adds [`NearField::sky_correction`], on the host for
+//! row's form-factor rays that start where it stands for (the same rule; format version 9). A relight with a sky then adds [`NearField::sky_correction`], on the host for
 //! either engine (one sparse pass a light set).
 
 use std::ops::Range;
@@ -35,7 +35,7 @@ use glam::Vec3;
 use rayon::prelude::*;
 
 use crate::formfactor::{FormFactorError, check_rows};
-use crate::sky::{SkyVisibility, nearest_point};
+use crate::sky::{SkyVisibility, nearest_sample};
 use crate::surface::{SurfaceData, SurfaceScene};
 
 /// How far from its origin a form-factor ray may land and still count as near, in voxels,
@@ -54,11 +54,11 @@ pub struct NearField {
     pub row_ptr: Vec<u32>,
     /// Per entry, the sample point: strictly ascending within a row.
     pub cols: Vec<u32>,
-    /// Per entry, the share of the row's rays that landed nearest that sample point.
+    /// Per entry, the share of the row's rays that landed where that sample point stands for.
     pub values: Vec<f32>,
     /// Per sample point of these rows (`per_row` a row, in row order), its view of the sky: the
-    /// [`SkyVisibility`] sum over the row's form-factor rays whose origin is nearest that
-    /// sample. `None` in files from before version 9.
+    /// [`SkyVisibility`] sum over the row's form-factor rays whose origin that sample stands
+    /// for ([`nearest_sample`]). `None` in files from before version 9.
     pub sky: Option<SkyVisibility>,
 }
 
@@ -255,7 +255,8 @@ impl NearField {
 
 /// Rows `rows` of the near-field matrix of `tracer`'s transport rows: form-factor rays (the
 /// bake's, by `rays` and `seed`) that land within `radius` (scene units) of their origin, each
-/// credited to the sample point of `surface` (its `per_patch` a row) nearest to where it landed.
+/// credited to the sample point of `surface` (its `per_patch` a row) that stands for where it
+/// landed ([`nearest_sample`]).
 /// The bake keeps these rows in the form factors' own pass, which traces each ray once
 /// ([`crate::formfactor::NearRays`]); this retrace of the same rays up to `radius` is its twin
 /// (the test `the_form_factors_pass_keeps_the_near_field_a_retrace_finds` holds them to the same
@@ -283,11 +284,10 @@ pub fn near_field_rows(
         .map_init(Vec::new, |hits: &mut Vec<u32>, i| {
             hits.clear();
             for r in 0..rays {
-                let Some((point, j)) = tracer.near_landing(i, r, seed, radius) else {
+                let Some((point, normal, j)) = tracer.near_landing(i, r, seed, radius) else {
                     continue;
                 };
-                let own = &samples[j * k..(j + 1) * k];
-                let nearest = nearest_point(own.iter().map(|p| Vec3::from(p.position)), point);
+                let nearest = nearest_sample(&samples[j * k..(j + 1) * k], point, normal);
                 hits.push((j * k + nearest) as u32);
             }
             hits.sort_unstable();

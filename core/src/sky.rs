@@ -20,6 +20,8 @@
 use bounce_types::sh::{SH_BASIS_MAX, SH_COEFFICIENTS, sh_basis};
 use glam::Vec3;
 
+use crate::surface::SamplePoint;
+
 /// Per transport row, the coefficients `c_lm` of the module doc.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct SkyVisibility {
@@ -49,33 +51,46 @@ impl SkySum {
     }
 }
 
-/// Which of `points` lies nearest `to` (the first on a tie; 0 when there are none). The one rule
-/// that gives a ray to a direct-light sample, for the samples' sky view here and for where a near
-/// ray lands in [`crate::nearfield`], so that both credit the same sample.
-pub(crate) fn nearest_point(points: impl IntoIterator<Item = Vec3>, to: Vec3) -> usize {
-    points
-        .into_iter()
-        .enumerate()
-        .map(|(s, p)| (s, p.distance_squared(to)))
-        .fold(
-            (0, f32::INFINITY),
-            |best, c| if c.1 < best.1 { c } else { best },
-        )
-        .0
+/// How closely a sample's normal must follow a surface point's for the sample to stand for that
+/// point: within about 8°.
+const SAME_PLANE_COS: f32 = 0.99;
+
+/// Which of `samples` stands for the surface point `to` of unit normal `normal`: the nearest of
+/// those that face as the point does (normals within [`SAME_PLANE_COS`]), else the nearest of
+/// all (the first on a tie; 0 when there are none). An element groups pieces by the direction
+/// they face most, so it may hold a wall and the slanted trim beside it; a point on the trim is
+/// lit and shadowed as the trim is, not as the wall sample that happens to lie nearer. This is
+/// the one rule that gives a ray to a direct-light sample, for the samples' sky view here (by
+/// where the ray starts) and for where a near ray lands in [`crate::nearfield`], so that both
+/// credit the same sample.
+pub(crate) fn nearest_sample(samples: &[SamplePoint], to: Vec3, normal: Vec3) -> usize {
+    let nearest = |facing: bool| {
+        samples
+            .iter()
+            .enumerate()
+            .filter(|(_, s)| !facing || Vec3::from(s.normal).dot(normal) > SAME_PLANE_COS)
+            .map(|(i, s)| (i, Vec3::from(s.position).distance_squared(to)))
+            .fold(None, |best: Option<(usize, f32)>, c| match best {
+                Some(b) if b.1 <= c.1 => Some(b),
+                _ => Some(c),
+            })
+            .map(|(i, _)| i)
+    };
+    nearest(true).or_else(|| nearest(false)).unwrap_or(0)
 }
 
 /// One row's sky as its form-factor rays find it: the row's [`SkySum`] and, when the row's
-/// direct-light sample points are given, each sample's, over the rays whose origin lies nearest
-/// that sample (what the near field corrects a sky with: [`crate::nearfield`]).
+/// direct-light sample points are given, each sample's, over the rays whose origin that sample
+/// stands for ([`nearest_sample`]; what the near field corrects a sky with: [`crate::nearfield`]).
 pub struct RowSky<'a> {
     pub row: SkySum,
-    samples: &'a [Vec3],
+    samples: &'a [SamplePoint],
     per_sample: Vec<(SkySum, u32)>,
 }
 
 impl<'a> RowSky<'a> {
     /// A tally for a row whose sample points lie at `samples` (none: the row's view alone).
-    pub fn new(samples: &'a [Vec3]) -> RowSky<'a> {
+    pub fn new(samples: &'a [SamplePoint]) -> RowSky<'a> {
         RowSky {
             row: SkySum::default(),
             samples,
@@ -83,16 +98,17 @@ impl<'a> RowSky<'a> {
         }
     }
 
-    /// A ray that started at `origin` and went along unit `dir`, escaping or not.
+    /// A ray that started at `origin`, on surface of unit normal `normal`, and went along unit
+    /// `dir`, escaping or not.
     #[inline]
-    pub fn ray(&mut self, origin: Vec3, dir: Vec3, escaped: bool) {
+    pub fn ray(&mut self, origin: Vec3, normal: Vec3, dir: Vec3, escaped: bool) {
         if escaped {
             self.row.add(dir);
         }
         if self.samples.is_empty() {
             return;
         }
-        let nearest = nearest_point(self.samples.iter().copied(), origin);
+        let nearest = nearest_sample(self.samples, origin, normal);
         let (sum, n) = &mut self.per_sample[nearest];
         *n += 1;
         if escaped {
@@ -226,14 +242,48 @@ mod tests {
     }
 
     #[test]
+    fn a_point_goes_to_the_nearest_sample_that_faces_as_it_does() {
+        let sample = |position: [f32; 3], normal: [f32; 3]| SamplePoint { position, normal };
+        let tilt = Vec3::new(0.3, 1.0, 0.0).normalize().to_array();
+        // A floor sample 1 away, a trim sample (tilted 17°) 0.1 away, a wall sample 0.05 away.
+        let samples = [
+            sample([1.0, 0.0, 0.0], [0.0, 1.0, 0.0]),
+            sample([0.1, 0.0, 0.0], tilt),
+            sample([0.0, 0.05, 0.0], [1.0, 0.0, 0.0]),
+        ];
+        // A point on the floor is the floor sample's, though the others lie nearer.
+        assert_eq!(nearest_sample(&samples, Vec3::ZERO, Vec3::Y), 0);
+        // On the trim, the trim's; on the wall, the wall's.
+        assert_eq!(nearest_sample(&samples, Vec3::ZERO, Vec3::from(tilt)), 1);
+        assert_eq!(nearest_sample(&samples, Vec3::ZERO, Vec3::X), 2);
+        // Within the tolerance a normal still counts as facing the same way.
+        let close = Vec3::new(0.1, 1.0, 0.0).normalize();
+        assert_eq!(nearest_sample(&samples, Vec3::ZERO, close), 0);
+        // Facing as none does (a ceiling point): the nearest of all.
+        assert_eq!(nearest_sample(&samples, Vec3::ZERO, -Vec3::Y), 2);
+        // Of two facing alike, the nearer; on a tie, the first.
+        let twins = [
+            samples[0],
+            samples[0],
+            sample([0.5, 0.0, 0.0], [0.0, 1.0, 0.0]),
+        ];
+        assert_eq!(nearest_sample(&twins, Vec3::ZERO, Vec3::Y), 2);
+        assert_eq!(nearest_sample(&twins[..2], Vec3::ZERO, Vec3::Y), 0);
+        assert_eq!(nearest_sample(&[], Vec3::ZERO, Vec3::Y), 0);
+    }
+
+    #[test]
     fn each_sample_sees_the_sky_of_the_rays_that_start_nearest_it() {
-        let at = |x: f32| Vec3::new(x, 0.0, 0.0);
+        let at = |x: f32| SamplePoint {
+            position: [x, 0.0, 0.0],
+            normal: [0.0, 1.0, 0.0],
+        };
         let samples = [at(0.0), at(1.0), at(5.0)];
         let mut tally = RowSky::new(&samples);
         // Near sample 0: 4 rays, 3 escape. Near sample 1: 4 rays, 1 escapes. Sample 2: none.
         for k in 0..4 {
-            tally.ray(Vec3::new(0.1, 0.0, 0.0), Vec3::Y, k < 3);
-            tally.ray(Vec3::new(0.9, 0.0, 0.0), Vec3::X, k < 1);
+            tally.ray(Vec3::new(0.1, 0.0, 0.0), Vec3::Y, Vec3::Y, k < 3);
+            tally.ray(Vec3::new(0.9, 0.0, 0.0), Vec3::Y, Vec3::X, k < 1);
         }
         let (row, views) = tally.finish(8);
         let share =
@@ -251,8 +301,8 @@ mod tests {
         // Without samples the row's view is the same.
         let mut plain = RowSky::new(&[]);
         for k in 0..4 {
-            plain.ray(Vec3::new(0.1, 0.0, 0.0), Vec3::Y, k < 3);
-            plain.ray(Vec3::new(0.9, 0.0, 0.0), Vec3::X, k < 1);
+            plain.ray(Vec3::new(0.1, 0.0, 0.0), Vec3::Y, Vec3::Y, k < 3);
+            plain.ray(Vec3::new(0.9, 0.0, 0.0), Vec3::Y, Vec3::X, k < 1);
         }
         let (alone, none) = plain.finish(8);
         assert_eq!((alone, none.len()), (row, 0));

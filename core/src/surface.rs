@@ -208,14 +208,15 @@ impl SurfaceScene {
         self.fate_at(origin, dir).0
     }
 
-    /// [`Self::fate`] and how far along `dir` the ray ended (infinite when it escaped).
+    /// [`Self::fate`] and the surface the ray ended on: how far along `dir` (infinite when it
+    /// escaped) and the unit normal of the side met.
     #[inline]
-    fn fate_at(&self, origin: Vec3, dir: Vec3) -> (RayFate, f32) {
+    fn fate_at(&self, origin: Vec3, dir: Vec3) -> (RayFate, f32, Vec3) {
         let Some(hit) = self.mesh.closest(origin, dir, f32::INFINITY) else {
-            return (RayFate::Escaped, f32::INFINITY);
+            return (RayFate::Escaped, f32::INFINITY, Vec3::ZERO);
         };
         if !self.sides[hit.triangle as usize][usize::from(!hit.front)] {
-            return (RayFate::BackFace, hit.t);
+            return (RayFate::BackFace, hit.t, hit.normal);
         }
         let fate = match self
             .owners
@@ -224,7 +225,7 @@ impl SurfaceScene {
             Some(j) => RayFate::Patch(j as usize),
             None => RayFate::Occluder,
         };
-        (fate, hit.t)
+        (fate, hit.t, hit.normal)
     }
 
     /// Where a ray from a point in free space ends (a probe's: no surface to push off from).
@@ -240,7 +241,7 @@ impl SurfaceScene {
         if self.pieces.of(row).is_empty() {
             return None;
         }
-        let (origin, dir) = self.ray(row, k, 0, row_seed(seed, row));
+        let (origin, _, dir) = self.ray(row, k, 0, row_seed(seed, row));
         let hit = self.mesh.closest(origin, dir, f32::INFINITY)?;
         if !self.sides[hit.triangle as usize][usize::from(!hit.front)] {
             return None;
@@ -266,35 +267,40 @@ impl SurfaceScene {
 
     /// Where form-factor ray `k` of `row` (the ray [`RowTracer::trace_row`] traces with this
     /// seed) lands, if it lands within `radius` of its origin on surface that a row owns: the
-    /// hit point and that row. Only the first `radius` of the ray is traced.
+    /// hit point, the unit normal of the side met and that row. Only the first `radius` of the
+    /// ray is traced.
     pub(crate) fn near_landing(
         &self,
         row: usize,
         k: u32,
         seed: u64,
         radius: f32,
-    ) -> Option<(Vec3, usize)> {
+    ) -> Option<(Vec3, Vec3, usize)> {
         if self.pieces.of(row).is_empty() {
             return None;
         }
-        let (origin, dir) = self.ray(row, k, 0, row_seed(seed, row));
+        let (origin, _, dir) = self.ray(row, k, 0, row_seed(seed, row));
         let hit = self.mesh.closest(origin, dir, radius)?;
         if !self.sides[hit.triangle as usize][usize::from(!hit.front)] {
             return None;
         }
         let point = origin + dir * hit.t;
         let j = self.owners.row_at(point, hit.triangle, !hit.front)?;
-        Some((point, j as usize))
+        Some((point, hit.normal, j as usize))
     }
 
-    /// Ray `k` of row `row` in Sobol dimension set `set`: its origin (off the surface) and
-    /// direction.
+    /// Ray `k` of row `row` in Sobol dimension set `set`: its origin (off the surface), the
+    /// unit normal of the piece it starts on and its direction.
     #[inline]
-    fn ray(&self, row: usize, k: u32, set: u32, seed: u32) -> (Vec3, Vec3) {
+    fn ray(&self, row: usize, k: u32, set: u32, seed: u32) -> (Vec3, Vec3, Vec3) {
         let range = self.pieces.start[row] as usize..self.pieces.start[row + 1] as usize;
         let [a, b, c, d] = sobol_burley::sample_4d(k, set, seed);
         let (p, n) = point_on(&self.pieces.tris[range.clone()], &self.cdf[range], a, b);
-        (offset_origin(p, n, self.extent), cosine_direction(n, c, d))
+        (
+            offset_origin(p, n, self.extent),
+            n,
+            cosine_direction(n, c, d),
+        )
     }
 }
 
@@ -318,14 +324,14 @@ impl RowTracer for SurfaceScene {
             return tally;
         }
         for k in 0..rays {
-            let (origin, dir) = self.ray(row, k, 0, s);
-            let (fate, t) = self.fate_at(origin, dir);
+            let (origin, normal, dir) = self.ray(row, k, 0, s);
+            let (fate, t, landing_normal) = self.fate_at(origin, dir);
             if let RayFate::Patch(j) = fate {
                 counts[j] += 1;
-                // The same point `near_landing` takes, for the same bits.
-                seen.near.landed(t, origin + dir * t, j);
+                // The same point and normal `near_landing` takes, for the same bits.
+                seen.near.landed(t, origin + dir * t, landing_normal, j);
             }
-            seen.sky.ray(origin, dir, fate == RayFate::Escaped);
+            seen.sky.ray(origin, normal, dir, fate == RayFate::Escaped);
             tally.count(fate);
         }
         tally
@@ -337,7 +343,7 @@ impl RowTracer for SurfaceScene {
         }
         let s = row_seed(seed, row);
         (0..rays).any(|k| {
-            let (origin, dir) = self.ray(row, k, PROBE_DIMENSION_SET, s);
+            let (origin, _, dir) = self.ray(row, k, PROBE_DIMENSION_SET, s);
             matches!(self.fate(origin, dir), RayFate::Patch(_))
         })
     }

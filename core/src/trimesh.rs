@@ -60,6 +60,8 @@ pub struct Hit {
     pub front: bool,
     /// Whether the triangle is a surface on both sides.
     pub double_sided: bool,
+    /// Unit normal of the side the ray met (facing back along the ray).
+    pub normal: Vec3,
 }
 
 /// The triangles and their BVH.
@@ -177,11 +179,14 @@ impl TriMesh {
         }
         let t = &self.tris[hit.primitive_id as usize];
         let normal = Vec3::from(t.e1).cross(Vec3::from(t.e2));
+        let front = dir.dot(normal) < 0.0;
+        let unit = normal.normalize_or_zero();
         Some(Hit {
             t: hit.t,
             triangle: t.source,
-            front: dir.dot(normal) < 0.0,
+            front,
             double_sided: t.double_sided != 0,
+            normal: if front { unit } else { -unit },
         })
     }
 

@@ -420,14 +420,13 @@ pub(crate) fn prepare(
 /// Where the sample points lie that the form factors' pass gives each row's rays to, for the
 /// samples' sky view ([`crate::sky::RowSky`]): a surface bake's, when it keeps a near field (the
 /// view's only use), with their count a row.
-pub(crate) fn samples_for_sky(
-    surface: Option<&SurfaceData>,
+pub(crate) fn samples_for_sky<'a>(
+    surface: Option<&'a SurfaceData>,
     options: &BakeOptions,
-) -> Option<(Vec<glam::Vec3>, u32)> {
-    surface.filter(|_| options.near_radius > 0.0).map(|s| {
-        let at = s.points.iter().map(|p| glam::Vec3::from(p.position));
-        (at.collect(), s.per_patch)
-    })
+) -> Option<(&'a [crate::surface::SamplePoint], u32)> {
+    surface
+        .filter(|_| options.near_radius > 0.0)
+        .map(|s| (&s.points[..], s.per_patch))
 }
 
 /// What the transport's rows are traced through.
@@ -450,10 +449,10 @@ impl Rows {
 pub(crate) fn near_field(
     rows: Option<Vec<Vec<(u32, f32)>>>,
     samples_sky: Option<SkyVisibility>,
-    samples: Option<&(Vec<glam::Vec3>, u32)>,
+    samples: Option<(&[crate::surface::SamplePoint], u32)>,
 ) -> Option<NearField> {
     let (rows, (_, per_row)) = (rows?, samples?);
-    let mut near = NearField::from_rows(*per_row, rows);
+    let mut near = NearField::from_rows(per_row, rows);
     near.sky = samples_sky;
     Some(near)
 }
@@ -651,18 +650,14 @@ fn bake_with(
             0..n,
             options.rays,
             options.seed,
-            samples.as_ref().map(|(at, k)| (&at[..], *k)),
+            samples,
             options.near_radius * rows.voxel_size,
             &advance,
         )
     })?;
     let (tally, sky) = (traced.tally, traced.sky);
     let near_field = timer.run(Stage::NearField, 0, || {
-        Ok::<_, BakeError>(near_field(
-            traced.near,
-            traced.samples_sky,
-            samples.as_ref(),
-        ))
+        Ok::<_, BakeError>(near_field(traced.near, traced.samples_sky, samples))
     })?;
     let f = DenseMatrix {
         n,

@@ -174,7 +174,7 @@ pub fn form_factor_shard(
             rows.clone(),
             options.rays,
             options.seed,
-            samples.as_ref().map(|(at, k)| (&at[..], *k)),
+            samples,
             options.near_radius * voxel_size,
             &|k| progress.advance(k),
         )
@@ -182,11 +182,7 @@ pub fn form_factor_shard(
     let traced = traced.map_err(BakeError::from)?;
     let (f_rows, tally, sky_rows) = (traced.f, traced.tally, traced.sky);
     let near_rows = timer.run(Stage::NearField, 0, || {
-        Ok::<_, BakeError>(bake::near_field(
-            traced.near,
-            traced.samples_sky,
-            samples.as_ref(),
-        ))
+        Ok::<_, BakeError>(bake::near_field(traced.near, traced.samples_sky, samples))
     })?;
     // Every shard places all the probes (the placement is cheap beside the gathers, and the
     // merge checks that they agree) and gathers its share of their rows, split as the rows.

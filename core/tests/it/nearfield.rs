@@ -158,11 +158,6 @@ fn the_form_factors_pass_keeps_the_near_field_a_retrace_finds() {
     let rows = vox.transport_layout();
     let n = rows.len();
     let tracer = SurfaceScene::new(&scene, mesh, rows, pieces);
-    let at: Vec<glam::Vec3> = data
-        .points
-        .iter()
-        .map(|p| glam::Vec3::from(p.position))
-        .collect();
     for (radius, range) in [(voxel, 0..n), (2.5 * voxel, 3..n - 5)] {
         let retraced = near_field_rows(&tracer, &data, range.clone(), 128, 5, radius, &|_| {})
             .expect("the retrace");
@@ -171,7 +166,7 @@ fn the_form_factors_pass_keeps_the_near_field_a_retrace_finds() {
             range.clone(),
             128,
             5,
-            Some((&at, per_patch)),
+            Some((&data.points, per_patch)),
             radius,
             &|_| {},
         )
