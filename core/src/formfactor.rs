@@ -180,18 +180,12 @@ impl<'a> NearRays<'a> {
         }
     }
 
-    /// Whether a ray that lands `t` from its origin is near.
-    #[inline]
-    pub fn is_near(&self, t: f32) -> bool {
-        t < self.radius && self.per_row > 0
-    }
-
     /// A ray landed at `point`, `t` from its origin, on row `row`'s surface of unit normal
     /// `normal` (the side it met).
     #[inline]
     pub fn landed(&mut self, t: f32, point: Vec3, normal: Vec3, row: usize) {
         let k = self.per_row;
-        if self.is_near(t) {
+        if t < self.radius && k > 0 {
             let own = &self.samples[row * k..(row + 1) * k];
             self.hits
                 .push((row * k + nearest_sample(own, point, normal)) as u32);

@@ -26,8 +26,9 @@
 //! A sky needs the same correction: a surface sees more of it where it is open than in its
 //! corners, and the corners are where near rays land. A row's sky view ([`crate::sky`]) is one
 //! per row, so the matrix keeps a finer one for its sources: per sample point, the view of the
-//! row's form-factor rays that start where it stands for (the same rule; format version 9). A relight with a sky then adds [`NearField::sky_correction`], on the host for
-//! either engine (one sparse pass a light set).
+//! row's form-factor rays that start where it stands for (the same rule; format version 9). A
+//! relight with a sky then adds [`NearField::sky_correction`], on the host for either engine
+//! (one sparse pass a light set).
 
 use std::ops::Range;
 
