@@ -303,6 +303,9 @@ mod tests {
             .closest(Vec3::new(0.3, 1.0, 0.2), Vec3::NEG_Y, f32::INFINITY)
             .unwrap();
         assert!(from_above.front && from_above.triangle < 2);
+        // The normal is the side met's, whichever side that is.
+        assert!(h.normal.distance(Vec3::NEG_Y) < 1e-6, "{h:?}");
+        assert!(from_above.normal.distance(Vec3::Y) < 1e-6, "{from_above:?}");
         let between_up = mesh
             .closest(Vec3::new(0.3, 1.0, 0.2), Vec3::Y, f32::INFINITY)
             .unwrap();
