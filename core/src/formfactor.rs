@@ -17,8 +17,8 @@ use thiserror::Error;
 use crate::matrix::DenseMatrix;
 use crate::patch::Quad;
 pub use crate::rays::{RayFate, RayScene, RayTally, Tracer};
-use crate::sky::{RowSky, SkyVisibility, nearest_sample};
-use crate::surface::SamplePoint;
+use crate::sample::{SamplePoint, nearest_sample};
+use crate::sky::{RowSky, SkyVisibility};
 use bounce_types::sh::SH_COEFFICIENTS;
 
 #[derive(Debug, Error)]
@@ -148,7 +148,7 @@ impl RowRays<'_> {
 
 /// One row's rays that land within `radius` of their origin, each as the direct-light sample
 /// point of the row it landed on that stands for where it landed ([`nearest_sample`]: the
-/// nearest facing as the surface met does): a row of the near-field matrix, taken in the form
+/// nearest on the surface met): a row of the near-field matrix, taken in the form
 /// factors' own pass so the rays are traced once.
 pub struct NearRays<'a> {
     radius: f32,

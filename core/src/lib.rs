@@ -33,6 +33,7 @@ pub mod patch;
 pub mod pointwise;
 pub mod probe;
 pub mod rays;
+pub mod sample;
 pub mod scene;
 pub mod sky;
 pub mod space;

@@ -7,8 +7,8 @@
 //! over many rays; near, it does not (`bounce verify`'s first-bounce split measured almost all of
 //! it within half a voxel). So the bake records, per transport row `i`, where its form-factor rays
 //! that land within `radius` of their origin land: on which direct-light sample point of the
-//! element they met (the nearest one facing as the surface hit does, [`nearest_sample`]: an
-//! element groups pieces of different planes). That is a sparse matrix `C` (rows: transport
+//! element they met (the nearest one on the surface hit, [`nearest_sample`]: an element
+//! groups pieces of different planes). That is a sparse matrix `C` (rows: transport
 //! rows; columns: sample points, `j · per_row + k` for sample `k` of row `j`; value: the share of
 //! row `i`'s rays), and a relight adds
 //!
@@ -36,7 +36,8 @@ use glam::Vec3;
 use rayon::prelude::*;
 
 use crate::formfactor::{FormFactorError, check_rows};
-use crate::sky::{SkyVisibility, nearest_sample};
+use crate::sample::nearest_sample;
+use crate::sky::SkyVisibility;
 use crate::surface::{SurfaceData, SurfaceScene};
 
 /// How far from its origin a form-factor ray may land and still count as near, in voxels,

@@ -20,7 +20,7 @@
 use bounce_types::sh::{SH_BASIS_MAX, SH_COEFFICIENTS, sh_basis};
 use glam::Vec3;
 
-use crate::surface::SamplePoint;
+use crate::sample::{SamplePoint, nearest_sample};
 
 /// Per transport row, the coefficients `c_lm` of the module doc.
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -49,34 +49,6 @@ impl SkySum {
         let w = std::f64::consts::PI / f64::from(rays.max(1));
         self.sum.map(|s| (s * w) as f32)
     }
-}
-
-/// How closely a sample's normal must follow a surface point's for the sample to stand for that
-/// point: within about 8°.
-const SAME_PLANE_COS: f32 = 0.99;
-
-/// Which of `samples` stands for the surface point `to` of unit normal `normal`: the nearest of
-/// those that face as the point does (normals within [`SAME_PLANE_COS`]), else the nearest of
-/// all (the first on a tie; 0 when there are none). An element groups pieces by the direction
-/// they face most, so it may hold a wall and the slanted trim beside it; a point on the trim is
-/// lit and shadowed as the trim is, not as the wall sample that happens to lie nearer. This is
-/// the one rule that gives a ray to a direct-light sample, for the samples' sky view here (by
-/// where the ray starts) and for where a near ray lands in [`crate::nearfield`], so that both
-/// credit the same sample.
-pub(crate) fn nearest_sample(samples: &[SamplePoint], to: Vec3, normal: Vec3) -> usize {
-    let nearest = |facing: bool| {
-        samples
-            .iter()
-            .enumerate()
-            .filter(|(_, s)| !facing || Vec3::from(s.normal).dot(normal) > SAME_PLANE_COS)
-            .map(|(i, s)| (i, Vec3::from(s.position).distance_squared(to)))
-            .fold(None, |best: Option<(usize, f32)>, c| match best {
-                Some(b) if b.1 <= c.1 => Some(b),
-                _ => Some(c),
-            })
-            .map(|(i, _)| i)
-    };
-    nearest(true).or_else(|| nearest(false)).unwrap_or(0)
 }
 
 /// One row's sky as its form-factor rays find it: the row's [`SkySum`] and, when the row's
@@ -239,37 +211,6 @@ mod tests {
         assert!((e[0][0] - 2.0 * want).abs() < 1e-5, "{e:?}");
         assert!((e[0][1] - want).abs() < 1e-5 && e[0][2] == 0.0, "{e:?}");
         assert_eq!(sky.check(1), Ok(()));
-    }
-
-    #[test]
-    fn a_point_goes_to_the_nearest_sample_that_faces_as_it_does() {
-        let sample = |position: [f32; 3], normal: [f32; 3]| SamplePoint { position, normal };
-        let tilt = Vec3::new(0.3, 1.0, 0.0).normalize().to_array();
-        // A floor sample 1 away, a trim sample (tilted 17°) 0.1 away, a wall sample 0.05 away.
-        let samples = [
-            sample([1.0, 0.0, 0.0], [0.0, 1.0, 0.0]),
-            sample([0.1, 0.0, 0.0], tilt),
-            sample([0.0, 0.05, 0.0], [1.0, 0.0, 0.0]),
-        ];
-        // A point on the floor is the floor sample's, though the others lie nearer.
-        assert_eq!(nearest_sample(&samples, Vec3::ZERO, Vec3::Y), 0);
-        // On the trim, the trim's; on the wall, the wall's.
-        assert_eq!(nearest_sample(&samples, Vec3::ZERO, Vec3::from(tilt)), 1);
-        assert_eq!(nearest_sample(&samples, Vec3::ZERO, Vec3::X), 2);
-        // Within the tolerance a normal still counts as facing the same way.
-        let close = Vec3::new(0.1, 1.0, 0.0).normalize();
-        assert_eq!(nearest_sample(&samples, Vec3::ZERO, close), 0);
-        // Facing as none does (a ceiling point): the nearest of all.
-        assert_eq!(nearest_sample(&samples, Vec3::ZERO, -Vec3::Y), 2);
-        // Of two facing alike, the nearer; on a tie, the first.
-        let twins = [
-            samples[0],
-            samples[0],
-            sample([0.5, 0.0, 0.0], [0.0, 1.0, 0.0]),
-        ];
-        assert_eq!(nearest_sample(&twins, Vec3::ZERO, Vec3::Y), 2);
-        assert_eq!(nearest_sample(&twins[..2], Vec3::ZERO, Vec3::Y), 0);
-        assert_eq!(nearest_sample(&[], Vec3::ZERO, Vec3::Y), 0);
     }
 
     #[test]

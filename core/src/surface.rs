@@ -15,11 +15,11 @@
 use std::sync::Arc;
 
 use glam::Vec3;
-use serde::{Deserialize, Serialize};
 
 use crate::formfactor::{RowRays, RowTracer, row_seed};
 use crate::patch::{PatchLayout, PieceTri, Pieces};
 use crate::rays::{RayFate, RayTally};
+pub use crate::sample::SamplePoint;
 use crate::scene::Scene;
 
 use crate::trimesh::{TriMesh, extent_of, offset_origin};
@@ -34,18 +34,6 @@ pub const MAX_SURFACE_SAMPLES: u32 = 256;
 const SAMPLE_DIMENSION_SET: u32 = 2;
 /// Sobol dimension set of the isolated-patch probe.
 const PROBE_DIMENSION_SET: u32 = 1;
-
-/// A point on a patch's surface where direct light is evaluated, with the unit normal of the
-/// side the patch stands for. The position is already pushed off the surface along the normal
-/// ([`offset_origin`]), so shadow rays start from it as is, on the CPU and the GPU alike.
-#[repr(C)]
-#[derive(
-    Debug, Clone, Copy, PartialEq, Serialize, Deserialize, bytemuck::Pod, bytemuck::Zeroable,
-)]
-pub struct SamplePoint {
-    pub position: [f32; 3],
-    pub normal: [f32; 3],
-}
 
 /// What a surface-geometry baked file keeps for direct light at run time: the triangles shadow
 /// rays are traced against, and `per_patch` sample points for each patch (patch `i` owns
