@@ -59,7 +59,7 @@ pub fn first_bounce(
             |cache, i| {
                 let (mut pointwise, mut element) = (Vec3::ZERO, Vec3::ZERO);
                 for k in 0..rays {
-                    let Some(l) = tracer.landing(scene, i, k, seed) else {
+                    let Some(l) = tracer.landing(i, k, seed) else {
                         continue;
                     };
                     let t = &scene.triangles[l.triangle as usize];

@@ -224,8 +224,8 @@ impl SurfaceScene {
     /// Where form-factor ray `k` of `row` lands (the same ray [`RowTracer::trace_row`] traces
     /// with this seed): the hit point, the unit normal of the side it met, the original triangle
     /// and the row owning that surface. `None` where the ray carries nothing (escaped, a back
-    /// face, surface of no row). `scene` is the one this was built from.
-    pub(crate) fn landing(&self, scene: &Scene, row: usize, k: u32, seed: u64) -> Option<Landing> {
+    /// face, surface of no row).
+    pub(crate) fn landing(&self, row: usize, k: u32, seed: u64) -> Option<Landing> {
         if self.pieces.of(row).is_empty() {
             return None;
         }
@@ -236,13 +236,9 @@ impl SurfaceScene {
         }
         let point = origin + dir * hit.t;
         let row = self.owners.row_at(point, hit.triangle, !hit.front)? as usize;
-        let front = scene.triangles[hit.triangle as usize]
-            .cross()
-            .normalize_or_zero();
-        let normal = if hit.front { front } else { -front };
         Some(Landing {
-            position: offset_origin(point, normal, self.extent),
-            normal,
+            position: offset_origin(point, hit.normal, self.extent),
+            normal: hit.normal,
             triangle: hit.triangle,
             row,
         })
