@@ -1396,6 +1396,8 @@ fn bench_engines_measures_the_file_and_synthetic_sizes() {
                 "1",
                 "--warm-up",
                 "0",
+                "--columns",
+                "lit,all",
             ])
             .arg("--csv")
             .arg(&csv);
@@ -1417,6 +1419,7 @@ fn bench_engines_measures_the_file_and_synthetic_sizes() {
             .iter()
             .filter(|r| r[col("codec")] == "dense-f32" || r[col("codec")] == "bc1")
             .filter(|r| r[col("engine")] != "gpu-tensor")
+            .filter(|r| r[col("engine")] != "gpu-all-columns")
             .collect();
         let engines: Vec<&str> = products.iter().map(|r| r[col("engine")].as_str()).collect();
         if !engines.contains(&"gpu") {
@@ -1441,6 +1444,32 @@ fn bench_engines_measures_the_file_and_synthetic_sizes() {
             assert!(err <= bound, "{r:?}");
             let ms: f64 = r[col("latency_ms_p50")].parse().unwrap();
             assert!(ms > 0.0, "{r:?}");
+        }
+        // The GPU's one-set products walking every column: the same result as skipping the dark
+        // groups (the same bits, so the same error), and the whole matrix read.
+        let all: Vec<&Vec<String>> = rows
+            .iter()
+            .filter(|r| r[col("engine")] == "gpu-all-columns")
+            .collect();
+        assert_eq!(all.len(), if engine_count == 2 { 2 } else { 0 }, "{text}");
+        for r in all {
+            let lit = products
+                .iter()
+                .find(|p| {
+                    p[col("engine")] == "gpu"
+                        && p[col("codec")] == r[col("codec")]
+                        && p[col("batch")] == r[col("batch")]
+                })
+                .unwrap();
+            assert_eq!(r[col("batch")], "1", "{r:?}");
+            assert_eq!(r[col("walked")], "1.000", "{r:?}");
+            assert_eq!(
+                r[col("eind_rel_l2")],
+                lit[col("eind_rel_l2")],
+                "{r:?} {lit:?}"
+            );
+            let walked: f64 = lit[col("walked")].parse().unwrap();
+            assert!(walked > 0.0 && walked <= 1.0, "{lit:?}");
         }
         // The file's run also times direct light on each engine; a synthetic one has no scene.
         let direct = rows

@@ -19,6 +19,7 @@ mod direct_surface;
 mod error;
 mod kernel;
 pub mod light;
+mod lit;
 mod logblock;
 mod matrix;
 mod near_field;
@@ -32,7 +33,8 @@ pub use direct_surface::{
 };
 pub use error::GpuError;
 pub use kernel::{
-    CHUNK, CHUNKS, Params, ROWS, Split, TILE_ROWS, TILE_SETS, variant_for, variant_within,
+    ALL_COLUMNS, CHUNK, CHUNKS, LIT_GROUP, Params, ROWS, Split, TILE_ROWS, TILE_SETS, variant_for,
+    variant_within,
 };
 pub use light::GpuLight;
 pub use matrix::{BatchKernel, GpuMatrix};

@@ -68,9 +68,23 @@ pub struct BenchEnginesArgs {
     /// `gpu-tensor` and `gpu-matvec`.
     #[arg(long, value_delimiter = ',', default_value = "tiled,tensor")]
     pub kernels: Vec<Kernel>,
+    /// Which columns the GPU's matrix-vector kernels (batches of up to 8 light sets) walk,
+    /// comma separated, measured on the same upload: lit (the engine's default: only the
+    /// groups of 64 columns some light set of the batch lights) and all (every column, the
+    /// whole matrix read). The table names them `gpu` and `gpu-all-columns`; its `walked`
+    /// column is the share of the matrix a product read, and the bandwidth columns count those
+    /// bytes only.
+    #[arg(long, value_delimiter = ',', default_value = "lit")]
+    pub columns: Vec<Columns>,
     /// Write the table as CSV here too.
     #[arg(long, value_name = "OUT.csv")]
     pub csv: Option<PathBuf>,
+}
+
+#[derive(clap::ValueEnum, Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Columns {
+    Lit,
+    All,
 }
 
 #[derive(clap::ValueEnum, Debug, Clone, Copy, PartialEq, Eq)]
@@ -91,9 +105,11 @@ struct Row {
     /// The device's own time for each timed product (GPU timestamp queries); empty where
     /// there is none.
     kernel_times: Vec<f64>,
-    /// Bytes one pass over the matrix reads, and passes per product.
+    /// Bytes one pass over the whole matrix reads, passes per product, and the share of the
+    /// matrix a pass walked (below 1 where dark column groups were skipped).
     bytes: usize,
     passes: usize,
+    walked: f64,
     rel_l2: f64,
     rel_max: f64,
 }
@@ -124,6 +140,21 @@ impl Product {
         match self {
             Product::Cpu(_) => None,
             Product::Gpu(m) => m.last_kernel_seconds(),
+        }
+    }
+
+    /// The share of the matrix the last product's passes read.
+    fn walked(&self) -> f64 {
+        match self {
+            Product::Cpu(_) => 1.0,
+            Product::Gpu(m) => m.last_lit_share().unwrap_or(1.0),
+        }
+    }
+
+    /// Whether the GPU's matrix-vector kernels skip dark column groups (CPU: no effect).
+    fn set_columns(&mut self, columns: Columns) {
+        if let Product::Gpu(m) = self {
+            m.set_gather(columns == Columns::Lit);
         }
     }
 
@@ -285,6 +316,7 @@ pub fn run(args: &BenchEnginesArgs) -> Result<()> {
         "lightsets_per_s",
         "matrix_mb",
         "passes",
+        "walked",
         "effective_gb_per_s",
         "kernel_gb_per_s",
         "of_device_bandwidth",
@@ -299,7 +331,7 @@ pub fn run(args: &BenchEnginesArgs) -> Result<()> {
         .iter()
         .map(|r| {
             let (p50, p99) = percentiles(&r.times);
-            let read = (r.bytes * r.passes) as f64;
+            let read = (r.bytes * r.passes) as f64 * r.walked;
             let gbs = read / p50;
             let kernel = (!r.kernel_times.is_empty()).then(|| percentiles(&r.kernel_times).0);
             // A GPU's share of its bandwidth is the kernels' own rate (the wall time also holds
@@ -320,6 +352,7 @@ pub fn run(args: &BenchEnginesArgs) -> Result<()> {
                 format!("{:.1}", r.batch as f64 / p50),
                 format!("{:.1}", r.bytes as f64 / 1e6),
                 r.passes.to_string(),
+                format!("{:.3}", r.walked),
                 if r.bytes > 0 {
                     format!("{:.2}", gbs / 1e9)
                 } else {
@@ -438,34 +471,52 @@ fn product_rows(
                 let small_here = !small_measured;
                 small_measured = true;
                 for &batch in &args.batches {
-                    if !small_here && batch <= bounce_engine::gpu::CHUNK as usize {
+                    let small = batch <= bounce_engine::gpu::CHUNK as usize;
+                    if !small_here && small {
                         continue;
                     }
-                    let x = &subject.b0[..batch * n];
-                    let mut out = vec![[0.0f32; 3]; x.len()];
-                    warm_up(args.warm_up, || product.apply(x, &mut out))?;
-                    let mut times = Vec::with_capacity(args.repeat);
-                    let mut kernel_times = Vec::with_capacity(args.repeat);
-                    for _ in 0..args.repeat {
-                        let start = Instant::now();
-                        product.apply(x, &mut out)?;
-                        times.push(start.elapsed().as_secs_f64());
-                        kernel_times.extend(product.kernel_seconds());
+                    // Column choices apply to the matrix-vector kernels only, and the CPU has
+                    // its own rule (lanes gather below half lit).
+                    let choices: &[Columns] = match (&product, small) {
+                        (Product::Gpu(_), true) => &args.columns,
+                        _ => &[Columns::Lit],
+                    };
+                    for &columns in choices {
+                        product.set_columns(columns);
+                        let engine = match columns {
+                            Columns::All if matches!(product, Product::Gpu(_)) => {
+                                format!("{engine}-all-columns")
+                            }
+                            _ => engine.clone(),
+                        };
+                        let x = &subject.b0[..batch * n];
+                        let mut out = vec![[0.0f32; 3]; x.len()];
+                        warm_up(args.warm_up, || product.apply(x, &mut out))?;
+                        let mut times = Vec::with_capacity(args.repeat);
+                        let mut kernel_times = Vec::with_capacity(args.repeat);
+                        for _ in 0..args.repeat {
+                            let start = Instant::now();
+                            product.apply(x, &mut out)?;
+                            times.push(start.elapsed().as_secs_f64());
+                            kernel_times.extend(product.kernel_seconds());
+                        }
+                        let (rel_l2, rel_max) = errors(&out, &subject.reference[..x.len()]);
+                        rows.push(Row {
+                            engine,
+                            codec: codec_name.clone(),
+                            rows: n,
+                            batch,
+                            times,
+                            kernel_times,
+                            bytes: encoded.payload.len(),
+                            passes: product.passes_for(batch),
+                            walked: product.walked(),
+                            rel_l2,
+                            rel_max,
+                        });
+                        report(&subject.label, rows.last());
                     }
-                    let (rel_l2, rel_max) = errors(&out, &subject.reference[..x.len()]);
-                    rows.push(Row {
-                        engine: engine.clone(),
-                        codec: codec_name.clone(),
-                        rows: n,
-                        batch,
-                        times,
-                        kernel_times,
-                        bytes: encoded.payload.len(),
-                        passes: product.passes_for(batch),
-                        rel_l2,
-                        rel_max,
-                    });
-                    report(&subject.label, rows.last());
+                    product.set_columns(Columns::Lit);
                 }
             }
         }
@@ -599,6 +650,7 @@ fn probe_rows(args: &BenchEnginesArgs, baked: &Baked, sets: &[LightSet]) -> Resu
             // Per entry a row index and a share, read once a light set.
             bytes: probes.nnz() * 8,
             passes: batch,
+            walked: 1.0,
             rel_l2,
             rel_max,
         });
@@ -748,6 +800,7 @@ fn direct_rows(
             kernel_times: Vec::new(),
             bytes: 0,
             passes: 0,
+            walked: 1.0,
             rel_l2,
             rel_max,
         });
@@ -797,6 +850,7 @@ fn jacobi_rows(
             kernel_times: Vec::new(),
             bytes: ff.payload.len(),
             passes: k as usize,
+            walked: 1.0,
             rel_l2,
             rel_max,
         });

@@ -68,8 +68,19 @@ pub struct Params {
     /// Side of one block-image tile (block kernels; an image wider than a texture goes in
     /// tiles, one array layer each).
     pub tile: u32,
+    /// How many lit column groups the matrix-vector kernels walk (`lit_groups`, binding 6 of
+    /// `row_block.wgsl`), or [`ALL_COLUMNS`].
+    pub lit: u32,
+    pub pad: [u32; 3],
     pub max: [f32; 4],
 }
+
+/// `Params::lit` for a pass that walks every column (mirrors `ALL_COLUMNS` in `common.wgsl`).
+pub const ALL_COLUMNS: u32 = u32::MAX;
+
+/// Columns in one lit group: the matrix-vector kernels skip the groups where every light set of
+/// the batch is dark (mirrors `WG` in `common.wgsl`; a thread takes one column of each group).
+pub const LIT_GROUP: usize = 64;
 
 /// How large one piece of an uploaded matrix may be: bytes in one storage binding, texels on a
 /// texture's side, layers in a texture array. [`Split::of`] reads them from the device; tests
@@ -198,6 +209,8 @@ pub struct Variant {
     pub pipeline: wgpu::ComputePipeline,
     pub chunk: u32,
     pub rows_per_group: u32,
+    /// Whether the kernel walks only the batch's lit column groups (binds `lit_groups`).
+    pub gathers: bool,
 }
 
 /// Which product a pass runs: the dense or the block codecs' kernels (`dense.wgsl`,
@@ -233,6 +246,7 @@ pub fn matvec_variants(
                 pipeline: pipeline_with(device, label, &source, entry, constants, Loops::Counted)?,
                 chunk,
                 rows_per_group,
+                gathers: chunk != TILE_SETS,
             })
         })
         .collect()
@@ -263,6 +277,7 @@ pub fn sparse_variants(device: &wgpu::Device) -> Result<Vec<Variant>, GpuError> 
             )?,
             chunk,
             rows_per_group: 1,
+            gathers: false,
         });
     }
     Ok(compiled)

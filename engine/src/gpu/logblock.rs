@@ -13,13 +13,21 @@ use super::matrix::{Bound, Pass};
 use super::tensor::TensorKernel;
 use super::{GpuContext, GpuError, sparse};
 
-/// The block pass, the sparse pass if any, and the per-channel maxima and sparse count for
-/// [`super::Params`].
+/// What goes up for a block codec: the block pass, the sparse passes if any, the per-channel
+/// maxima for [`super::Params`], and the image's column order (storage column `l` multiplies
+/// patch `col_order[l]`), by which the host finds the lit column groups.
+pub(super) struct Uploaded {
+    pub block: Pass,
+    pub sparse: Vec<Pass>,
+    pub max: [f32; 4],
+    pub col_order: Vec<u32>,
+}
+
 pub(super) fn upload(
     ctx: &GpuContext,
     m: &EncodedMatrix,
     split: Split,
-) -> Result<(Pass, Vec<Pass>, [f32; 4]), GpuError> {
+) -> Result<Uploaded, GpuError> {
     let (device, queue) = (&ctx.device, &ctx.queue);
     let blocks = match m.codec.as_str() {
         "bc1" | "bc1-resid" => Blocks::Bc1,
@@ -74,7 +82,12 @@ pub(super) fn upload(
     for (c, lut) in op.lut().iter().enumerate().take(3) {
         max[c] = lut[255];
     }
-    Ok((pass, sparse::upload(device, op.sparse(), split)?, max))
+    Ok(Uploaded {
+        block: pass,
+        sparse: sparse::upload(device, op.sparse(), split)?,
+        max,
+        col_order: op.col_perm().to_vec(),
+    })
 }
 
 /// The block image as a texture array: one tile when it fits the texture side, else square

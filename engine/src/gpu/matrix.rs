@@ -7,11 +7,15 @@ use bounce_core::codec::CodecError;
 use bounce_core::matrix::EncodedMatrix;
 
 use super::kernel::{
-    CHUNK, CHUNKS, Params, Split, TILE_SETS, Variant, check_binding, grid, scoped,
-    sets_per_dispatch, variant_for, variant_within,
+    ALL_COLUMNS, CHUNK, CHUNKS, LIT_GROUP, Params, Split, TILE_SETS, Variant, check_binding, grid,
+    scoped, sets_per_dispatch, u32_bytes, variant_for, variant_within,
 };
+use super::lit::lit_groups;
 use super::tensor::{TensorIo, TensorKernel};
 use super::{GpuContext, GpuError, dense, logblock};
+
+/// The passes, channel maxima, sparse band count and column order of an upload.
+type Uploaded = (Vec<Pass>, [f32; 4], usize, Option<Vec<u32>>);
 
 /// A resource a pass binds besides the shared params, light and output buffers (bindings 0–2).
 pub(super) enum Bound {
@@ -63,6 +67,8 @@ struct Io {
     timer: Option<Timer>,
     x: wgpu::Buffer,
     out: wgpu::Buffer,
+    /// The lit column groups of the batch (`lit_groups` in `row_block.wgsl`).
+    lit: wgpu::Buffer,
     readback: wgpu::Buffer,
     params: Vec<wgpu::Buffer>,
     /// `groups[variant][pass]`: pipelines with derived layouts take only their own bind groups.
@@ -97,6 +103,14 @@ pub struct GpuMatrix {
     sparse_bands: usize,
     /// The kernel for batches over `CHUNK` sets (the bench measures each on one upload).
     kernel: BatchKernel,
+    /// Storage column `l` multiplies patch `col_order[l]` (block codecs); the identity when
+    /// `None` (dense).
+    col_order: Option<Vec<u32>>,
+    /// Whether the matrix-vector kernels skip the column groups every light set of a batch
+    /// leaves dark (the default; the bench turns it off to measure what it saves).
+    gather: bool,
+    /// The share of column groups the last product's matrix-vector passes walked.
+    lit_share: Mutex<Option<f64>>,
     io: Mutex<Option<Io>>,
 }
 
@@ -123,14 +137,13 @@ impl GpuMatrix {
         let (uploaded, error) = scoped(&ctx.device, wgpu::ErrorFilter::OutOfMemory, || {
             match m.codec.as_str() {
                 "dense-f32" | "dense-f16" => {
-                    dense::upload(&ctx.device, m, split).map(|passes| (passes, [0.0; 4], 0))
+                    dense::upload(&ctx.device, m, split).map(|passes| (passes, [0.0; 4], 0, None))
                 }
-                "bc1" | "bc1-resid" | "bc4" | "log8" => {
-                    logblock::upload(ctx, m, split).map(|(block, sparse, max)| {
-                        let bands = sparse.len();
-                        (std::iter::once(block).chain(sparse).collect(), max, bands)
-                    })
-                }
+                "bc1" | "bc1-resid" | "bc4" | "log8" => logblock::upload(ctx, m, split).map(|u| {
+                    let bands = u.sparse.len();
+                    let passes = std::iter::once(u.block).chain(u.sparse).collect();
+                    (passes, u.max, bands, Some(u.col_order))
+                }),
                 other => Err(GpuError::UnsupportedCodec(other.to_string())),
             }
         });
@@ -140,7 +153,7 @@ impl GpuMatrix {
                 message: e.to_string(),
             });
         }
-        let (passes, max, sparse_bands): (Vec<Pass>, [f32; 4], usize) = uploaded?;
+        let (passes, max, sparse_bands, col_order): Uploaded = uploaded?;
         let pieces = match passes.first() {
             Some(p) if p.tile > 0 => {
                 let width = m.rows.div_ceil(4) * 4;
@@ -159,6 +172,9 @@ impl GpuMatrix {
             sparse_bands,
             pieces,
             kernel: BatchKernel::Tensor,
+            col_order,
+            gather: true,
+            lit_share: Mutex::new(None),
             kernel_seconds: Mutex::new(None),
             io: Mutex::new(None),
         };
@@ -226,6 +242,22 @@ impl GpuMatrix {
     /// The kernel batches over `CHUNK` light sets run on.
     pub fn batch_kernel(&self) -> BatchKernel {
         self.kernel
+    }
+
+    /// Whether the matrix-vector kernels (batches of up to [`CHUNK`] sets) skip the column
+    /// groups every light set of the batch leaves dark. On by default: a skipped group adds
+    /// exactly zero, so the result has the same bits either way (a test checks it); off, the
+    /// kernels read the whole matrix, which the bench measures against.
+    pub fn set_gather(&mut self, gather: bool) {
+        self.gather = gather;
+    }
+
+    /// The share of column groups (of [`super::LIT_GROUP`] columns) the last product's
+    /// matrix-vector passes walked: 1 when they walked every column, `None` when the last
+    /// product ran the tiled or tensor kernel, or none ran yet. Such a pass reads about this
+    /// share of the matrix.
+    pub fn last_lit_share(&self) -> Option<f64> {
+        self.lit_share.lock().ok().and_then(|s| *s)
     }
 
     /// Why the driver refused the tensor kernel on a device that has tensor cores, if it did.
@@ -301,22 +333,32 @@ impl GpuMatrix {
             .lock()
             .map_err(|_| GpuError::Readback("a previous product panicked".into()))?;
         let mut kernel = Some(0.0);
+        let (mut walked, mut slices) = (0.0, 0);
         for (xs, outs) in x.chunks(slice * n).zip(out.chunks_mut(slice * n)) {
-            let spent = self.run(&mut io, xs, outs)?;
+            let (spent, share) = self.run(&mut io, xs, outs)?;
             kernel = kernel.zip(spent).map(|(a, b)| a + b);
+            if let Some(share) = share {
+                walked += share;
+                slices += 1;
+            }
         }
         if let Ok(mut k) = self.kernel_seconds.lock() {
             *k = kernel;
         }
+        if let Ok(mut s) = self.lit_share.lock() {
+            *s = (slices > 0).then(|| walked / f64::from(slices));
+        }
         Ok(())
     }
 
+    /// One slice of a batch: the kernel time where it was measured, and the share of column
+    /// groups the matrix-vector passes walked where one ran.
     fn run(
         &self,
         io: &mut Option<Io>,
         x: &[[f32; 3]],
         out: &mut [[f32; 3]],
-    ) -> Result<Option<f64>, GpuError> {
+    ) -> Result<(Option<f64>, Option<f64>), GpuError> {
         let sets = (x.len() / self.n as usize) as u32;
         if io.as_ref().is_none_or(|io| io.sets < sets) {
             *io = Some(self.io_for(sets)?);
@@ -326,10 +368,21 @@ impl GpuMatrix {
         };
         let bytes: &[u8] = bytemuck::cast_slice(x);
         self.queue.write_buffer(&io.x, 0, bytes);
+        let variant = self.variant(sets);
+        let gathers = self.passes.iter().any(|p| p.variants[variant].gathers);
+        let lit = (self.gather && gathers)
+            .then(|| lit_groups(x, self.n as usize, self.col_order.as_deref()))
+            .flatten();
+        if let Some(groups) = lit.as_ref().filter(|g| !g.is_empty()) {
+            self.queue.write_buffer(&io.lit, 0, u32_bytes(groups));
+        }
+        let share = gathers.then(|| {
+            let all = (self.n as usize).div_ceil(LIT_GROUP).max(1);
+            lit.as_ref().map_or(1.0, |g| g.len() as f64 / all as f64)
+        });
         let mut encoder = self
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
-        let variant = self.variant(sets);
         for (pass, tio) in self.passes.iter().zip(&io.tensor) {
             if let (Some(t), Some(tio)) = (self.tensor_for(pass, variant, sets), tio) {
                 t.clear(&mut encoder, tio);
@@ -367,6 +420,11 @@ impl GpuMatrix {
                     row0: pass.row0,
                     rows: pass.rows,
                     tile: pass.tile,
+                    lit: match &lit {
+                        Some(groups) if kernel.gathers => groups.len() as u32,
+                        _ => ALL_COLUMNS,
+                    },
+                    pad: [0; 3],
                     max: self.max,
                 };
                 self.queue.write_buffer(params, 0, bytemuck::bytes_of(&p));
@@ -417,23 +475,22 @@ impl GpuMatrix {
         }
         io.readback.unmap();
         let (Some(t), Some(rx)) = (&io.timer, timed) else {
-            return Ok(None);
+            return Ok((None, share));
         };
         // A timing that did not come back costs the figure, not the product.
         if !matches!(rx.recv(), Ok(Ok(()))) {
-            return Ok(None);
+            return Ok((None, share));
         }
         let ticks = {
             let Ok(view) = t.readback.slice(..).get_mapped_range() else {
-                return Ok(None);
+                return Ok((None, share));
             };
             let stamps: &[u64] = bytemuck::cast_slice(&view);
             stamps[1].saturating_sub(stamps[0])
         };
         t.readback.unmap();
-        Ok(Some(
-            ticks as f64 * f64::from(self.queue.get_timestamp_period()) * 1e-9,
-        ))
+        let seconds = ticks as f64 * f64::from(self.queue.get_timestamp_period()) * 1e-9;
+        Ok((Some(seconds), share))
     }
 
     fn io_for(&self, sets: u32) -> Result<Io, GpuError> {
@@ -451,6 +508,12 @@ impl GpuMatrix {
         let x = buffer("lights", U::STORAGE | U::COPY_DST);
         let out = buffer("irradiance", U::STORAGE | U::COPY_SRC);
         let readback = buffer("readback", U::MAP_READ | U::COPY_DST);
+        let lit = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("lit column groups"),
+            size: ((self.n as usize).div_ceil(LIT_GROUP).max(1) * 4) as u64,
+            usage: U::STORAGE | U::COPY_DST,
+            mapped_at_creation: false,
+        });
         let params: Vec<wgpu::Buffer> = self
             .passes
             .iter()
@@ -464,7 +527,7 @@ impl GpuMatrix {
             })
             .collect();
         let groups = (0..CHUNKS.len())
-            .map(|variant| self.bind_groups(variant, &params, &x, &out))
+            .map(|variant| self.bind_groups(variant, &params, &x, &out, &lit))
             .collect();
         let tensor = self
             .passes
@@ -503,6 +566,7 @@ impl GpuMatrix {
             timer,
             x,
             out,
+            lit,
             readback,
             params,
             groups,
@@ -517,6 +581,7 @@ impl GpuMatrix {
         params: &[wgpu::Buffer],
         x: &wgpu::Buffer,
         out: &wgpu::Buffer,
+        lit: &wgpu::Buffer,
     ) -> Vec<wgpu::BindGroup> {
         self.passes
             .iter()
@@ -527,6 +592,9 @@ impl GpuMatrix {
                     entry(1, x.as_entire_binding()),
                     entry(2, out.as_entire_binding()),
                 ];
+                if pass.variants[variant].gathers {
+                    entries.push(entry(6, lit.as_entire_binding()));
+                }
                 for (binding, bound) in &pass.bound {
                     entries.push(entry(
                         *binding,

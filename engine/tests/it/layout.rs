@@ -32,7 +32,7 @@ fn row_sources() -> [(&'static str, String); 3] {
 
 #[test]
 fn params_layout_matches_wgsl() {
-    let rust: [(&str, usize); 9] = [
+    let rust: [(&str, usize); 13] = [
         ("n", std::mem::offset_of!(Params, n)),
         ("channels", std::mem::offset_of!(Params, channels)),
         ("sets", std::mem::offset_of!(Params, sets)),
@@ -41,6 +41,10 @@ fn params_layout_matches_wgsl() {
         ("row0", std::mem::offset_of!(Params, row0)),
         ("rows", std::mem::offset_of!(Params, rows)),
         ("tile", std::mem::offset_of!(Params, tile)),
+        ("lit", std::mem::offset_of!(Params, lit)),
+        ("pad0", std::mem::offset_of!(Params, pad)),
+        ("pad1", std::mem::offset_of!(Params, pad) + 4),
+        ("pad2", std::mem::offset_of!(Params, pad) + 8),
         ("max", std::mem::offset_of!(Params, max)),
     ];
     for (name, source) in all_sources() {

@@ -26,11 +26,19 @@ struct Params {
     // Side of one block-image tile (block kernels): an image wider than the device's texture
     // side goes in square tiles, each its own array layer (per channel for BC4 / raw codes).
     tile: u32,
+    // Lit column groups the matrix-vector kernels walk (`lit_groups` in row_block.wgsl), or
+    // ALL_COLUMNS: every column.
+    lit: u32,
+    pad0: u32,
+    pad1: u32,
+    pad2: u32,
     // Per-channel maxima of the log quantisation (block kernels only).
     max: vec4<f32>,
 }
 
 const WG: u32 = 64u;
+// `Params.lit` when the kernel walks every column (mirrors `kernel::ALL_COLUMNS`).
+const ALL_COLUMNS: u32 = 0xffffffffu;
 const ROWS: u32 = 4u;
 // The host compiles one variant per entry of `kernel::CHUNKS`, replacing this line: a batch of one
 // light set then keeps 4 accumulators a thread, not 32.

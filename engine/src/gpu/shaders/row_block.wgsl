@@ -19,6 +19,12 @@ fn pick(acc: array<vec3<f32>, SLOTS>, k: u32) -> vec3<f32> {
     return v;
 }
 
+// The groups of WG consecutive storage columns where some light set of the batch is lit, in
+// ascending order (the host's `lit_groups`). A dark column adds exactly +0 to every sum, and a
+// thread keeps the columns l ≡ tid (mod WG) in the same order whether dark groups are walked or
+// skipped, so skipping them changes no bit of the result, whatever else is in the batch.
+@group(0) @binding(6) var<storage, read> lit_groups: array<u32>;
+
 fn row_block(wid: vec3<u32>, tid: u32) {
     let n = params.n;
     let rows = params.rows;
@@ -31,7 +37,17 @@ fn row_block(wid: vec3<u32>, tid: u32) {
     let base = w.base;
     let sets = min(CHUNK, params.sets - base);
     var acc: array<vec3<f32>, SLOTS>;
-    for (var l = tid; l < n; l += WG) {
+    let gather = params.lit != ALL_COLUMNS;
+    let steps = select((n + WG - 1u) / WG, params.lit, gather);
+    for (var q = 0u; q < steps; q++) {
+        var g = q;
+        if gather {
+            g = lit_groups[q];
+        }
+        let l = g * WG + tid;
+        if l >= n {
+            continue;
+        }
         let j = column(l);
         var xs: array<vec3<f32>, CHUNK>;
         for (var s = 0u; s < CHUNK; s++) {
