@@ -19,6 +19,7 @@
 
 use bounce_types::sh::{SH_BASIS_MAX, SH_COEFFICIENTS, sh_basis};
 use glam::Vec3;
+use rayon::prelude::*;
 
 use crate::sample::{SamplePoint, nearest_sample};
 
@@ -125,9 +126,13 @@ impl SkyVisibility {
     /// Per row, the irradiance a sky of radiance coefficients `sky` gives it, `Σ c_lm L_lm`
     /// per channel. An SH sky may ring below zero in some directions; a row that would get
     /// negative light from it gets none.
+    ///
+    /// In parallel: the near field's samples hold a view each (pandora: 189 k, evaluated for
+    /// every light set with a sky); on one thread they took 2.6 ms a set, against 0.9 ms on two.
     pub fn irradiance(&self, sky: &[[f32; 3]; SH_COEFFICIENTS]) -> Vec<[f32; 3]> {
         self.rows
-            .iter()
+            .par_iter()
+            .with_min_len(1024)
             .map(|c| {
                 std::array::from_fn(|ch| {
                     let e: f64 = (0..SH_COEFFICIENTS)
