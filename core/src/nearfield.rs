@@ -230,6 +230,11 @@ impl NearField {
         assert_eq!(albedo.len(), n, "one albedo per row");
         assert_eq!(mean.len(), n, "one mean per row");
         assert_eq!(per_sample.len(), n * k, "one value per sample point");
+        // A set no punctual light reaches (a sky alone, say) has nothing to correct: skip the
+        // pass over every entry (pandora: 1.5 M) rather than sum its zeros.
+        if per_sample.iter().chain(mean).all(|v| *v == [0.0; 3]) {
+            return vec![[0.0; 3]; n];
+        }
         // Each sample's departure from its element's mean, reflected, once: a sample is met by
         // many rows' near rays (pandora: 1.5 M entries over 190 k samples), and the row sums
         // then read one value an entry instead of three.
@@ -351,6 +356,23 @@ mod tests {
         let per_sample = [[2.0; 3], [2.0; 3], [7.0; 3], [7.0; 3]];
         let mean = [[2.0; 3], [7.0; 3]];
         assert_eq!(f.correction(&albedo, &mean, &per_sample), vec![[0.0; 3]; 2]);
+    }
+
+    #[test]
+    fn a_dark_set_is_corrected_by_nothing_but_a_lit_sample_is_not_skipped() {
+        let f = field();
+        let albedo = [[0.5; 3], [0.8; 3]];
+        assert_eq!(
+            f.correction(&albedo, &[[0.0; 3]; 2], &[[0.0; 3]; 4]),
+            vec![[0.0; 3]; 2]
+        );
+        // One lit sample of row 1 (mean 0.5 over its two): rows that met row 1 see it.
+        let d = f.correction(
+            &albedo,
+            &[[0.0; 3], [0.5; 3]],
+            &[[0.0; 3], [0.0; 3], [1.0; 3], [0.0; 3]],
+        );
+        assert_ne!(d[0], [0.0; 3], "{d:?}");
     }
 
     #[test]
