@@ -73,7 +73,7 @@ pub struct BenchEnginesArgs {
     /// groups of 64 columns some light set of the batch lights) and all (every column, the
     /// whole matrix read). The table names them `gpu` and `gpu-all-columns`; its `walked`
     /// column is the share of the matrix a product read, and the bandwidth columns count those
-    /// bytes only.
+    /// bytes only. The choices are timed in turns, each round in another order.
     #[arg(long, value_delimiter = ',', default_value = "lit")]
     pub columns: Vec<Columns>,
     /// Write the table as CSV here too.
@@ -481,36 +481,51 @@ fn product_rows(
                         (Product::Gpu(_), true) => &args.columns,
                         _ => &[Columns::Lit],
                     };
+                    // The choices are timed interleaved, each round in another order, so a
+                    // GPU's clocks still rising (or a neighbour's load) weigh on every choice
+                    // alike rather than on whichever ran first.
+                    let x = &subject.b0[..batch * n];
+                    let mut out = vec![[0.0f32; 3]; x.len()];
                     for &columns in choices {
                         product.set_columns(columns);
+                        warm_up(args.warm_up, || product.apply(x, &mut out))?;
+                    }
+                    let mut times = vec![Vec::with_capacity(args.repeat); choices.len()];
+                    let mut kernel_times = vec![Vec::with_capacity(args.repeat); choices.len()];
+                    let mut walked = vec![1.0; choices.len()];
+                    let mut errs = vec![(0.0, 0.0); choices.len()];
+                    for round in 0..args.repeat {
+                        for k in 0..choices.len() {
+                            let c = (round + k) % choices.len();
+                            product.set_columns(choices[c]);
+                            let start = Instant::now();
+                            product.apply(x, &mut out)?;
+                            times[c].push(start.elapsed().as_secs_f64());
+                            kernel_times[c].extend(product.kernel_seconds());
+                            walked[c] = product.walked();
+                            if round + 1 == args.repeat {
+                                errs[c] = errors(&out, &subject.reference[..x.len()]);
+                            }
+                        }
+                    }
+                    for (c, &columns) in choices.iter().enumerate() {
                         let engine = match columns {
                             Columns::All if matches!(product, Product::Gpu(_)) => {
                                 format!("{engine}-all-columns")
                             }
                             _ => engine.clone(),
                         };
-                        let x = &subject.b0[..batch * n];
-                        let mut out = vec![[0.0f32; 3]; x.len()];
-                        warm_up(args.warm_up, || product.apply(x, &mut out))?;
-                        let mut times = Vec::with_capacity(args.repeat);
-                        let mut kernel_times = Vec::with_capacity(args.repeat);
-                        for _ in 0..args.repeat {
-                            let start = Instant::now();
-                            product.apply(x, &mut out)?;
-                            times.push(start.elapsed().as_secs_f64());
-                            kernel_times.extend(product.kernel_seconds());
-                        }
-                        let (rel_l2, rel_max) = errors(&out, &subject.reference[..x.len()]);
+                        let (rel_l2, rel_max) = errs[c];
                         rows.push(Row {
                             engine,
                             codec: codec_name.clone(),
                             rows: n,
                             batch,
-                            times,
-                            kernel_times,
+                            times: std::mem::take(&mut times[c]),
+                            kernel_times: std::mem::take(&mut kernel_times[c]),
                             bytes: encoded.payload.len(),
                             passes: product.passes_for(batch),
-                            walked: product.walked(),
+                            walked: walked[c],
                             rel_l2,
                             rel_max,
                         });
