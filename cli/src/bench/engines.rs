@@ -72,8 +72,8 @@ pub struct BenchEnginesArgs {
     /// comma separated, measured on the same upload: lit (the engine's default: only the
     /// groups of 64 columns some light set of the batch lights) and all (every column, the
     /// whole matrix read). The table names them `gpu` and `gpu-all-columns`; its `walked`
-    /// column is the share of the matrix a product read, and the bandwidth columns count those
-    /// bytes only. The choices are timed in turns, each round in another order.
+    /// column is the share of the matrix a GPU product read (`-` on the CPU, counted whole),
+    /// and the bandwidth columns count those bytes only. The choices are timed in turns, each round in another order.
     #[arg(long, value_delimiter = ',', default_value = "lit")]
     pub columns: Vec<Columns>,
     /// Write the table as CSV here too.
@@ -106,10 +106,12 @@ struct Row {
     /// there is none.
     kernel_times: Vec<f64>,
     /// Bytes one pass over the whole matrix reads, passes per product, and the share of the
-    /// matrix a pass walked (below 1 where dark column groups were skipped).
+    /// matrix a GPU pass walked (below 1 where dark column groups were skipped). `None` where
+    /// it is not measured: the CPU's products, which gather lit columns by their own rule
+    /// (`bounce_core::codec::lanes`), are counted as reading the whole matrix.
     bytes: usize,
     passes: usize,
-    walked: f64,
+    walked: Option<f64>,
     rel_l2: f64,
     rel_max: f64,
 }
@@ -143,11 +145,12 @@ impl Product {
         }
     }
 
-    /// The share of the matrix the last product's passes read.
-    fn walked(&self) -> f64 {
+    /// The share of the matrix the last GPU product's passes read (1 for the tiled and tensor
+    /// kernels); `None` on the CPU.
+    fn walked(&self) -> Option<f64> {
         match self {
-            Product::Cpu(_) => 1.0,
-            Product::Gpu(m) => m.last_lit_share().unwrap_or(1.0),
+            Product::Cpu(_) => None,
+            Product::Gpu(m) => Some(m.last_lit_share().unwrap_or(1.0)),
         }
     }
 
@@ -331,7 +334,7 @@ pub fn run(args: &BenchEnginesArgs) -> Result<()> {
         .iter()
         .map(|r| {
             let (p50, p99) = percentiles(&r.times);
-            let read = (r.bytes * r.passes) as f64 * r.walked;
+            let read = (r.bytes * r.passes) as f64 * r.walked.unwrap_or(1.0);
             let gbs = read / p50;
             let kernel = (!r.kernel_times.is_empty()).then(|| percentiles(&r.kernel_times).0);
             // A GPU's share of its bandwidth is the kernels' own rate (the wall time also holds
@@ -352,7 +355,7 @@ pub fn run(args: &BenchEnginesArgs) -> Result<()> {
                 format!("{:.1}", r.batch as f64 / p50),
                 format!("{:.1}", r.bytes as f64 / 1e6),
                 r.passes.to_string(),
-                format!("{:.3}", r.walked),
+                r.walked.map_or("-".to_string(), |w| format!("{w:.3}")),
                 if r.bytes > 0 {
                     format!("{:.2}", gbs / 1e9)
                 } else {
@@ -492,7 +495,7 @@ fn product_rows(
                     }
                     let mut times = vec![Vec::with_capacity(args.repeat); choices.len()];
                     let mut kernel_times = vec![Vec::with_capacity(args.repeat); choices.len()];
-                    let mut walked = vec![1.0; choices.len()];
+                    let mut walked = vec![None; choices.len()];
                     let mut errs = vec![(0.0, 0.0); choices.len()];
                     for round in 0..args.repeat {
                         for k in 0..choices.len() {
@@ -665,7 +668,7 @@ fn probe_rows(args: &BenchEnginesArgs, baked: &Baked, sets: &[LightSet]) -> Resu
             // Per entry a row index and a share, read once a light set.
             bytes: probes.nnz() * 8,
             passes: batch,
-            walked: 1.0,
+            walked: None,
             rel_l2,
             rel_max,
         });
@@ -815,7 +818,7 @@ fn direct_rows(
             kernel_times: Vec::new(),
             bytes: 0,
             passes: 0,
-            walked: 1.0,
+            walked: None,
             rel_l2,
             rel_max,
         });
@@ -865,7 +868,7 @@ fn jacobi_rows(
             kernel_times: Vec::new(),
             bytes: ff.payload.len(),
             passes: k as usize,
-            walked: 1.0,
+            walked: None,
             rel_l2,
             rel_max,
         });
