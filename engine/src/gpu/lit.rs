@@ -1,7 +1,7 @@
 //! Which column groups of a product are lit: the matrix-vector kernels walk only those.
 //!
-//! Most of a scene is dark under any one light (81% of the Cornell box's `B0` entries under a
-//! point light, 92% of `pandora`'s under its corridor light), and a dark column contributes
+//! Most of a scene is dark under any one light (81% of the Cornell box's `B0` entries and 92–93%
+//! of `pandora`'s under `bench engines`' lights), and a dark column contributes
 //! nothing to `T · B0`. The CPU products gather the lit columns (`bounce_core::codec::lanes`);
 //! this is the GPU's twin at the granularity its kernels read the matrix: groups of
 //! [`LIT_GROUP`] consecutive storage columns, one column a thread.
