@@ -3,7 +3,8 @@
 # `.gl` (the Vulkan loader, see the device README) and `.devcarry` (the release `bounce`,
 # stripped and gzipped), and run `bash docs/h200/run11.sh`. What run 10 left open, first:
 # kernel times of lit against all columns at 32,768 rows (run 10 saw lit slower by wall, measured
-# first), then dense-f32's one-set share of bandwidth there. Files go into one archive (at most
+# first), then dense-f32's one-set share of bandwidth there, then pandora's one-channel
+# transport with 4 and 8 rows a workgroup. Files go into one archive (at most
 # 8 files come back from a call).
 set -u
 for f in .gl/*.deb; do dpkg -x $f /; done; ldconfig
@@ -22,5 +23,15 @@ pack
 t 4096 16384 lit vs all, dense-f32 and bc1
 timeout 120 $B bench engines /tmp/c2.bounce --engines gpu --synthetic 4096,16384 --codecs dense-f32,bc1 --batches 1,8 --columns lit,all --repeat 9 --csv $W/engines-synth.csv > $W/engines-synth.txt 2>&1; echo "rc=$?"
 cut -d, -f1-4,7,11-14 $W/engines-synth.csv
+pack
+t pandora rows a workgroup
+# pandora's transport is one channel: a thread of the one-set kernel has 4 loads in flight a
+# column step where three channels give it 12, which may be why it read 23% of the bandwidth
+# where the three-channel synthetic matrices read 53%. More rows a workgroup restore the loads.
+timeout 60 $B bake assets/pandora/pandora.glb --patches 4000 --codec dense-f32 -o /tmp/p4.bounce > /dev/null 2>&1; echo "p4 rc=$?"
+for R in 4 8; do
+  BOUNCE_GPU_ROWS1=$R timeout 60 $B bench engines /tmp/p4.bounce --engines gpu --codecs dense-f32 --batches 1 --columns lit,all --repeat 9 --csv $W/rows$R-p4.csv > /dev/null 2>&1; echo "rows $R rc=$?"
+  grep dense-f32 $W/rows$R-p4.csv | cut -d, -f1-4,7,11-14
+done
 pack
 t done
