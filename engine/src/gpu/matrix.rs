@@ -15,7 +15,7 @@ use super::tensor::{TensorIo, TensorKernel};
 use super::{GpuContext, GpuError, dense, logblock};
 
 /// The passes, channel maxima, sparse band count and column order of an upload.
-type Uploaded = (Vec<Pass>, [f32; 4], usize, Option<Vec<u32>>);
+type Loaded = (Vec<Pass>, [f32; 4], usize, Option<Vec<u32>>);
 
 /// A resource a pass binds besides the shared params, light and output buffers (bindings 0–2).
 pub(super) enum Bound {
@@ -153,7 +153,7 @@ impl GpuMatrix {
                 message: e.to_string(),
             });
         }
-        let (passes, max, sparse_bands, col_order): Uploaded = uploaded?;
+        let (passes, max, sparse_bands, col_order): Loaded = uploaded?;
         let pieces = match passes.first() {
             Some(p) if p.tile > 0 => {
                 let width = m.rows.div_ceil(4) * 4;

@@ -451,6 +451,19 @@ fn bad_input_is_an_error() {
 
 /// Limits small enough that every matrix below is cut: dense bands of 7 rows, block tiles of
 /// 16 texels (so 37 columns make 3 × 3 tiles).
+/// Every codec the GPU uploads, with the bytes a dense entry takes (1 for the block codecs, whose
+/// pieces are texture tiles, not bands of entries).
+fn every_codec() -> [(Box<dyn Codec>, usize); 6] {
+    [
+        (Box::new(DenseF32), 4),
+        (Box::new(DenseF16), 2),
+        (Box::new(LogBlock::bc1()), 1),
+        (Box::new(LogBlock::bc1_resid()), 1),
+        (Box::new(LogBlock::bc4()), 1),
+        (Box::new(LogBlock::log8()), 1),
+    ]
+}
+
 fn small_split(n: usize, channels: usize, width: usize) -> Split {
     Split {
         binding_bytes: (7 * n * channels * width) as u64,
@@ -466,15 +479,7 @@ fn small_split(n: usize, channels: usize, width: usize) -> Split {
 fn split_matrices_equal_whole_ones() {
     let Some(ctx) = context() else { return };
     let step = code_step(ctx);
-    let codecs: [(Box<dyn Codec>, usize); 6] = [
-        (Box::new(DenseF32), 4),
-        (Box::new(DenseF16), 2),
-        (Box::new(LogBlock::bc1()), 1),
-        (Box::new(LogBlock::bc1_resid()), 1),
-        (Box::new(LogBlock::bc4()), 1),
-        (Box::new(LogBlock::log8()), 1),
-    ];
-    for (codec, width) in &codecs {
+    for (codec, width) in &every_codec() {
         for channels in [1, 3] {
             for n in [5, 37, 130] {
                 let enc = codec
@@ -604,14 +609,7 @@ fn dark_column_groups_are_skipped_without_changing_a_bit() {
     let step = code_step(ctx);
     let n = 300;
     let lit = [70, 71, 75, 133, 290, 291];
-    let codecs: [(Box<dyn Codec>, usize); 5] = [
-        (Box::new(DenseF32), 4),
-        (Box::new(DenseF16), 2),
-        (Box::new(LogBlock::bc1()), 1),
-        (Box::new(LogBlock::bc1_resid()), 1),
-        (Box::new(LogBlock::bc4()), 1),
-    ];
-    for (codec, width) in &codecs {
+    for (codec, width) in &every_codec() {
         let enc = codec.encode(&transport(n, 3, 41)).unwrap();
         let whole = GpuMatrix::upload(ctx, &enc).unwrap();
         // Row bands of 7 rows, or texture tiles of 128 texels a side.
