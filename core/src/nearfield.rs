@@ -27,8 +27,9 @@
 //! corners, and the corners are where near rays land. A row's sky view ([`crate::sky`]) is one
 //! per row, so the matrix keeps a finer one for its sources: per sample point, the view of the
 //! row's form-factor rays that start where it stands for (the same rule; format version 9). A
-//! relight with a sky then adds [`NearField::sky_correction`], on the host for either engine
-//! (one sparse pass a light set).
+//! relight with a sky adds each sample's departure from its row's mean of them
+//! ([`NearField::sky_departures`]) to the sample's punctual light before the one sparse pass
+//! ([`NearField::correction_with`]); the GPU engine does both on the device.
 
 use std::ops::Range;
 
@@ -188,9 +189,31 @@ impl NearField {
         out
     }
 
-    /// `ΔE` of one light set's sky (its 9 SH radiance coefficients) per row: [`Self::correction`]
-    /// with each sample's sky irradiance through its own view, against its row's mean of them.
-    /// `None` without the samples' view (a file from before version 9).
+    /// Per sample point, how far one light set's sky (its 9 SH radiance coefficients) lights
+    /// it above its row's mean: `s_q − s̄_j`, with `s_q` the sample's sky irradiance through
+    /// its own view and `s̄_j` the plain mean of its row's. What [`Self::correction_with`] adds
+    /// to the samples' punctual light, so one pass corrects both. `None` without the samples'
+    /// view (a file from before version 9). The GPU twin is `sky_samples` in
+    /// `near_field.wgsl` (in f32 where this sums each sample's irradiance in f64).
+    pub fn sky_departures(
+        &self,
+        sky: &[[f32; 3]; bounce_types::sh::SH_COEFFICIENTS],
+    ) -> Option<Vec<[f32; 3]>> {
+        let view = self.sky.as_ref()?;
+        let mut per_sample = view.irradiance(sky);
+        let k = self.per_row as usize;
+        for samples in per_sample.chunks_mut(k.max(1)) {
+            let sum = samples.iter().fold(Vec3::ZERO, |s, &e| s + Vec3::from(e));
+            let mean = sum / samples.len() as f32;
+            for e in samples.iter_mut() {
+                *e = (Vec3::from(*e) - mean).to_array();
+            }
+        }
+        Some(per_sample)
+    }
+
+    /// `ΔE` of one light set's sky alone, per row: [`Self::correction_with`] of its
+    /// [`Self::sky_departures`] and no punctual light. `None` without the samples' view.
     ///
     /// # Panics
     /// If `albedo` does not have one entry per row.
@@ -199,40 +222,58 @@ impl NearField {
         albedo: &[[f32; 3]],
         sky: &[[f32; 3]; bounce_types::sh::SH_COEFFICIENTS],
     ) -> Option<Vec<[f32; 3]>> {
-        let view = self.sky.as_ref()?;
-        let per_sample = view.irradiance(sky);
-        let k = self.per_row as usize;
-        let mean: Vec<[f32; 3]> = per_sample
-            .chunks(k.max(1))
-            .map(|samples| {
-                let sum = samples.iter().fold(Vec3::ZERO, |s, &e| s + Vec3::from(e));
-                (sum / samples.len() as f32).to_array()
-            })
-            .collect();
-        Some(self.correction(albedo, &mean, &per_sample))
+        let departures = self.sky_departures(sky)?;
+        let zeros = vec![[0.0; 3]; departures.len()];
+        Some(self.correction_with(
+            albedo,
+            &vec![[0.0; 3]; self.rows()],
+            &zeros,
+            Some(&departures),
+        ))
     }
 
     /// `ΔE` of one light set, per row, from the direct irradiance at every sample point
     /// (`per_sample[j · per_row + k]`), each row's mean of its samples (`mean[j]`, as the relight
-    /// computes it) and the rows' albedo. Summed per row in entry order, in f32: the GPU twin
-    /// sums in the same order.
+    /// computes it) and the rows' albedo: [`Self::correction_with`] without a sky.
     ///
     /// # Panics
-    /// If the slices do not have one entry per row (`albedo`, `mean`) and per sample
-    /// (`per_sample`): a caller's bug.
+    /// As [`Self::correction_with`].
     pub fn correction(
         &self,
         albedo: &[[f32; 3]],
         mean: &[[f32; 3]],
         per_sample: &[[f32; 3]],
     ) -> Vec<[f32; 3]> {
+        self.correction_with(albedo, mean, per_sample, None)
+    }
+
+    /// [`Self::correction`] with a sky's [`Self::sky_departures`] added to the samples' light
+    /// first, so the punctual lights and the sky are corrected in one pass over the entries:
+    /// `ΔE_i = Σ_q C_iq · ρ_j ⊙ ((E_q + d_q) − Ē_j)`. Summed per row in entry order, in f32:
+    /// the GPU twin (`near_field.wgsl`, after `sky_samples` added `d_q` on the device) sums in
+    /// the same order.
+    ///
+    /// # Panics
+    /// If the slices do not have one entry per row (`albedo`, `mean`) and per sample
+    /// (`per_sample`, `sky`): a caller's bug.
+    pub fn correction_with(
+        &self,
+        albedo: &[[f32; 3]],
+        mean: &[[f32; 3]],
+        per_sample: &[[f32; 3]],
+        sky: Option<&[[f32; 3]]>,
+    ) -> Vec<[f32; 3]> {
         let (n, k) = (self.rows(), self.per_row as usize);
         assert_eq!(albedo.len(), n, "one albedo per row");
         assert_eq!(mean.len(), n, "one mean per row");
         assert_eq!(per_sample.len(), n * k, "one value per sample point");
-        // A set no punctual light reaches (a sky alone, say) has nothing to correct: skip the
-        // pass over every entry (pandora: 1.5 M) rather than sum its zeros.
-        if per_sample.iter().chain(mean).all(|v| *v == [0.0; 3]) {
+        if let Some(sky) = sky {
+            assert_eq!(sky.len(), n * k, "one sky departure per sample point");
+        }
+        // A set no light reaches has nothing to correct: skip the pass over every entry
+        // (pandora: 1.5 M) rather than sum its zeros.
+        let dark = |v: &[[f32; 3]]| v.iter().all(|v| *v == [0.0; 3]);
+        if dark(per_sample) && dark(mean) && sky.is_none_or(dark) {
             return vec![[0.0; 3]; n];
         }
         // Each sample's departure from its element's mean, reflected, once: a sample is met by
@@ -243,7 +284,11 @@ impl NearField {
             .enumerate()
             .map(|(q, &e)| {
                 let j = q / k;
-                Vec3::from(albedo[j]) * (Vec3::from(e) - Vec3::from(mean[j]))
+                let e = match sky {
+                    Some(sky) => Vec3::from(e) + Vec3::from(sky[q]),
+                    None => Vec3::from(e),
+                };
+                Vec3::from(albedo[j]) * (e - Vec3::from(mean[j]))
             })
             .collect();
         (0..n)
@@ -481,5 +526,34 @@ mod tests {
         );
         even.sky = None;
         assert_eq!(even.sky_correction(&albedo, &white), None);
+    }
+
+    #[test]
+    fn one_pass_corrects_the_lights_and_the_sky_as_two_do() {
+        let f = field();
+        let albedo = [[0.5, 0.5, 0.5], [0.8, 0.4, 0.2]];
+        let per_sample = [[4.0; 3], [0.0; 3], [10.0; 3], [2.0; 3]];
+        let mean = [[2.0; 3], [6.0; 3]];
+        let mut sky = bounce_types::sh::uniform_sh([1.0, 0.5, 2.0]);
+        sky[1] = [0.3, 0.1, 0.0];
+        let departures = f.sky_departures(&sky).expect("the field has the view");
+        // Departures from the row's own mean: zero-sum over each row's samples.
+        for row in departures.chunks(2) {
+            let sum = Vec3::from(row[0]) + Vec3::from(row[1]);
+            assert!(sum.abs().max_element() < 1e-6, "{departures:?}");
+        }
+        let both = f.correction_with(&albedo, &mean, &per_sample, Some(&departures));
+        let lights = f.correction(&albedo, &mean, &per_sample);
+        let sky_alone = f.sky_correction(&albedo, &sky).unwrap();
+        for i in 0..2 {
+            for c in 0..3 {
+                let want = lights[i][c] + sky_alone[i][c];
+                assert!((both[i][c] - want).abs() < 1e-5, "{both:?} against {want}");
+            }
+        }
+        assert_ne!(both, lights, "the sky moved something");
+        // A sky alone is not skipped as a dark set.
+        let dark = f.correction_with(&albedo, &[[0.0; 3]; 2], &[[0.0; 3]; 4], Some(&departures));
+        assert_eq!(dark, sky_alone);
     }
 }

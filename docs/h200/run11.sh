@@ -4,7 +4,8 @@
 # stripped and gzipped), and run `bash docs/h200/run11.sh`. What run 10 left open, first:
 # kernel times of lit against all columns at 32,768 rows (run 10 saw lit slower by wall, measured
 # first), then dense-f32's one-set share of bandwidth there, then pandora's one-channel
-# transport with 4 and 8 rows a workgroup. Files go into one archive (at most
+# transport with 4 and 8 rows a workgroup, and (session 23) pandora's direct light under a sky
+# on both engines. Files go into one archive (at most
 # 8 files come back from a call).
 set -u
 for f in .gl/*.deb; do dpkg -x $f /; done; ldconfig
@@ -33,5 +34,12 @@ for R in 4 8; do
   BOUNCE_GPU_ROWS1=$R timeout 60 $B bench engines /tmp/p4.bounce --engines gpu --codecs dense-f32 --batches 1 --columns lit,all --repeat 9 --csv $W/rows$R-p4.csv > /dev/null 2>&1; echo "rows $R rc=$?"
   grep dense-f32 $W/rows$R-p4.csv | cut -d, -f1-4,7,11-14
 done
+pack
+t pandora under a sky
+# Session 23 moved the sky's near-field correction onto the device (run 10: a sky took the GPU's
+# direct light on pandora from 0.71 to 9.48 ms a set, computed on the host). The bench's
+# `+ sky` rows measure the same sets with a uniform sky added, in the same run.
+timeout 90 $B bench engines /tmp/p4.bounce --engines gpu,cpu --codecs dense-f32 --batches 1,8 --repeat 5 --csv $W/sky-p4.csv > $W/sky-p4.txt 2>&1; echo "sky rc=$?"
+cat $W/sky-p4.txt | tail -20
 pack
 t done

@@ -18,8 +18,10 @@
 //! A sky is no punctual light: each row's share of it, `E_sky = Σ c_lm L_lm` from the row's
 //! baked sky view (`bounce_core::sky`), is added to the row's direct light on the host, after
 //! either engine's direct light and before `B0`, so both engines light by it alike (it costs
-//! `O(rows)` a light set). A file without a sky view ([`Scene::has_sky_view`]) gets nothing from
-//! a sky. Its share is also kept apart ([`Irradiance::sky`]): a viewer draws the punctual lights
+//! `O(rows)` a light set). How it varies over a row, through the samples' own views, joins the
+//! punctual lights' near-field correction in the same pass, on the device for the GPU engine
+//! (`NearField::correction_with`). A file without a sky view ([`Scene::has_sky_view`]) gets
+//! nothing from a sky. Its share is also kept apart ([`Irradiance::sky`]): a viewer draws the punctual lights
 //! itself but not a sky, so what is streamed is `E_ind` with the sky's direct light
 //! ([`Irradiance::streamed`]).
 
@@ -180,12 +182,23 @@ impl Engine {
     pub fn load(&self, baked: &Baked) -> Result<Scene, EngineError> {
         let cpu_direct =
             |why: Option<String>| DirectLight::Cpu(Box::new(ShadowScene::of_baked(baked)), why);
+        let near = baked.near_field.clone().map(|mut field| {
+            // A sky lights nothing in a file without the rows' view, so it has nothing to
+            // correct through the samples' either.
+            if baked.sky.is_none() {
+                field.sky = None;
+            }
+            NearRows {
+                albedo: row_albedo(baked),
+                field,
+            }
+        });
         let direct = match (&self.gpu, &baked.surface, baked.occupancy.as_deref()) {
             (Some(ctx), Some(surface), _) => {
                 let uploaded = GpuSurfaceDirect::upload(ctx, surface).and_then(|d| {
-                    match &baked.near_field {
+                    match &near {
                         // The correction needs every sample's light, which stays on the device.
-                        Some(near) => d.with_near_field(near, &row_albedo(baked)),
+                        Some(near) => d.with_near_field(&near.field, &near.albedo),
                         None => Ok(d),
                     }
                 });
@@ -231,10 +244,6 @@ impl Engine {
             },
             None => (Transport::Cpu(codec::decode(&baked.transport)?), None),
         };
-        let near = baked.near_field.clone().map(|field| NearRows {
-            albedo: row_albedo(baked),
-            field,
-        });
         Ok(Scene {
             layout: baked.layout.clone(),
             rows: baked.transport_layout().clone(),
@@ -278,10 +287,9 @@ impl Engine {
         }
         let n = scene.rows.len();
         let start = Instant::now();
-        let (mut direct, mut near) = self.punctual_direct(scene, lights, true)?;
+        let (mut direct, near) = self.sampled_direct(scene, lights, true)?;
         let skies = sky_rows(scene.sky.as_ref(), lights);
         add_sky(&skies, &mut direct);
-        add_sky_near(self.sky_near(scene), lights, &mut near);
         let mut b0: Vec<[f32; 3]> = Vec::with_capacity(n * lights.len());
         for (index, (set, e)) in lights.iter().zip(&direct).enumerate() {
             b0.extend(
@@ -381,16 +389,16 @@ impl Engine {
         lights: &[LightSet],
         near: bool,
     ) -> Result<(Vec<Vec<[f32; 3]>>, Option<Vec<Vec<[f32; 3]>>>), EngineError> {
-        let (mut direct, mut near) = self.punctual_direct(scene, lights, near)?;
+        let (mut direct, near) = self.sampled_direct(scene, lights, near)?;
         add_sky(&sky_rows(scene.sky.as_ref(), lights), &mut direct);
-        add_sky_near(self.sky_near(scene), lights, &mut near);
         Ok((direct, near))
     }
 
-    /// Direct light from the punctual lights, on the engine's device or the CPU (the sky is
-    /// none of theirs: [`add_sky`]).
+    /// Direct light from the punctual lights, on the engine's device or the CPU (the rows' sky
+    /// is none of theirs: [`add_sky`]), and with `near` the near-field correction of the
+    /// punctual lights and the sky together.
     #[allow(clippy::type_complexity)]
-    fn punctual_direct(
+    fn sampled_direct(
         &self,
         scene: &Scene,
         lights: &[LightSet],
@@ -409,10 +417,12 @@ impl Engine {
                 else {
                     break;
                 };
-                corrections.push(near.field.correction(
+                let sky = set.sky_sh().and_then(|sky| near.field.sky_departures(&sky));
+                corrections.push(near.field.correction_with(
                     &near.albedo,
                     &sampled.mean,
                     &sampled.samples,
+                    sky.as_deref(),
                 ));
                 direct.push(sampled.mean);
             }
@@ -449,12 +459,6 @@ impl Engine {
             .near
             .as_ref()
             .filter(|n| self.samples_for(scene) == n.field.per_row)
-    }
-
-    /// The near field a sky is corrected through: the one in use, in a file whose rows see the
-    /// sky (a file without the rows' view gets no sky at all).
-    fn sky_near<'a>(&self, scene: &'a Scene) -> Option<&'a NearRows> {
-        self.near_in_use(scene).filter(|_| scene.sky.is_some())
     }
 
     /// Whether relights of `scene` on this engine add the near-field first bounce, and if not
@@ -500,37 +504,13 @@ fn sky_rows(view: Option<&SkyVisibility>, lights: &[LightSet]) -> Vec<Option<Vec
 }
 
 /// Adds each set's sky ([`sky_rows`]) to its rows' direct light (`direct[set][row]`), the row's
-/// mean; how it varies over the row is [`add_sky_near`]'s.
+/// mean; how it varies over the row is the near field's ([`NearField::sky_departures`]).
 fn add_sky(skies: &[Option<Vec<[f32; 3]>>], direct: &mut [Vec<[f32; 3]>]) {
     for (sky, rows) in skies.iter().zip(direct.iter_mut()) {
         let Some(sky) = sky else { continue };
         for (d, e) in rows.iter_mut().zip(sky) {
             // Kept finite as the punctual lights' sums are.
             *d = std::array::from_fn(|c| (d[c] + e[c]).min(f32::MAX));
-        }
-    }
-}
-
-/// Adds each set's sky to its near-field correction (`near[set][row]`, present when the engine
-/// applies the scene's near field: `field`): the sky's light where the near rays land rather
-/// than its row's mean ([`NearField::sky_correction`]). Computed on the host for either engine:
-/// one sparse pass a set with a sky, and nothing for a file whose near field has no samples' sky
-/// view (before version 9).
-fn add_sky_near(
-    field: Option<&NearRows>,
-    lights: &[LightSet],
-    near: &mut Option<Vec<Vec<[f32; 3]>>>,
-) {
-    let (Some(field), Some(corrections)) = (field, near.as_mut()) else {
-        return;
-    };
-    for (set, rows) in lights.iter().zip(corrections) {
-        let Some(sky) = set.sky_sh() else { continue };
-        let Some(delta) = field.field.sky_correction(&field.albedo, &sky) else {
-            continue;
-        };
-        for (c, d) in rows.iter_mut().zip(delta) {
-            *c = std::array::from_fn(|k| c[k] + d[k]);
         }
     }
 }

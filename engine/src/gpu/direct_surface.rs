@@ -45,7 +45,9 @@
 //! (a slice's `sets × patches × count` values, within a binding: the slices are cut smaller for
 //! it). After the slice's last piece, the pass of `shaders/near_field.wgsl` (`super::near_field`)
 //! turns those values and the means into `ΔE` per (light set, row), read back with the means;
-//! the per-sample values never leave the device.
+//! the per-sample values never leave the device. When the matrix keeps its samples' sky view
+//! and a set of the slice has a sky, `sky_samples` first adds each sample's departure from its
+//! row's mean sky irradiance to its value, so the same pass corrects the sky too.
 
 use bounce_core::direct::{PreparedLight, SHADOW_END};
 use bounce_core::light::LightSet;
@@ -417,7 +419,14 @@ impl GpuSurfaceDirect {
                     limit: ray_cap,
                 });
             }
-            let (flat, delta) = self.run(&prepared[start..end], count, ray_cap, near)?;
+            let skies = near.and_then(|(b, _)| slice_skies(b, &sets[start..end]));
+            let (flat, delta) = self.run(
+                &prepared[start..end],
+                count,
+                ray_cap,
+                near,
+                skies.as_deref(),
+            )?;
             out.extend(flat.chunks(n).map(<[[f32; 3]]>::to_vec));
             if let (Some(all), Some(delta)) = (deltas.as_mut(), delta) {
                 all.extend(delta.chunks(n).map(<[[f32; 3]]>::to_vec));
@@ -429,7 +438,7 @@ impl GpuSurfaceDirect {
 
     /// One slice of the batch: `count × lights` rays per patch fit in `ray_cap`, and the sets'
     /// output (and per-sample values, with `near`) in a binding. With `near`, the slice's `ΔE`
-    /// too.
+    /// too, with the sky of each set in `skies` (27 values a set, [`slice_skies`]) when given.
     #[allow(clippy::type_complexity)]
     fn run(
         &self,
@@ -437,6 +446,7 @@ impl GpuSurfaceDirect {
         count: u32,
         ray_cap: u64,
         near: Option<&(NearBuffers, wgpu::ComputePipeline)>,
+        skies: Option<&[f32]>,
     ) -> Result<(Vec<[f32; 3]>, Option<Vec<[f32; 3]>>), GpuError> {
         let mut lights: Vec<GpuLight> = Vec::new();
         let mut offsets: Vec<u32> = vec![0];
@@ -596,6 +606,23 @@ impl GpuSurfaceDirect {
                 contents: bytemuck::bytes_of(&params),
                 usage: U::UNIFORM,
             });
+            if let (Some(sky), Some(skies)) = (&near.sky, skies) {
+                let skies_buf = storage(device, "light sets' skies", bytemuck::cast_slice(skies))?;
+                let group = bind(
+                    &sky.pass,
+                    &[
+                        (0, &params_buf),
+                        (8, &sky.view),
+                        (9, &skies_buf),
+                        (10, per_sample),
+                    ],
+                );
+                let (gx, gy) = grid(device, (n * u64::from(sets_n)).div_ceil(u64::from(NEAR_WG)))?;
+                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
+                pass.set_pipeline(&sky.pass);
+                pass.set_bind_group(0, &group, &[]);
+                pass.dispatch_workgroups(gx, gy, 1);
+            }
             let group = bind(
                 &near.pass,
                 &[
@@ -628,4 +655,22 @@ impl GpuSurfaceDirect {
         };
         Ok((means, delta))
     }
+}
+
+/// The radiance coefficients of each set's sky, 27 a set (`skies` in `near_field.wgsl`; zero for
+/// a set without one), when `near` keeps its samples' sky view and some set of the slice has a
+/// sky; else `None`, and the slice's correction is the punctual lights' alone.
+fn slice_skies(near: &NearBuffers, sets: &[LightSet]) -> Option<Vec<f32>> {
+    near.sky.as_ref()?;
+    let skies: Vec<Option<_>> = sets.iter().map(LightSet::sky_sh).collect();
+    if skies.iter().all(Option::is_none) {
+        return None;
+    }
+    Some(
+        skies
+            .iter()
+            .flat_map(|sky| sky.unwrap_or_default())
+            .flatten()
+            .collect(),
+    )
 }

@@ -15,11 +15,14 @@
 
 use std::sync::{Arc, OnceLock};
 
+use glam::Vec3;
+
 use bounce_core::direct::{SampledDirect, ShadowScene, direct_with_samples};
 use bounce_core::light::LightSet;
 use bounce_core::nearfield::{NearField, near_field_rows};
 use bounce_core::patch::PatchLayout;
 use bounce_core::scene::Scene;
+use bounce_core::sky::{SkySum, SkyVisibility};
 use bounce_core::surface::{
     SurfaceData, SurfaceScene, occluder_triangles_of, sample_points, scene_mesh,
 };
@@ -91,9 +94,14 @@ fn room_with_pillar() -> &'static NearCase {
 }
 
 fn upload(ctx: &GpuContext, case: &NearCase) -> GpuSurfaceDirect {
+    upload_field(ctx, case, &case.near)
+}
+
+/// The case's scene with `near` (the case's matrix, perhaps with a sky view) attached.
+fn upload_field(ctx: &GpuContext, case: &NearCase, near: &NearField) -> GpuSurfaceDirect {
     GpuSurfaceDirect::upload(ctx, &case.data)
         .unwrap()
-        .with_near_field(&case.near, &case.albedo)
+        .with_near_field(near, &case.albedo)
         .unwrap()
 }
 
@@ -118,17 +126,18 @@ struct NearAgreement {
     worst_flip: f32,
 }
 
-/// GPU `ΔE` of one light set against the CPU's, with the tolerance of the module doc. `means`
-/// are the GPU's row means, `cpu` and `open` the CPU's direct light with and without shadows.
+/// GPU `ΔE` of one light set against the CPU's through `near`, with the tolerance of the module
+/// doc. `means` are the GPU's row means, `cpu` and `open` the CPU's direct light with and
+/// without shadows, `sky` the set's sky departures per sample when `near` corrects a sky.
 fn compare_near(
     case: &NearCase,
+    near: &NearField,
     delta: &[[f32; 3]],
     means: &[[f32; 3]],
-    cpu: &SampledDirect,
-    open: &SampledDirect,
+    (cpu, open): (&SampledDirect, &SampledDirect),
+    sky: Option<&[[f32; 3]]>,
 ) -> NearAgreement {
-    let near = &case.near;
-    let want = near.correction(&case.albedo, &cpu.mean, &cpu.samples);
+    let want = near.correction_with(&case.albedo, &cpu.mean, &cpu.samples, sky);
     assert_eq!(delta.len(), want.len());
     let suspect: Vec<bool> = means.iter().zip(&cpu.mean).map(|(g, c)| g != c).collect();
     let k = near.per_row as usize;
@@ -145,7 +154,8 @@ fn compare_near(
             let (q, j) = (q as usize, q as usize / k);
             for ch in 0..3 {
                 let rho = c * case.albedo[j][ch];
-                scale[ch] += rho * (cpu.samples[q][ch].abs() + cpu.mean[j][ch].abs());
+                let d = sky.map_or(0.0, |sky| sky[q][ch].abs());
+                scale[ch] += rho * (cpu.samples[q][ch].abs() + d + cpu.mean[j][ch].abs());
                 if suspect[j] {
                     allowance[ch] += rho * (open.samples[q][ch] + open.mean[j][ch]);
                 }
@@ -192,16 +202,29 @@ fn compare_near(
     a
 }
 
-/// GPU `ΔE` and means for `sets` against the CPU's; returns the GPU's `ΔE`.
+/// GPU `ΔE` and means for `sets` against the CPU's, through the case's matrix; returns the GPU's
+/// `ΔE`.
 fn check(ctx: &GpuContext, name: &str, case: &NearCase, sets: &[LightSet]) -> Vec<Vec<[f32; 3]>> {
+    check_field(ctx, name, case, &case.near, sets)
+}
+
+/// [`check`] through `near`: the case's matrix, perhaps with a sky view its sets' skies are
+/// corrected through.
+fn check_field(
+    ctx: &GpuContext,
+    name: &str,
+    case: &NearCase,
+    near: &NearField,
+    sets: &[LightSet],
+) -> Vec<Vec<[f32; 3]>> {
     let n = case.layout.len();
-    assert!(case.near.nnz() > 0, "{name}: an empty near field");
+    assert!(near.nnz() > 0, "{name}: an empty near field");
     eprintln!(
         "{name}: {n} rows, {} near-field entries ({:.1} a row)",
-        case.near.nnz(),
-        case.near.nnz() as f64 / n as f64
+        near.nnz(),
+        near.nnz() as f64 / n as f64
     );
-    let gpu = upload(ctx, case);
+    let gpu = upload_field(ctx, case, near);
     let (means, delta) = gpu.irradiance_near(sets, PER_PATCH).unwrap();
     let delta = delta.expect("all samples used: a correction");
     assert_eq!((means.len(), delta.len()), (sets.len(), sets.len()));
@@ -216,7 +239,15 @@ fn check(ctx: &GpuContext, name: &str, case: &NearCase, sets: &[LightSet]) -> Ve
         let open = direct_with_samples(&case.open, &case.layout, s, PER_PATCH).unwrap();
         assert_eq!(cpu.count, PER_PATCH);
         let direct = compare(&means[k], &cpu.mean, &open.mean, PER_PATCH);
-        let a = compare_near(case, &delta[k], &means[k], &cpu, &open);
+        let sky = s.sky_sh().and_then(|sky| near.sky_departures(&sky));
+        let a = compare_near(
+            case,
+            near,
+            &delta[k],
+            &means[k],
+            (&cpu, &open),
+            sky.as_deref(),
+        );
         let brightest = cpu.mean.iter().flatten().fold(0.0f32, |m, v| m.max(*v));
         eprintln!("{name} set {k}: direct {direct:?}, brightest row {brightest}; near field {a:?}");
         // Not vacuous: the correction matters on a fair share of the rows, and somewhere by
@@ -245,6 +276,93 @@ fn point_light_near_a_wall_corrects_as_the_cpu() {
 fn pillar_room_with_several_sets_corrects_as_the_cpu() {
     let Some(ctx) = context() else { return };
     check(ctx, "pillar", room_with_pillar(), &pillar_sets());
+}
+
+/// `near` with a sky view per sample: made up, but each one a view 8 rays could give (0 to 7
+/// of them escaped, along directions from a fixed hash), and different from sample to sample so
+/// that a sample read in the wrong place shows.
+fn with_sky_view(near: &NearField) -> NearField {
+    let samples = near.rows() * near.per_row as usize;
+    let rows = (0..samples)
+        .map(|q| {
+            let mut sum = SkySum::default();
+            for r in 0..(q * 5 + q / 3) % 8 {
+                let theta = ((q * 7 + r * 13) % 17) as f32 * 0.37;
+                let phi = ((q * 3 + r * 5) % 11) as f32 * 0.57;
+                sum.add(Vec3::new(
+                    theta.sin() * phi.cos(),
+                    theta.cos(),
+                    theta.sin() * phi.sin(),
+                ));
+            }
+            sum.finish(8)
+        })
+        .collect();
+    let field = NearField {
+        sky: Some(SkyVisibility { rows }),
+        ..near.clone()
+    };
+    let n = field.rows();
+    field
+        .check(n, n, field.per_row)
+        .expect("views rays could give");
+    field
+}
+
+/// A sky's part of the correction runs on the device, in the same pass as the punctual lights':
+/// the twin of `NearField::correction_with` of the CPU's samples and the sky's departures, for
+/// a sky with a light, a sky alone, an SH sky that rings below zero, and sets without a sky in
+/// the same batch; sliced batches give the same bits.
+#[test]
+fn a_sky_is_corrected_on_the_device_as_on_the_cpu() {
+    let Some(ctx) = context() else { return };
+    let case = room_with_pillar();
+    let near = with_sky_view(&case.near);
+    let json = |text: &str| {
+        let set = LightSet::from_json(text).expect("a light set");
+        set.validate().expect("valid lights");
+        set
+    };
+    let sets = [
+        json(
+            r#"{"lights": [{"type": "point", "position": [0.7, 3.0, 0.8], "intensity": 12},
+                           {"type": "sky", "color": [1.0, 0.8, 0.6]}]}"#,
+        ),
+        // Strong first-order terms: some samples' views ring below zero and are clamped.
+        json(
+            r#"{"lights": [{"type": "sky", "sh": [[0.4,0.4,0.4],[1.5,0,0],[0,1.5,0],[0,0,1.5],
+                            [0.3,0.3,0.3],[0,0,0],[-0.4,-0.4,-0.4],[0,0,0],[0.2,0.1,0]]}]}"#,
+        ),
+        set(vec![point([3.1, 1.2, 2.9], 8.0, Some(5.0))]),
+        LightSet { lights: vec![] },
+    ];
+    // The last set lights nothing: `check_field` asks every set for a correction that matters.
+    let lit = &sets[..3];
+    let delta = check_field(ctx, "pillar under a sky", case, &near, lit);
+    let gpu = upload_field(ctx, case, &near);
+    let all = gpu.irradiance_near(&sets, PER_PATCH).unwrap().1;
+    let all = all.expect("a correction");
+    assert_eq!(
+        all[..3],
+        delta[..],
+        "a dark set beside them changes nothing"
+    );
+    assert!(all[3].iter().all(|e| *e == [0.0; 3]), "nothing lights");
+    // The sky moved the correction, and only where a set has one.
+    let plain = upload(ctx, case).irradiance_near(lit, PER_PATCH).unwrap().1;
+    let plain = plain.expect("a correction");
+    assert_ne!(delta[0], plain[0], "the sky with a light");
+    assert!(delta[1].iter().flatten().any(|v| *v != 0.0), "a sky alone");
+    assert!(plain[1].iter().all(|e| *e == [0.0; 3]));
+    assert_eq!(delta[2], plain[2], "no sky: the punctual correction's bits");
+    // One set a slice, and pieces of a few patches: the same bits.
+    let n = case.layout.len() as u64;
+    let one_set = n * 12 * u64::from(PER_PATCH);
+    let split = upload_field(ctx, case, &near)
+        .with_rays_per_piece(500)
+        .with_binding_limit(one_set + 5);
+    let (_, d) = split.irradiance_near(&sets, PER_PATCH).unwrap();
+    assert_eq!(d, Some(all));
 }
 
 /// Slices and pieces change where the values wait, not what a row sums: the same bits from one

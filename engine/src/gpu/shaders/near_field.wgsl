@@ -70,3 +70,57 @@ fn near_field(
     delta[o + 1u] = sum.y;
     delta[o + 2u] = sum.z;
 }
+
+// The sky's part of the correction, run before `near_field` on the same slice: per (light set,
+// row), each of the row's samples gets its departure from the row's mean sky irradiance added
+// to its punctual value, `E_q += s_q − s̄_j`, so `near_field`'s one pass corrects both. The twin
+// of `NearField::sky_departures` and `NearField::correction_with`: `s_q = max(Σ_k c_qk L_k, 0)`
+// per channel (in f32 here, f64 on the CPU), the mean summed in sample order and divided by
+// the count. A set without a sky has zero coefficients and adds exactly zero.
+
+// Per sample point q, its 9 coefficients at q * 9: `NearField::sky`.
+@group(0) @binding(8) var<storage, read> sample_sky: array<f32>;
+// Per light set of the dispatch, its 9 RGB radiance coefficients at set * 27 + k * 3 + channel.
+@group(0) @binding(9) var<storage, read> skies: array<f32>;
+// `per_sample` above, written: what `gather_samples` kept, laid out the same.
+@group(0) @binding(10) var<storage, read_write> per_sample_sky: array<f32>;
+
+fn sky_at(sid: u32, q: u32) -> vec3<f32> {
+    var e = vec3<f32>(0.0);
+    for (var k = 0u; k < 9u; k++) {
+        let c = sample_sky[q * 9u + k];
+        let o = sid * 27u + k * 3u;
+        e += c * vec3<f32>(skies[o], skies[o + 1u], skies[o + 2u]);
+    }
+    // An SH sky may ring below zero; the largest f32 keeps a sum finite, as on the CPU.
+    return min(max(e, vec3<f32>(0.0)), vec3<f32>(3.4028235e38));
+}
+
+@compute @workgroup_size(NEAR_WG)
+fn sky_samples(
+    @builtin(workgroup_id) wg: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+    @builtin(local_invocation_index) lid: u32,
+) {
+    let id = (wg.y * groups.x + wg.x) * NEAR_WG + lid;
+    if id >= params.n * params.sets {
+        return;
+    }
+    let sid = id / params.n;
+    let j = id % params.n;
+    let first = j * params.per_row;
+    var sum = vec3<f32>(0.0);
+    for (var k = 0u; k < params.per_row; k++) {
+        sum += sky_at(sid, first + k);
+    }
+    let mean = sum / f32(params.per_row);
+    let samples = sid * params.n * params.per_row;
+    for (var k = 0u; k < params.per_row; k++) {
+        let q = first + k;
+        let d = sky_at(sid, q) - mean;
+        let o = (samples + q) * 3u;
+        per_sample_sky[o] += d.x;
+        per_sample_sky[o + 1u] += d.y;
+        per_sample_sky[o + 2u] += d.z;
+    }
+}
