@@ -38,7 +38,7 @@ fn bake_then_inspect_the_cornell_box() {
     assert!(summary.contains("patches"), "{summary}");
 
     let j = inspect_json(&file);
-    assert_eq!(j["format_version"], 10);
+    assert_eq!(j["format_version"], 11);
     assert_eq!(j["near_field_radius"], 1.0, "a near field by default");
     assert!(j["near_field_entries"].as_u64().unwrap() > 0);
     assert_eq!(

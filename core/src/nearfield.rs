@@ -27,9 +27,14 @@
 //! corners, and the corners are where near rays land. A row's sky view ([`crate::sky`]) is one
 //! per row, so the matrix keeps a finer one for its sources: per sample point, the view of the
 //! row's form-factor rays that start where it stands for (the same rule; format version 9). A
-//! relight with a sky adds each sample's departure from its row's mean of them
-//! ([`NearField::sky_departures`]) to the sample's punctual light before the one sparse pass
-//! ([`NearField::correction_with`]); the GPU engine does both on the device.
+//! relight with a sky adds each sample's sky irradiance to its punctual light, and the row's
+//! mean of them to the row's, before the one sparse pass ([`NearField::sky_samples`],
+//! [`NearField::correction_with`]); the GPU engine does both on the device.
+//!
+//! An element is not one colour either: a textured surface's triangles have their own albedos.
+//! A file from format version 11 keeps each sample point's (the albedo of the triangle it lies
+//! on), and the correction reflects a landing's light with it: `ρ_q ⊙ E_q − ρ_j ⊙ Ē_j` in
+//! place of `ρ_j ⊙ (E_q − Ē_j)`.
 
 use std::ops::Range;
 
@@ -189,31 +194,32 @@ impl NearField {
         out
     }
 
-    /// Per sample point, how far one light set's sky (its 9 SH radiance coefficients) lights
-    /// it above its row's mean: `s_q − s̄_j`, with `s_q` the sample's sky irradiance through
-    /// its own view and `s̄_j` the plain mean of its row's. What [`Self::correction_with`] adds
-    /// to the samples' punctual light, so one pass corrects both. `None` without the samples'
-    /// view (a file from before version 9). The GPU twin is `sky_samples` in
-    /// `near_field.wgsl` (in f32 where this sums each sample's irradiance in f64).
-    pub fn sky_departures(
+    /// One light set's sky (its 9 SH radiance coefficients) at the sample points: each
+    /// sample's irradiance through its own view, and each row's plain mean of its samples'.
+    /// What [`Self::correction_with`] adds to the punctual lights' values, so one pass corrects
+    /// both. `None` without the samples' view (a file from before version 9). The GPU twin is
+    /// `sky_samples` in `near_field.wgsl` (in f32 where this sums each sample's irradiance in
+    /// f64).
+    pub fn sky_samples(
         &self,
         sky: &[[f32; 3]; bounce_types::sh::SH_COEFFICIENTS],
-    ) -> Option<Vec<[f32; 3]>> {
+    ) -> Option<SkySamples> {
         let view = self.sky.as_ref()?;
-        let mut per_sample = view.irradiance(sky);
+        let per_sample = view.irradiance(sky);
         let k = self.per_row as usize;
-        for samples in per_sample.chunks_mut(k.max(1)) {
-            let sum = samples.iter().fold(Vec3::ZERO, |s, &e| s + Vec3::from(e));
-            let mean = sum / samples.len() as f32;
-            for e in samples.iter_mut() {
-                *e = (Vec3::from(*e) - mean).to_array();
-            }
-        }
-        Some(per_sample)
+        let mean = per_sample
+            .chunks(k.max(1))
+            .map(|samples| {
+                let sum = samples.iter().fold(Vec3::ZERO, |s, &e| s + Vec3::from(e));
+                (sum / samples.len() as f32).to_array()
+            })
+            .collect();
+        Some(SkySamples { per_sample, mean })
     }
 
     /// `ΔE` of one light set's sky alone, per row: [`Self::correction_with`] of its
-    /// [`Self::sky_departures`] and no punctual light. `None` without the samples' view.
+    /// [`Self::sky_samples`], no punctual light and the rows' albedo. `None` without the
+    /// samples' view.
     ///
     /// # Panics
     /// If `albedo` does not have one entry per row.
@@ -222,19 +228,20 @@ impl NearField {
         albedo: &[[f32; 3]],
         sky: &[[f32; 3]; bounce_types::sh::SH_COEFFICIENTS],
     ) -> Option<Vec<[f32; 3]>> {
-        let departures = self.sky_departures(sky)?;
-        let zeros = vec![[0.0; 3]; departures.len()];
+        let sky = self.sky_samples(sky)?;
+        let zeros = vec![[0.0; 3]; sky.per_sample.len()];
         Some(self.correction_with(
-            albedo,
+            Reflect::rows(albedo),
             &vec![[0.0; 3]; self.rows()],
             &zeros,
-            Some(&departures),
+            Some(&sky),
         ))
     }
 
     /// `ΔE` of one light set, per row, from the direct irradiance at every sample point
     /// (`per_sample[j · per_row + k]`), each row's mean of its samples (`mean[j]`, as the relight
-    /// computes it) and the rows' albedo: [`Self::correction_with`] without a sky.
+    /// computes it) and the rows' albedo: [`Self::correction_with`] without a sky, each sample
+    /// taking its row's albedo.
     ///
     /// # Panics
     /// As [`Self::correction_with`].
@@ -244,51 +251,68 @@ impl NearField {
         mean: &[[f32; 3]],
         per_sample: &[[f32; 3]],
     ) -> Vec<[f32; 3]> {
-        self.correction_with(albedo, mean, per_sample, None)
+        self.correction_with(Reflect::rows(albedo), mean, per_sample, None)
     }
 
-    /// [`Self::correction`] with a sky's [`Self::sky_departures`] added to the samples' light
-    /// first, so the punctual lights and the sky are corrected in one pass over the entries:
-    /// `ΔE_i = Σ_q C_iq · ρ_j ⊙ ((E_q + d_q) − Ē_j)`. Summed per row in entry order, in f32:
-    /// the GPU twin (`near_field.wgsl`, after `sky_samples` added `d_q` on the device) sums in
-    /// the same order.
+    /// `ΔE_i = Σ_q C_iq (ρ_q ⊙ e_q − ρ_j ⊙ ē_j)`: what row `i`'s near rays gather from the
+    /// exitance where they land (`ρ_q`, the albedo under sample `q`, times its irradiance
+    /// `e_q = E_q + s_q`) rather than from their element's (`ρ_j`, the row's albedo, times the
+    /// mean `ē_j = Ē_j + s̄_j`), with `s` a sky's [`Self::sky_samples`] when given. The
+    /// punctual lights and the sky are corrected in one pass over the entries. Summed per row in
+    /// entry order, in f32: the GPU twin (`near_field.wgsl`, after `sky_samples` added the sky
+    /// on the device) sums in the same order.
     ///
     /// # Panics
-    /// If the slices do not have one entry per row (`albedo`, `mean`) and per sample
-    /// (`per_sample`, `sky`): a caller's bug.
+    /// If the slices do not have one entry per row (`albedo.rows`, `mean`, `sky.mean`) and per
+    /// sample (`albedo.samples`, `per_sample`, `sky.per_sample`): a caller's bug.
     pub fn correction_with(
         &self,
-        albedo: &[[f32; 3]],
+        albedo: Reflect<'_>,
         mean: &[[f32; 3]],
         per_sample: &[[f32; 3]],
-        sky: Option<&[[f32; 3]]>,
+        sky: Option<&SkySamples>,
     ) -> Vec<[f32; 3]> {
         let (n, k) = (self.rows(), self.per_row as usize);
-        assert_eq!(albedo.len(), n, "one albedo per row");
+        assert_eq!(albedo.rows.len(), n, "one albedo per row");
         assert_eq!(mean.len(), n, "one mean per row");
         assert_eq!(per_sample.len(), n * k, "one value per sample point");
+        if let Some(a) = albedo.samples {
+            assert_eq!(a.len(), n * k, "one albedo per sample point");
+        }
         if let Some(sky) = sky {
-            assert_eq!(sky.len(), n * k, "one sky departure per sample point");
+            assert_eq!(
+                sky.per_sample.len(),
+                n * k,
+                "one sky value per sample point"
+            );
+            assert_eq!(sky.mean.len(), n, "one sky mean per row");
         }
         // A set no light reaches has nothing to correct: skip the pass over every entry
         // (pandora: 1.5 M) rather than sum its zeros.
         let dark = |v: &[[f32; 3]]| v.iter().all(|v| *v == [0.0; 3]);
-        if dark(per_sample) && dark(mean) && sky.is_none_or(dark) {
+        if dark(per_sample)
+            && dark(mean)
+            && sky.is_none_or(|s| dark(&s.per_sample) && dark(&s.mean))
+        {
             return vec![[0.0; 3]; n];
         }
-        // Each sample's departure from its element's mean, reflected, once: a sample is met by
-        // many rows' near rays (pandora: 1.5 M entries over 190 k samples), and the row sums
-        // then read one value an entry instead of three.
+        // Each sample's departure from its element's exitance, once: a sample is met by many
+        // rows' near rays (pandora: 1.5 M entries over 190 k samples), and the row sums then
+        // read one value an entry instead of three.
         let departure: Vec<Vec3> = per_sample
             .par_iter()
             .enumerate()
             .map(|(q, &e)| {
                 let j = q / k;
-                let e = match sky {
-                    Some(sky) => Vec3::from(e) + Vec3::from(sky[q]),
-                    None => Vec3::from(e),
+                let (e, m) = match sky {
+                    Some(sky) => (
+                        Vec3::from(e) + Vec3::from(sky.per_sample[q]),
+                        Vec3::from(mean[j]) + Vec3::from(sky.mean[j]),
+                    ),
+                    None => (Vec3::from(e), Vec3::from(mean[j])),
                 };
-                Vec3::from(albedo[j]) * (e - Vec3::from(mean[j]))
+                let rho_q = Vec3::from(albedo.samples.map_or(albedo.rows[j], |a| a[q]));
+                rho_q * e - Vec3::from(albedo.rows[j]) * m
             })
             .collect();
         (0..n)
@@ -303,6 +327,34 @@ impl NearField {
             })
             .collect()
     }
+}
+
+/// The albedos a near-field correction reflects with: each row's (its element's, what `B0`
+/// takes) and, when the file keeps them, each sample point's ([`crate::surface::SurfaceData`]'s
+/// `albedo`; without them a sample takes its row's).
+#[derive(Debug, Clone, Copy)]
+pub struct Reflect<'a> {
+    pub rows: &'a [[f32; 3]],
+    pub samples: Option<&'a [[f32; 3]]>,
+}
+
+impl<'a> Reflect<'a> {
+    /// The rows' albedo alone: every sample takes its row's.
+    pub fn rows(rows: &'a [[f32; 3]]) -> Reflect<'a> {
+        Reflect {
+            rows,
+            samples: None,
+        }
+    }
+}
+
+/// One light set's sky at the sample points ([`NearField::sky_samples`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct SkySamples {
+    /// Per sample point, the sky's irradiance through its own view.
+    pub per_sample: Vec<[f32; 3]>,
+    /// Per row, the plain mean of its samples' values.
+    pub mean: Vec<[f32; 3]>,
 }
 
 /// Rows `rows` of the near-field matrix of `tracer`'s transport rows: form-factor rays (the
@@ -536,13 +588,13 @@ mod tests {
         let mean = [[2.0; 3], [6.0; 3]];
         let mut sky = bounce_types::sh::uniform_sh([1.0, 0.5, 2.0]);
         sky[1] = [0.3, 0.1, 0.0];
-        let departures = f.sky_departures(&sky).expect("the field has the view");
-        // Departures from the row's own mean: zero-sum over each row's samples.
-        for row in departures.chunks(2) {
-            let sum = Vec3::from(row[0]) + Vec3::from(row[1]);
-            assert!(sum.abs().max_element() < 1e-6, "{departures:?}");
+        let at = f.sky_samples(&sky).expect("the field has the view");
+        // Each row's mean is the plain mean of its samples'.
+        for (row, m) in at.per_sample.chunks(2).zip(&at.mean) {
+            let sum = Vec3::from(row[0]) + Vec3::from(row[1]) - 2.0 * Vec3::from(*m);
+            assert!(sum.abs().max_element() < 1e-6, "{at:?}");
         }
-        let both = f.correction_with(&albedo, &mean, &per_sample, Some(&departures));
+        let both = f.correction_with(Reflect::rows(&albedo), &mean, &per_sample, Some(&at));
         let lights = f.correction(&albedo, &mean, &per_sample);
         let sky_alone = f.sky_correction(&albedo, &sky).unwrap();
         for i in 0..2 {
@@ -553,7 +605,49 @@ mod tests {
         }
         assert_ne!(both, lights, "the sky moved something");
         // A sky alone is not skipped as a dark set.
-        let dark = f.correction_with(&albedo, &[[0.0; 3]; 2], &[[0.0; 3]; 4], Some(&departures));
+        let dark = f.correction_with(
+            Reflect::rows(&albedo),
+            &[[0.0; 3]; 2],
+            &[[0.0; 3]; 4],
+            Some(&at),
+        );
         assert_eq!(dark, sky_alone);
+    }
+
+    #[test]
+    fn a_landing_reflects_with_the_albedo_of_its_sample() {
+        let f = field();
+        let rows = [[0.5; 3], [0.6; 3]];
+        // Row 1's samples: a dark and a bright triangle around its mean albedo.
+        let samples = [[0.5; 3], [0.5; 3], [0.2, 0.3, 0.4], [1.0, 0.9, 0.8]];
+        let reflect = Reflect {
+            rows: &rows,
+            samples: Some(&samples),
+        };
+        // Uniform light over every element: the rows' albedo alone corrects nothing; the
+        // samples' reflects what each landing's triangle does.
+        let per_sample = [[2.0; 3], [2.0; 3], [7.0; 3], [7.0; 3]];
+        let mean = [[2.0; 3], [7.0; 3]];
+        assert_eq!(f.correction(&rows, &mean, &per_sample), vec![[0.0; 3]; 2]);
+        let d = f.correction_with(reflect, &mean, &per_sample, None);
+        // Row 0: 0.25 · 7 · (0.2 − 0.6) + 0.125 · 7 · (1.0 − 0.6) on the red channel.
+        let want0 = 0.25 * 7.0 * (0.2 - 0.6) + 0.125 * 7.0 * (1.0 - 0.6);
+        assert!((d[0][0] - want0).abs() < 1e-5, "{d:?} against {want0}");
+        // Row 1 met row 0's sample 0, whose albedo is its row's: nothing.
+        assert!(Vec3::from(d[1]).abs().max_element() < 1e-6, "{d:?}");
+        // Samples that take their rows' albedo give the rows' correction exactly.
+        let same = [[0.5; 3], [0.5; 3], [0.6; 3], [0.6; 3]];
+        let lit = [[4.0; 3], [0.0; 3], [10.0; 3], [2.0; 3]];
+        let lit_mean = [[2.0; 3], [6.0; 3]];
+        let a = f.correction_with(
+            Reflect {
+                rows: &rows,
+                samples: Some(&same),
+            },
+            &lit_mean,
+            &lit,
+            None,
+        );
+        assert_eq!(a, f.correction(&rows, &lit_mean, &lit));
     }
 }

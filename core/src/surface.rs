@@ -45,6 +45,11 @@ pub struct SurfaceData {
     pub triangles: Vec<[[f32; 3]; 3]>,
     pub per_patch: u32,
     pub points: Vec<SamplePoint>,
+    /// Per sample point, the albedo of the triangle it lies on ([`sample_albedo`]): a textured
+    /// element is not one colour, and the near field reflects a landing's light with the
+    /// albedo where it landed (`crate::nearfield`). `None` in files from before format version
+    /// 11, whose samples take their row's albedo.
+    pub albedo: Option<Vec<[f32; 3]>>,
 }
 
 impl SurfaceData {
@@ -89,6 +94,12 @@ pub fn occluder_triangles_of(mesh: &TriMesh) -> Vec<[[f32; 3]; 3]> {
 /// proportion to its area (and is reused, rescaled, inside it, which keeps 2-D stratification),
 /// the pair then places the point uniformly on that triangle.
 fn point_on(pieces: &[PieceTri], cdf: &[f64], u: f32, v: f32) -> (Vec3, Vec3) {
+    let (p, n, _) = point_on_triangle(pieces, cdf, u, v);
+    (p, n)
+}
+
+/// [`point_on`] with the original triangle of the piece it picked.
+fn point_on_triangle(pieces: &[PieceTri], cdf: &[f64], u: f32, v: f32) -> (Vec3, Vec3, u32) {
     let total = cdf.last().copied().unwrap_or(0.0);
     let x = f64::from(u) * total;
     let k = cdf.partition_point(|&c| c <= x).min(pieces.len() - 1);
@@ -103,7 +114,7 @@ fn point_on(pieces: &[PieceTri], cdf: &[f64], u: f32, v: f32) -> (Vec3, Vec3) {
     let su = u.sqrt();
     let [a, b, c] = t.corners;
     let p = a * (1.0 - su) + b * (su * (1.0 - v)) + c * (su * v);
-    (p, t.normal)
+    (p, t.normal, t.triangle)
 }
 
 /// Cumulative areas of each patch's pieces, restarting at each patch.
@@ -133,6 +144,23 @@ pub(crate) fn cosine_direction(n: Vec3, u1: f32, u2: f32) -> Vec3 {
 /// (an Owen-scrambled Sobol sequence per patch, seeded by the patch index and `seed`), each with
 /// its piece's normal, pushed off the surface.
 pub fn sample_points(pieces: &Pieces, per_patch: u32, seed: u64) -> Vec<SamplePoint> {
+    placed_samples(pieces, per_patch, seed)
+        .into_iter()
+        .map(|(p, _)| p)
+        .collect()
+}
+
+/// The albedo of the original triangle (of `scene`) under each of [`sample_points`]' points,
+/// in the same order: what [`SurfaceData::albedo`] keeps.
+pub fn sample_albedo(scene: &Scene, pieces: &Pieces, per_patch: u32, seed: u64) -> Vec<[f32; 3]> {
+    placed_samples(pieces, per_patch, seed)
+        .into_iter()
+        .map(|(_, t)| scene.triangles[t as usize].albedo.to_array())
+        .collect()
+}
+
+/// [`sample_points`] with the original triangle each point lies on.
+fn placed_samples(pieces: &Pieces, per_patch: u32, seed: u64) -> Vec<(SamplePoint, u32)> {
     let cdf = piece_cdf(pieces);
     let extent = extent_of(pieces.tris.iter().flat_map(|t| &t.corners));
     let mut out = Vec::with_capacity(pieces.patch_count() * per_patch as usize);
@@ -142,11 +170,14 @@ pub fn sample_points(pieces: &Pieces, per_patch: u32, seed: u64) -> Vec<SamplePo
         let s = row_seed(seed, i);
         for k in 0..per_patch {
             let [u, v, _, _] = sobol_burley::sample_4d(k, SAMPLE_DIMENSION_SET, s);
-            let (p, n) = point_on(tris, c, u, v);
-            out.push(SamplePoint {
-                position: offset_origin(p, n, extent).to_array(),
-                normal: n.to_array(),
-            });
+            let (p, n, t) = point_on_triangle(tris, c, u, v);
+            out.push((
+                SamplePoint {
+                    position: offset_origin(p, n, extent).to_array(),
+                    normal: n.to_array(),
+                },
+                t,
+            ));
         }
     }
     out

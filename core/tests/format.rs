@@ -400,7 +400,7 @@ fn layout_on_disk_matches_the_documentation() {
     let baked = sample(3, true);
     let b = baked.to_bytes().unwrap();
     assert_eq!(&b[..8], b"BOUNCE\0B");
-    assert_eq!(get_u32(&b, 8), 10);
+    assert_eq!(get_u32(&b, 8), 11);
     assert_eq!(get_u32(&b, 12), 5);
     assert_eq!(get_u64(&b, 16), b.len() as u64);
     let kinds: Vec<&[u8]> = (0..5).map(|i| &b[entry_at(i)..entry_at(i) + 4]).collect();
@@ -647,23 +647,23 @@ fn bad_magic() {
 #[test]
 fn future_version() {
     let mut b = sample_bytes();
-    put_u32(&mut b, 8, 11);
+    put_u32(&mut b, 8, 12);
     reseal(&mut b);
     let err = refuse(&b);
     assert!(
         matches!(
             err,
             FormatError::UnsupportedVersion {
-                found: 11,
+                found: 12,
                 oldest: 1,
-                supported: 10
+                supported: 11
             }
         ),
         "{err:?}"
     );
     assert_eq!(
         err.to_string(),
-        "unsupported format version 11 (this build reads versions 1 to 10); bake the scene again \
+        "unsupported format version 12 (this build reads versions 1 to 11); bake the scene again \
          with this bounce"
     );
 }
@@ -687,6 +687,9 @@ fn surface_sample() -> Baked {
                 normal: [0.0, 0.0, 1.0],
             })
             .collect(),
+        // Without the samples' albedo (version 11): most tests relabel this file with older
+        // versions; `the_samples_albedo_round_trips_and_is_checked` adds it.
+        albedo: None,
     });
     b
 }
@@ -722,6 +725,9 @@ fn element_sample() -> Baked {
                 normal: [0.0, 0.0, 1.0],
             })
             .collect();
+        if s.albedo.is_some() {
+            s.albedo = Some((0..m * 2).map(|k| [0.05 * k as f32, 0.5, 0.25]).collect());
+        }
     }
     b
 }
@@ -2139,4 +2145,40 @@ fn a_corrupt_model_is_refused_clearly() {
     let mut bad = sample(1, false);
     bad.model = Some(b"nope".to_vec());
     assert!(matches!(bad.to_bytes(), Err(FormatError::Model(_))));
+}
+
+#[test]
+fn the_samples_albedo_round_trips_and_is_checked() {
+    let mut b = element_sample();
+    let points = b.surface.as_ref().map_or(0, |s| s.points.len());
+    if let Some(s) = &mut b.surface {
+        s.albedo = Some((0..points).map(|k| [0.05 * k as f32, 0.5, 0.25]).collect());
+    }
+    let bytes = b.to_bytes().expect("samples with albedo encode");
+    let back = Baked::from_bytes(&bytes).unwrap();
+    assert_eq!(back, b);
+    // Without it the file is smaller by 12 bytes a sample and reads with none.
+    let mut without = b.clone();
+    if let Some(s) = &mut without.surface {
+        s.albedo = None;
+    }
+    let plain = without.to_bytes().unwrap();
+    assert_eq!(bytes.len(), plain.len() + 12 * points);
+    assert_eq!(Baked::from_bytes(&plain).unwrap(), without);
+    // An albedo outside [0, 1], or one short, is refused by writer and reader alike.
+    let mut bright = b.clone();
+    if let Some(a) = bright.surface.as_mut().and_then(|s| s.albedo.as_mut()) {
+        a[3] = [1.5, 0.5, 0.5];
+    }
+    assert!(matches!(bright.to_bytes(), Err(FormatError::Surface(_))));
+    let mut short = b.clone();
+    if let Some(a) = short.surface.as_mut().and_then(|s| s.albedo.as_mut()) {
+        a.pop();
+    }
+    assert!(matches!(short.to_bytes(), Err(FormatError::Surface(_))));
+    // A version-10 file cannot hold it: the flag was reserved then.
+    let mut old = bytes.clone();
+    put_u32(&mut old, 8, 10);
+    reseal(&mut old);
+    assert!(matches!(refuse(&old), FormatError::Reserved { .. }));
 }

@@ -38,7 +38,7 @@ use bounce_core::element::Elements;
 use bounce_core::emitter::{Emitters, check_names};
 use bounce_core::format::Baked;
 use bounce_core::light::{LightError, LightSet};
-use bounce_core::nearfield::NearField;
+use bounce_core::nearfield::{NearField, Reflect};
 use bounce_core::patch::PatchLayout;
 use bounce_core::probe::Probes;
 use bounce_core::sky::SkyVisibility;
@@ -190,6 +190,7 @@ impl Engine {
             }
             NearRows {
                 albedo: row_albedo(baked),
+                sample_albedo: baked.surface.as_ref().and_then(|s| s.albedo.clone()),
                 field,
             }
         });
@@ -198,7 +199,7 @@ impl Engine {
                 let uploaded = GpuSurfaceDirect::upload(ctx, surface).and_then(|d| {
                     match &near {
                         // The correction needs every sample's light, which stays on the device.
-                        Some(near) => d.with_near_field(&near.field, &near.albedo),
+                        Some(near) => d.with_near_field(&near.field, near.reflect()),
                         None => Ok(d),
                     }
                 });
@@ -417,12 +418,12 @@ impl Engine {
                 else {
                     break;
                 };
-                let sky = set.sky_sh().and_then(|sky| near.field.sky_departures(&sky));
+                let sky = set.sky_sh().and_then(|sky| near.field.sky_samples(&sky));
                 corrections.push(near.field.correction_with(
-                    &near.albedo,
+                    near.reflect(),
                     &sampled.mean,
                     &sampled.samples,
-                    sky.as_deref(),
+                    sky.as_ref(),
                 ));
                 direct.push(sampled.mean);
             }
@@ -504,7 +505,7 @@ fn sky_rows(view: Option<&SkyVisibility>, lights: &[LightSet]) -> Vec<Option<Vec
 }
 
 /// Adds each set's sky ([`sky_rows`]) to its rows' direct light (`direct[set][row]`), the row's
-/// mean; how it varies over the row is the near field's ([`NearField::sky_departures`]).
+/// mean; how it varies over the row is the near field's ([`NearField::sky_samples`]).
 fn add_sky(skies: &[Option<Vec<[f32; 3]>>], direct: &mut [Vec<[f32; 3]>]) {
     for (sky, rows) in skies.iter().zip(direct.iter_mut()) {
         let Some(sky) = sky else { continue };
@@ -748,6 +749,17 @@ struct NearRows {
     field: NearField,
     /// Per transport row.
     albedo: Vec<[f32; 3]>,
+    /// Per sample point, when the file keeps them (format version 11).
+    sample_albedo: Option<Vec<[f32; 3]>>,
+}
+
+impl NearRows {
+    fn reflect(&self) -> Reflect<'_> {
+        Reflect {
+            rows: &self.albedo,
+            samples: self.sample_albedo.as_deref(),
+        }
+    }
 }
 
 /// Where a scene's direct light is computed.

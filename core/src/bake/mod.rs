@@ -390,6 +390,12 @@ pub(crate) fn prepare(
                 triangles: surface::occluder_triangles_of(&mesh),
                 per_patch: options.direct_samples,
                 points: surface::sample_points(pieces, options.direct_samples, options.seed),
+                albedo: Some(surface::sample_albedo(
+                    scene,
+                    pieces,
+                    options.direct_samples,
+                    options.seed,
+                )),
             };
             let emitters = Emitters::of_pieces(scene, pieces);
             let rays = SurfaceScene::new(scene, mesh, vox.transport_layout(), pieces);

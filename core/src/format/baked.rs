@@ -22,12 +22,14 @@
 //! section are valid; their readers get no occupancy and trace shadows against the patches alone.
 //!
 //! `SURF` (version 2, surface geometry only, required there): what direct light needs at run
-//! time. Triangle count u32, samples per row u32, row count u32, reserved u32 (0) (16 bytes),
+//! time. Triangle count u32, samples per row u32, row count u32, flags u32 (16 bytes),
 //! then per triangle its three corners f32×9 (36 bytes; every triangle blocks shadow rays from
 //! both sides), then `rows × samples per row` sample points, position f32×3 and unit normal
-//! f32×3 (24 bytes), row by row. Positions are already pushed off their surface
-//! ([`crate::trimesh::offset_origin`]). Every value is finite; the rows are the transport's (the
-//! elements, or the patches in a file without `ELEM`).
+//! f32×3 (24 bytes), row by row; with flag bit 0 (version 11), then each sample's albedo f32×3
+//! (12 bytes), in the same order. Positions are already pushed off their surface
+//! ([`crate::trimesh::offset_origin`]). Every value is finite, an albedo within `[0, 1]`; the
+//! rows are the transport's (the elements, or the patches in a file without `ELEM`). Before
+//! version 11 the flags word was reserved (0).
 //!
 //! `ELEM` (version 3, surface geometry only, optional there): the transport elements
 //! ([`crate::element`]) when they are not the patches themselves. Element count u32, reserved
@@ -301,7 +303,11 @@ impl Baked {
                     "a version-1 file cannot hold surface geometry".to_string(),
                 ));
             }
-            Some(e) => Some(decode_surface(c.section(e)?, rows)?),
+            Some(e) => Some(decode_surface(
+                c.section(e)?,
+                rows,
+                c.header.format_version,
+            )?),
             None => None,
         };
         check_geometry(&meta, surface.is_some(), elements.is_some())?;
@@ -805,6 +811,24 @@ fn validate_surface(s: &SurfaceData, layout: &PatchLayout) -> Result<(), FormatE
     {
         return bad(format!("triangle {i} has a non-finite corner"));
     }
+    if let Some(albedo) = &s.albedo {
+        if albedo.len() != s.points.len() {
+            return bad(format!(
+                "{} sample albedos for {} sample points",
+                albedo.len(),
+                s.points.len()
+            ));
+        }
+        if let Some(i) = albedo
+            .iter()
+            .position(|a| !a.iter().all(|v| (0.0..=1.0).contains(v)))
+        {
+            return bad(format!(
+                "sample {i}'s albedo {:?} is not within [0, 1]",
+                albedo[i]
+            ));
+        }
+    }
     for (i, p) in s.points.iter().enumerate() {
         let n = glam::Vec3::from(p.normal);
         if !(p.position.iter().all(|v| v.is_finite()) && (n.length() - 1.0).abs() < 1e-3) {
@@ -826,12 +850,15 @@ pub(super) fn encode_surface(
         value: s.triangles.len() as u64,
         max: u64::from(u32::MAX),
     })?;
+    let albedo = s.albedo.as_deref().unwrap_or(&[]);
     let mut out = Vec::with_capacity(
         SURFACE_HEADER_LEN as usize
             + s.triangles.len() * TRIANGLE_RECORD_LEN as usize
-            + s.points.len() * SAMPLE_RECORD_LEN as usize,
+            + s.points.len() * SAMPLE_RECORD_LEN as usize
+            + albedo.len() * ALBEDO_RECORD_LEN as usize,
     );
-    for v in [count, s.per_patch, layout.len() as u32, 0] {
+    let flags = if s.albedo.is_some() { SURF_ALBEDO } else { 0 };
+    for v in [count, s.per_patch, layout.len() as u32, flags] {
         out.extend_from_slice(&v.to_le_bytes());
     }
     for x in s.triangles.iter().flatten().flatten() {
@@ -842,23 +869,36 @@ pub(super) fn encode_surface(
             out.extend_from_slice(&x.to_le_bytes());
         }
     }
+    for x in albedo.iter().flatten() {
+        out.extend_from_slice(&x.to_le_bytes());
+    }
     Ok(out)
 }
 
+/// `SURF`'s flag: each sample's albedo follows the sample points (version 11).
+const SURF_ALBEDO: u32 = 1;
+/// Bytes of one sample's albedo.
+const ALBEDO_RECORD_LEN: u64 = 12;
+
+/// The `SURF` section of a file of format `version` (or a shard, which has the latest).
 pub(super) fn decode_surface(
     bytes: &[u8],
     layout: &PatchLayout,
+    version: u32,
 ) -> Result<SurfaceData, FormatError> {
     let kind = SectionKind::SURF;
     let mut r = FieldReader::new(bytes, Some(kind));
     let triangles = r.u32("triangle count")?;
     let per_patch = r.u32("samples per patch")?;
     let patches = r.u32("patch count")?;
-    if r.u32("reserved")? != 0 {
+    let flags = r.u32("flags")?;
+    let known = if version >= 11 { SURF_ALBEDO } else { 0 };
+    if flags & !known != 0 {
         return Err(FormatError::Reserved {
-            what: format!("section '{kind}'"),
+            what: format!("section '{kind}' flags"),
         });
     }
+    let with_albedo = flags & SURF_ALBEDO != 0;
     if patches as usize != layout.len() {
         return Err(FormatError::Surface(format!(
             "{patches} patches, but the layout has {}",
@@ -872,12 +912,19 @@ pub(super) fn decode_surface(
     }
     let rest = r.remaining();
     // Only counts the section's length accounts for may size an allocation.
+    let samples = u64::from(patches) * u64::from(per_patch);
     let want = u64::from(triangles) * TRIANGLE_RECORD_LEN
-        + u64::from(patches) * u64::from(per_patch) * SAMPLE_RECORD_LEN;
+        + samples * SAMPLE_RECORD_LEN
+        + if with_albedo {
+            samples * ALBEDO_RECORD_LEN
+        } else {
+            0
+        };
     if want != rest.len() as u64 {
         return Err(FormatError::Surface(format!(
-            "{triangles} triangles and {patches} × {per_patch} samples need {want} bytes, the \
+            "{triangles} triangles and {patches} × {per_patch} samples{} need {want} bytes, the \
              section holds {}",
+            if with_albedo { " with albedo" } else { "" },
             rest.len()
         )));
     }
@@ -885,7 +932,8 @@ pub(super) fn decode_surface(
         .chunks_exact(4)
         .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
         .collect();
-    let (tri_floats, sample_floats) = floats.split_at(triangles as usize * 9);
+    let (tri_floats, rest) = floats.split_at(triangles as usize * 9);
+    let (sample_floats, albedo_floats) = rest.split_at(samples as usize * 6);
     let surface = SurfaceData {
         triangles: tri_floats
             .chunks_exact(9)
@@ -899,6 +947,12 @@ pub(super) fn decode_surface(
                 normal: [c[3], c[4], c[5]],
             })
             .collect(),
+        albedo: with_albedo.then(|| {
+            albedo_floats
+                .chunks_exact(3)
+                .map(|c| [c[0], c[1], c[2]])
+                .collect()
+        }),
     };
     validate_surface(&surface, layout)?;
     Ok(surface)

@@ -389,7 +389,9 @@ fn header_from(c: &Container<'_>) -> Result<ShardHeader, FormatError> {
     check_meta(&meta, rows)?;
     let occupancy = decode_occupancy(section(c, SectionKind::OCCU)?, &layout)?;
     let surface = match (c.entry(SectionKind::SURF), meta.settings.geometry) {
-        (Some(e), Geometry::Surface) => Some(decode_surface(c.section(e)?, rows)?),
+        (Some(e), Geometry::Surface) => {
+            Some(decode_surface(c.section(e)?, rows, super::FORMAT_VERSION)?)
+        }
         (None, Geometry::VoxelFaces) => None,
         (None, Geometry::Surface) => {
             return Err(FormatError::MissingSection {

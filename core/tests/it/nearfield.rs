@@ -154,6 +154,7 @@ fn the_form_factors_pass_keeps_the_near_field_a_retrace_finds() {
         triangles: occluder_triangles_of(&mesh),
         per_patch,
         points: sample_points(pieces, per_patch, 3),
+        albedo: None,
     };
     let rows = vox.transport_layout();
     let n = rows.len();

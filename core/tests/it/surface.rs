@@ -209,6 +209,7 @@ fn a_wall_thinner_than_a_voxel_keeps_both_sides_and_lets_nothing_through() {
         triangles: occluder_triangles_of(&scene_mesh(&scene)),
         per_patch: 16,
         points: sample_points(vox.pieces.as_ref().unwrap(), 16, 1),
+        albedo: None,
     };
     let light = LightSet {
         lights: vec![Light::Point {
@@ -537,6 +538,7 @@ fn the_pointwise_first_bounce_retraces_the_form_factor_rays() {
         triangles: occluder_triangles_of(&scene_mesh(&scene)),
         per_patch: 64,
         points: sample_points(pieces, 64, 1),
+        albedo: None,
     };
     let e = direct_irradiance(&ShadowScene::surface(&data), rows, &light, 64);
     let b0: Vec<[f32; 3]> = rows

@@ -51,7 +51,7 @@
 
 use bounce_core::direct::{PreparedLight, SHADOW_END};
 use bounce_core::light::LightSet;
-use bounce_core::nearfield::NearField;
+use bounce_core::nearfield::{NearField, Reflect};
 use bounce_core::surface::SurfaceData;
 use bounce_core::trimesh::MeshNode;
 use bytemuck::{Pod, Zeroable};
@@ -277,7 +277,7 @@ impl GpuSurfaceDirect {
     }
 
     /// Attach the near-field matrix `near` (rows: these patches; columns: their sample points)
-    /// and each row's `albedo`, so [`GpuSurfaceDirect::irradiance_near`] also returns the
+    /// and the rows' (and samples') `albedo`, so [`GpuSurfaceDirect::irradiance_near`] also returns the
     /// correction `ΔE`. A matrix whose `per_row` is not this scene's samples per patch, whose
     /// rows are not its patches or that fails [`NearField::check`], or an albedo not one a row,
     /// is refused with [`GpuError::NearField`]; an array over a storage binding with
@@ -285,7 +285,7 @@ impl GpuSurfaceDirect {
     pub fn with_near_field(
         mut self,
         near: &NearField,
-        albedo: &[[f32; 3]],
+        albedo: Reflect<'_>,
     ) -> Result<GpuSurfaceDirect, GpuError> {
         let buffers =
             NearBuffers::upload(&self.device, near, albedo, self.n as usize, self.per_patch)?;
@@ -608,6 +608,8 @@ impl GpuSurfaceDirect {
             });
             if let (Some(sky), Some(skies)) = (&near.sky, skies) {
                 let skies_buf = storage(device, "light sets' skies", bytemuck::cast_slice(skies))?;
+                // After the means were copied out: the sky's row means join them for the
+                // correction only (the host adds the rows' own sky view to what it reads).
                 let group = bind(
                     &sky.pass,
                     &[
@@ -615,6 +617,7 @@ impl GpuSurfaceDirect {
                         (8, &sky.view),
                         (9, &skies_buf),
                         (10, per_sample),
+                        (12, &out),
                     ],
                 );
                 let (gx, gy) = grid(device, (n * u64::from(sets_n)).div_ceil(u64::from(NEAR_WG)))?;
@@ -634,6 +637,7 @@ impl GpuSurfaceDirect {
                     (5, &out),
                     (6, per_sample),
                     (7, &delta),
+                    (11, &near.sample_albedo),
                 ],
             );
             let (gx, gy) = grid(device, (n * u64::from(sets_n)).div_ceil(u64::from(NEAR_WG)))?;

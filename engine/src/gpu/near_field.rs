@@ -1,15 +1,16 @@
 //! The near-field correction on the GPU (`bounce_core::nearfield`): the matrix `C` and the rows'
 //! albedo resident beside a [`super::GpuSurfaceDirect`], and the pass (`shaders/near_field.wgsl`)
 //! that turns the direct light's per-sample values and means, still on the device, into
-//! `ΔE = C · ρ ⊙ (E_q − Ē_j)` per light set and row, the twin of `NearField::correction`.
+//! `ΔE = C · (ρ_q ⊙ E_q − ρ_j ⊙ Ē_j)` per light set and row, the twin of
+//! `NearField::correction_with`.
 //! [`super::GpuSurfaceDirect::with_near_field`] attaches it and
 //! [`super::GpuSurfaceDirect::irradiance_near`] runs it.
 //!
 //! A file whose near field keeps its samples' sky view (format version 9) has it uploaded too
 //! (9 coefficients a sample: 6.8 MB for `pandora`'s 189 k samples). A slice of light sets with a
-//! sky then runs `sky_samples` before the correction: each sample's sky irradiance, less its
-//! row's mean of them, joins the sample's punctual value on the device, and the one sparse pass
-//! corrects both (`NearField::correction_with`). Before, the sky's correction ran on the host
+//! sky then runs `sky_samples` before the correction: each sample's sky irradiance joins the
+//! sample's punctual value, and its row's mean of them the row's, on the device, and the one
+//! sparse pass corrects both (`NearField::correction_with`). Before, the sky's correction ran on the host
 //! for either engine, and on an H200 took `pandora`'s direct light from 0.71 to 9.48 ms a set.
 //!
 //! Measured on lavapipe (software Vulkan, 2 cores) on the 2,752-row pillar room with 27,377
@@ -18,7 +19,7 @@
 //! 140 ms at eight (the per-sample writes and one more pass); lavapipe only, as for the direct
 //! light itself.
 
-use bounce_core::nearfield::NearField;
+use bounce_core::nearfield::{NearField, Reflect};
 use bytemuck::{Pod, Zeroable};
 
 use super::GpuError;
@@ -52,6 +53,8 @@ pub(super) struct NearBuffers {
     pub(super) cols: wgpu::Buffer,
     pub(super) values: wgpu::Buffer,
     pub(super) albedo: wgpu::Buffer,
+    /// Per sample point (its row's where the file keeps none).
+    pub(super) sample_albedo: wgpu::Buffer,
     /// The samples' sky view and the pass that adds a sky through it, when the file has one.
     pub(super) sky: Option<SkyBuffers>,
 }
@@ -71,18 +74,34 @@ impl NearBuffers {
     pub(super) fn upload(
         device: &wgpu::Device,
         near: &NearField,
-        albedo: &[[f32; 3]],
+        albedo: Reflect<'_>,
         rows: usize,
         per_row: u32,
     ) -> Result<NearBuffers, GpuError> {
         near.check(rows, rows, per_row)
             .map_err(GpuError::NearField)?;
-        if albedo.len() != rows {
+        if albedo.rows.len() != rows {
             return Err(GpuError::NearField(format!(
                 "{} albedo values for {rows} rows",
-                albedo.len()
+                albedo.rows.len()
             )));
         }
+        let samples = rows * per_row as usize;
+        // A file without the samples' albedo: each takes its row's, the same pass either way.
+        let sample_albedo: Vec<[f32; 3]> = match albedo.samples {
+            Some(a) if a.len() == samples => a.to_vec(),
+            Some(a) => {
+                return Err(GpuError::NearField(format!(
+                    "{} sample albedo values for {samples} sample points",
+                    a.len()
+                )));
+            }
+            None => albedo
+                .rows
+                .iter()
+                .flat_map(|a| std::iter::repeat_n(*a, per_row as usize))
+                .collect(),
+        };
         Ok(NearBuffers {
             per_row,
             pass: pipeline(device, "near_field", near_field_source(), "near_field", &[])?,
@@ -101,7 +120,16 @@ impl NearBuffers {
                 "near-field values",
                 bytemuck::cast_slice(&near.values),
             )?,
-            albedo: storage(device, "near-field albedo", bytemuck::cast_slice(albedo))?,
+            albedo: storage(
+                device,
+                "near-field albedo",
+                bytemuck::cast_slice(albedo.rows),
+            )?,
+            sample_albedo: storage(
+                device,
+                "near-field sample albedo",
+                bytemuck::cast_slice(&sample_albedo),
+            )?,
             sky: match &near.sky {
                 Some(view) => Some(SkyBuffers {
                     pass: pipeline(

@@ -54,6 +54,7 @@ fn case(scene: &Scene, voxel: f32) -> Case {
         triangles: occluder_triangles_of(&scene_mesh(scene)),
         per_patch: PER_PATCH,
         points: sample_points(pieces, PER_PATCH, 7),
+        albedo: None,
     };
     let open = SurfaceData {
         triangles: Vec::new(),
@@ -408,6 +409,7 @@ fn a_bvh_deeper_than_the_stack_is_refused() {
         triangles,
         per_patch: 1,
         points: Vec::new(),
+        albedo: None,
     };
     let result = GpuSurfaceDirect::upload(ctx, &data);
     if deepest > SURFACE_STACK as usize {

@@ -19,7 +19,7 @@ use glam::Vec3;
 
 use bounce_core::direct::{SampledDirect, ShadowScene, direct_with_samples};
 use bounce_core::light::LightSet;
-use bounce_core::nearfield::{NearField, near_field_rows};
+use bounce_core::nearfield::{NearField, Reflect, SkySamples, near_field_rows};
 use bounce_core::patch::PatchLayout;
 use bounce_core::scene::Scene;
 use bounce_core::sky::{SkySum, SkyVisibility};
@@ -52,6 +52,7 @@ fn near_case(scene: &Scene, voxel: f32) -> NearCase {
         triangles: occluder_triangles_of(&mesh),
         per_patch: PER_PATCH,
         points: sample_points(pieces, PER_PATCH, 7),
+        albedo: None,
     };
     let rows = vox.transport_layout();
     let n = rows.len();
@@ -94,14 +95,20 @@ fn room_with_pillar() -> &'static NearCase {
 }
 
 fn upload(ctx: &GpuContext, case: &NearCase) -> GpuSurfaceDirect {
-    upload_field(ctx, case, &case.near)
+    upload_field(ctx, case, &case.near, Reflect::rows(&case.albedo))
 }
 
-/// The case's scene with `near` (the case's matrix, perhaps with a sky view) attached.
-fn upload_field(ctx: &GpuContext, case: &NearCase, near: &NearField) -> GpuSurfaceDirect {
+/// The case's scene with `near` (the case's matrix, perhaps with a sky view) attached, with the
+/// rows' and perhaps the samples' albedo.
+fn upload_field(
+    ctx: &GpuContext,
+    case: &NearCase,
+    near: &NearField,
+    albedo: Reflect<'_>,
+) -> GpuSurfaceDirect {
     GpuSurfaceDirect::upload(ctx, &case.data)
         .unwrap()
-        .with_near_field(near, &case.albedo)
+        .with_near_field(near, albedo)
         .unwrap()
 }
 
@@ -128,16 +135,17 @@ struct NearAgreement {
 
 /// GPU `ΔE` of one light set against the CPU's through `near`, with the tolerance of the module
 /// doc. `means` are the GPU's row means, `cpu` and `open` the CPU's direct light with and
-/// without shadows, `sky` the set's sky departures per sample when `near` corrects a sky.
+/// without shadows, `sky` the set's sky at the samples when `near` corrects a sky, `albedo`
+/// what the correction reflects with.
 fn compare_near(
-    case: &NearCase,
     near: &NearField,
+    albedo: Reflect<'_>,
     delta: &[[f32; 3]],
     means: &[[f32; 3]],
     (cpu, open): (&SampledDirect, &SampledDirect),
-    sky: Option<&[[f32; 3]]>,
+    sky: Option<&SkySamples>,
 ) -> NearAgreement {
-    let want = near.correction_with(&case.albedo, &cpu.mean, &cpu.samples, sky);
+    let want = near.correction_with(albedo, &cpu.mean, &cpu.samples, sky);
     assert_eq!(delta.len(), want.len());
     let suspect: Vec<bool> = means.iter().zip(&cpu.mean).map(|(g, c)| g != c).collect();
     let k = near.per_row as usize;
@@ -152,12 +160,14 @@ fn compare_near(
         let (cols, values) = near.row(i);
         for (&q, &c) in cols.iter().zip(values) {
             let (q, j) = (q as usize, q as usize / k);
+            let rho_q = albedo.samples.map_or(albedo.rows[j], |a| a[q]);
             for ch in 0..3 {
-                let rho = c * case.albedo[j][ch];
-                let d = sky.map_or(0.0, |sky| sky[q][ch].abs());
-                scale[ch] += rho * (cpu.samples[q][ch].abs() + d + cpu.mean[j][ch].abs());
+                let (rq, rj) = (c * rho_q[ch], c * albedo.rows[j][ch]);
+                let (sq, sj) = sky.map_or((0.0, 0.0), |s| (s.per_sample[q][ch], s.mean[j][ch]));
+                scale[ch] +=
+                    rq * (cpu.samples[q][ch].abs() + sq) + rj * (cpu.mean[j][ch].abs() + sj);
                 if suspect[j] {
-                    allowance[ch] += rho * (open.samples[q][ch] + open.mean[j][ch]);
+                    allowance[ch] += rq * open.samples[q][ch] + rj * open.mean[j][ch];
                 }
             }
         }
@@ -205,7 +215,14 @@ fn compare_near(
 /// GPU `ΔE` and means for `sets` against the CPU's, through the case's matrix; returns the GPU's
 /// `ΔE`.
 fn check(ctx: &GpuContext, name: &str, case: &NearCase, sets: &[LightSet]) -> Vec<Vec<[f32; 3]>> {
-    check_field(ctx, name, case, &case.near, sets)
+    check_field(
+        ctx,
+        name,
+        case,
+        &case.near,
+        Reflect::rows(&case.albedo),
+        sets,
+    )
 }
 
 /// [`check`] through `near`: the case's matrix, perhaps with a sky view its sets' skies are
@@ -215,6 +232,7 @@ fn check_field(
     name: &str,
     case: &NearCase,
     near: &NearField,
+    albedo: Reflect<'_>,
     sets: &[LightSet],
 ) -> Vec<Vec<[f32; 3]>> {
     let n = case.layout.len();
@@ -224,7 +242,7 @@ fn check_field(
         near.nnz(),
         near.nnz() as f64 / n as f64
     );
-    let gpu = upload_field(ctx, case, near);
+    let gpu = upload_field(ctx, case, near, albedo);
     let (means, delta) = gpu.irradiance_near(sets, PER_PATCH).unwrap();
     let delta = delta.expect("all samples used: a correction");
     assert_eq!((means.len(), delta.len()), (sets.len(), sets.len()));
@@ -239,14 +257,14 @@ fn check_field(
         let open = direct_with_samples(&case.open, &case.layout, s, PER_PATCH).unwrap();
         assert_eq!(cpu.count, PER_PATCH);
         let direct = compare(&means[k], &cpu.mean, &open.mean, PER_PATCH);
-        let sky = s.sky_sh().and_then(|sky| near.sky_departures(&sky));
+        let sky = s.sky_sh().and_then(|sky| near.sky_samples(&sky));
         let a = compare_near(
-            case,
             near,
+            albedo,
             &delta[k],
             &means[k],
             (&cpu, &open),
-            sky.as_deref(),
+            sky.as_ref(),
         );
         let brightest = cpu.mean.iter().flatten().fold(0.0f32, |m, v| m.max(*v));
         eprintln!("{name} set {k}: direct {direct:?}, brightest row {brightest}; near field {a:?}");
@@ -309,8 +327,9 @@ fn with_sky_view(near: &NearField) -> NearField {
     field
 }
 
-/// A sky's part of the correction runs on the device, in the same pass as the punctual lights':
-/// the twin of `NearField::correction_with` of the CPU's samples and the sky's departures, for
+/// A sky's part of the correction runs on the device, in the same pass as the punctual lights',
+/// and a landing reflects with its sample's albedo: the twin of `NearField::correction_with` of
+/// the CPU's samples, the samples' albedo and the sky at the samples, for
 /// a sky with a light, a sky alone, an SH sky that rings below zero, and sets without a sky in
 /// the same batch; sliced batches give the same bits.
 #[test]
@@ -338,8 +357,20 @@ fn a_sky_is_corrected_on_the_device_as_on_the_cpu() {
     ];
     // The last set lights nothing: `check_field` asks every set for a correction that matters.
     let lit = &sets[..3];
-    let delta = check_field(ctx, "pillar under a sky", case, &near, lit);
-    let gpu = upload_field(ctx, case, &near);
+    // Each sample's albedo about its row's, some darker and some brighter (a textured element).
+    let k = PER_PATCH as usize;
+    let samples: Vec<[f32; 3]> = (0..case.layout.len() * k)
+        .map(|q| {
+            let f = 0.6 + 0.8 * ((q * 7) % 5) as f32 / 4.0;
+            case.albedo[q / k].map(|a| (a * f).min(1.0))
+        })
+        .collect();
+    let albedo = Reflect {
+        rows: &case.albedo,
+        samples: Some(&samples),
+    };
+    let delta = check_field(ctx, "pillar under a sky", case, &near, albedo, lit);
+    let gpu = upload_field(ctx, case, &near, albedo);
     let all = gpu.irradiance_near(&sets, PER_PATCH).unwrap().1;
     let all = all.expect("a correction");
     assert_eq!(
@@ -349,7 +380,10 @@ fn a_sky_is_corrected_on_the_device_as_on_the_cpu() {
     );
     assert!(all[3].iter().all(|e| *e == [0.0; 3]), "nothing lights");
     // The sky moved the correction, and only where a set has one.
-    let plain = upload(ctx, case).irradiance_near(lit, PER_PATCH).unwrap().1;
+    let plain = upload_field(ctx, case, &case.near, albedo)
+        .irradiance_near(lit, PER_PATCH)
+        .unwrap()
+        .1;
     let plain = plain.expect("a correction");
     assert_ne!(delta[0], plain[0], "the sky with a light");
     assert!(delta[1].iter().flatten().any(|v| *v != 0.0), "a sky alone");
@@ -358,7 +392,7 @@ fn a_sky_is_corrected_on_the_device_as_on_the_cpu() {
     // One set a slice, and pieces of a few patches: the same bits.
     let n = case.layout.len() as u64;
     let one_set = n * 12 * u64::from(PER_PATCH);
-    let split = upload_field(ctx, case, &near)
+    let split = upload_field(ctx, case, &near, albedo)
         .with_rays_per_piece(500)
         .with_binding_limit(one_set + 5);
     let (_, d) = split.irradiance_near(&sets, PER_PATCH).unwrap();
@@ -444,7 +478,7 @@ fn no_correction_without_every_sample_or_a_matrix() {
     };
     let (_, d) = GpuSurfaceDirect::upload(ctx, &case.data)
         .unwrap()
-        .with_near_field(&empty, &case.albedo)
+        .with_near_field(&empty, Reflect::rows(&case.albedo))
         .unwrap()
         .irradiance_near(&sets, PER_PATCH)
         .unwrap();
@@ -459,7 +493,7 @@ fn a_matrix_that_does_not_fit_is_refused() {
     let attach = |near: &NearField, albedo: &[[f32; 3]]| {
         GpuSurfaceDirect::upload(ctx, &case.data)
             .unwrap()
-            .with_near_field(near, albedo)
+            .with_near_field(near, Reflect::rows(albedo))
             .map(|_| ())
     };
     let refused = |what: &str, r: Result<(), GpuError>| match r {

@@ -1,7 +1,7 @@
-// The near-field correction `ΔE = C · ρ ⊙ (E_q − Ē_j)`: the twin of
-// `bounce_core::nearfield::NearField::correction` (read it and `bounce_core::nearfield` for the
-// model). One thread per (light set, row) walks the row's CSR entries in order and sums as the
-// CPU does, in f32: `sum += c * (ρ_j * (E_q − Ē_j))`. It reads what `gather_samples`
+// The near-field correction `ΔE = C · (ρ_q ⊙ E_q − ρ_j ⊙ Ē_j)`: the twin of
+// `bounce_core::nearfield::NearField::correction_with` (read it and `bounce_core::nearfield` for
+// the model). One thread per (light set, row) walks the row's CSR entries in order and sums as
+// the CPU does, in f32: `sum += c * (ρ_q * E_q − ρ_j * Ē_j)`. It reads what `gather_samples`
 // (`direct_surface.wgsl`) wrote for the same slice of light sets: every row's mean and every
 // sample's value, so it runs after the slice's last piece.
 
@@ -18,8 +18,8 @@ struct NearParams {
 
 const NEAR_WG: u32 = 64u;
 
-// Seven storage buffers: within the eight a stage may bind on WebGPU's default limits, so the
-// pass runs wherever the direct light does.
+// Eight storage buffers: the most a stage may bind on WebGPU's default limits, so the pass runs
+// wherever the direct light does.
 @group(0) @binding(0) var<uniform> params: NearParams;
 // `NearField::row_ptr`, `cols`, `values`: row i's entries are row_ptr[i]..row_ptr[i + 1].
 @group(0) @binding(1) var<storage, read> row_ptr: array<u32>;
@@ -33,6 +33,8 @@ const NEAR_WG: u32 = 64u;
 @group(0) @binding(6) var<storage, read> per_sample: array<f32>;
 // Packed RGB, light set s, row i at (s * n + i) * 3.
 @group(0) @binding(7) var<storage, read_write> delta: array<f32>;
+// Packed RGB albedo per sample point (its row's where the file keeps none).
+@group(0) @binding(11) var<storage, read> sample_albedo: array<f32>;
 
 fn albedo_of(j: u32) -> vec3<f32> {
     let o = j * 3u;
@@ -62,7 +64,8 @@ fn near_field(
         let mo = (means + j) * 3u;
         let eq = vec3<f32>(per_sample[so], per_sample[so + 1u], per_sample[so + 2u]);
         let ej = vec3<f32>(mean[mo], mean[mo + 1u], mean[mo + 2u]);
-        let d = albedo_of(j) * (eq - ej);
+        let aq = vec3<f32>(sample_albedo[q * 3u], sample_albedo[q * 3u + 1u], sample_albedo[q * 3u + 2u]);
+        let d = aq * eq - albedo_of(j) * ej;
         sum += values[e] * d;
     }
     let o = id * 3u;
@@ -72,11 +75,12 @@ fn near_field(
 }
 
 // The sky's part of the correction, run before `near_field` on the same slice: per (light set,
-// row), each of the row's samples gets its departure from the row's mean sky irradiance added
-// to its punctual value, `E_q += s_q − s̄_j`, so `near_field`'s one pass corrects both. The twin
-// of `NearField::sky_departures` and `NearField::correction_with`: `s_q = max(Σ_k c_qk L_k, 0)`
-// per channel (in f32 here, f64 on the CPU), the mean summed in sample order and divided by
-// the count. A set without a sky has zero coefficients and adds exactly zero.
+// row), each of the row's samples gets its sky irradiance added to its punctual value,
+// `E_q += s_q`, and the row's mean gets the samples' mean, `Ē_j += s̄_j`, so `near_field`'s one
+// pass corrects both. The twin of `NearField::sky_samples` and `NearField::correction_with`:
+// `s_q = max(Σ_k c_qk L_k, 0)` per channel (in f32 here, f64 on the CPU), the mean summed in
+// sample order and divided by the count. A set without a sky has zero coefficients and adds
+// exactly zero.
 
 // Per sample point q, its 9 coefficients at q * 9: `NearField::sky`.
 @group(0) @binding(8) var<storage, read> sample_sky: array<f32>;
@@ -84,6 +88,8 @@ fn near_field(
 @group(0) @binding(9) var<storage, read> skies: array<f32>;
 // `per_sample` above, written: what `gather_samples` kept, laid out the same.
 @group(0) @binding(10) var<storage, read_write> per_sample_sky: array<f32>;
+// `mean` above, written (after the host's copy of the means was taken).
+@group(0) @binding(12) var<storage, read_write> mean_sky: array<f32>;
 
 fn sky_at(sid: u32, q: u32) -> vec3<f32> {
     var e = vec3<f32>(0.0);
@@ -117,10 +123,14 @@ fn sky_samples(
     let samples = sid * params.n * params.per_row;
     for (var k = 0u; k < params.per_row; k++) {
         let q = first + k;
-        let d = sky_at(sid, q) - mean;
+        let s = sky_at(sid, q);
         let o = (samples + q) * 3u;
-        per_sample_sky[o] += d.x;
-        per_sample_sky[o + 1u] += d.y;
-        per_sample_sky[o + 2u] += d.z;
+        per_sample_sky[o] += s.x;
+        per_sample_sky[o + 1u] += s.y;
+        per_sample_sky[o + 2u] += s.z;
     }
+    let mo = id * 3u;
+    mean_sky[mo] += mean.x;
+    mean_sky[mo + 1u] += mean.y;
+    mean_sky[mo + 2u] += mean.z;
 }
