@@ -77,6 +77,7 @@ pub fn run(args: &InspectArgs) -> Result<()> {
             "near_field_radius": baked.near_field.as_ref().map(|_| m.settings.near_radius),
             "near_field_entries": baked.near_field.as_ref().map(|n| n.nnz()),
             "near_field_sky_view": baked.near_field.as_ref().map(|n| n.sky.is_some()),
+            "sample_albedo": baked.surface.as_ref().map(|s| s.albedo.is_some()),
             "sky_view_rows": baked.sky.as_ref().map(|s| s.len()),
             "sky_view_escaped_share": sky_escaped,
             "emitters": baked.emitters.as_ref().map(|e| e.groups.iter().map(|g| json!({
@@ -189,6 +190,15 @@ pub fn run(args: &InspectArgs) -> Result<()> {
                 "each sample's own sky view (a sky is corrected too)"
             } else {
                 "no samples' sky view (a file from before version 9: a sky is not corrected)"
+            }
+        );
+        let albedo = baked.surface.as_ref().is_some_and(|s| s.albedo.is_some());
+        println!(
+            "                {}",
+            if albedo {
+                "each sample's own albedo (a landing reflects with its triangle's colour)"
+            } else {
+                "no samples' albedo (a file from before version 11: each row's is used)"
             }
         );
     }

@@ -13,15 +13,16 @@
 //! row `i`'s rays), and a relight adds
 //!
 //! ```text
-//! ΔE_i = Σ_q C_iq · ρ_j(q) ⊙ (E_q − Ē_j(q))
+//! ΔE_i = Σ_q C_iq · (ρ_q ⊙ E_q − ρ_j(q) ⊙ Ē_j(q))
 //! ```
 //!
 //! to `E_ind = T · B0`, where `E_q` is the direct irradiance the relight already evaluates at
-//! sample `q` and `Ē_j` the mean it takes of them. The correction is zero-sum over each source
-//! element's samples in expectation and exactly zero when direct light is uniform over every
-//! element; it is first order (the later bounces keep the element means).
+//! sample `q`, `Ē_j` the mean it takes of them, `ρ_j` the element's albedo and `ρ_q` the
+//! sample's (below; the element's in files without it). The correction is zero-sum over each
+//! source element's samples in expectation and exactly zero when direct light and albedo are
+//! uniform over every element; it is first order (the later bounces keep the element means).
 //!
-//! [`NearField::correction`] is the CPU twin of the GPU engine's `near_field.wgsl`.
+//! [`NearField::correction_with`] is the CPU twin of the GPU engine's `near_field.wgsl`.
 //!
 //! A sky needs the same correction: a surface sees more of it where it is open than in its
 //! corners, and the corners are where near rays land. A row's sky view ([`crate::sky`]) is one
