@@ -46,8 +46,9 @@
 //! it). After the slice's last piece, the pass of `shaders/near_field.wgsl` (`super::near_field`)
 //! turns those values and the means into `ΔE` per (light set, row), read back with the means;
 //! the per-sample values never leave the device. When the matrix keeps its samples' sky view
-//! and a set of the slice has a sky, `sky_samples` first adds each sample's departure from its
-//! row's mean sky irradiance to its value, so the same pass corrects the sky too.
+//! and a set of the slice has a sky, `sky_samples` first adds each sample's sky irradiance to
+//! its value and the row's mean of them to the row's mean (after the means were copied out for
+//! the host), so the same pass corrects the sky too.
 
 use bounce_core::direct::{PreparedLight, SHADOW_END};
 use bounce_core::light::LightSet;
