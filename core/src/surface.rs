@@ -45,7 +45,7 @@ pub struct SurfaceData {
     pub triangles: Vec<[[f32; 3]; 3]>,
     pub per_patch: u32,
     pub points: Vec<SamplePoint>,
-    /// Per sample point, the albedo of the triangle it lies on ([`sample_albedo`]): a textured
+    /// Per sample point, the albedo of the triangle it lies on ([`sample_points_with_albedo`]): a textured
     /// element is not one colour, and the near field reflects a landing's light with the
     /// albedo where it landed (`crate::nearfield`). `None` in files from before format version
     /// 11, whose samples take their row's albedo.
@@ -150,13 +150,18 @@ pub fn sample_points(pieces: &Pieces, per_patch: u32, seed: u64) -> Vec<SamplePo
         .collect()
 }
 
-/// The albedo of the original triangle (of `scene`) under each of [`sample_points`]' points,
-/// in the same order: what [`SurfaceData::albedo`] keeps.
-pub fn sample_albedo(scene: &Scene, pieces: &Pieces, per_patch: u32, seed: u64) -> Vec<[f32; 3]> {
+/// [`sample_points`] and the albedo of the original triangle (of `scene`) under each, in the
+/// same order: what [`SurfaceData::points`] and [`SurfaceData::albedo`] keep, placed once.
+pub fn sample_points_with_albedo(
+    scene: &Scene,
+    pieces: &Pieces,
+    per_patch: u32,
+    seed: u64,
+) -> (Vec<SamplePoint>, Vec<[f32; 3]>) {
     placed_samples(pieces, per_patch, seed)
         .into_iter()
-        .map(|(_, t)| scene.triangles[t as usize].albedo.to_array())
-        .collect()
+        .map(|(p, t)| (p, scene.triangles[t as usize].albedo.to_array()))
+        .unzip()
 }
 
 /// [`sample_points`] with the original triangle each point lies on.

@@ -386,16 +386,17 @@ pub(crate) fn prepare(
     })?;
     match (mesh, &vox.pieces) {
         (Some(mesh), Some(pieces)) => {
+            let (points, albedo) = surface::sample_points_with_albedo(
+                scene,
+                pieces,
+                options.direct_samples,
+                options.seed,
+            );
             let surface = SurfaceData {
                 triangles: surface::occluder_triangles_of(&mesh),
                 per_patch: options.direct_samples,
-                points: surface::sample_points(pieces, options.direct_samples, options.seed),
-                albedo: Some(surface::sample_albedo(
-                    scene,
-                    pieces,
-                    options.direct_samples,
-                    options.seed,
-                )),
+                points,
+                albedo: Some(albedo),
             };
             let emitters = Emitters::of_pieces(scene, pieces);
             let rays = SurfaceScene::new(scene, mesh, vox.transport_layout(), pieces);
