@@ -78,6 +78,7 @@ pub fn run(args: &InspectArgs) -> Result<()> {
             "near_field_entries": baked.near_field.as_ref().map(|n| n.nnz()),
             "near_field_sky_view": baked.near_field.as_ref().map(|n| n.sky.is_some()),
             "sample_albedo": baked.surface.as_ref().map(|s| s.albedo.is_some()),
+            "near_field_albedo": baked.near_field.as_ref().map(|n| n.albedo.is_some()),
             "sky_view_rows": baked.sky.as_ref().map(|s| s.len()),
             "sky_view_escaped_share": sky_escaped,
             "emitters": baked.emitters.as_ref().map(|e| e.groups.iter().map(|g| json!({
@@ -195,8 +196,11 @@ pub fn run(args: &InspectArgs) -> Result<()> {
         let albedo = baked.surface.as_ref().is_some_and(|s| s.albedo.is_some());
         println!(
             "                {}",
-            if albedo {
-                "each sample's own albedo (a landing reflects with its triangle's colour)"
+            if near.albedo.is_some() {
+                "each entry's own albedo (a landing reflects with the colour it landed on)"
+            } else if albedo {
+                "each sample's own albedo (a file from before version 12: a landing reflects \
+                 with its sample's triangle's colour)"
             } else {
                 "no samples' albedo (a file from before version 11: each row's is used)"
             }

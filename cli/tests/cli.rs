@@ -38,10 +38,14 @@ fn bake_then_inspect_the_cornell_box() {
     assert!(summary.contains("patches"), "{summary}");
 
     let j = inspect_json(&file);
-    assert_eq!(j["format_version"], 11);
+    assert_eq!(j["format_version"], 12);
     assert_eq!(
         j["sample_albedo"], true,
         "version 11 keeps each sample's albedo for the near field"
+    );
+    assert_eq!(
+        j["near_field_albedo"], true,
+        "version 12 keeps the albedo where each near-field entry's rays landed"
     );
     assert_eq!(j["near_field_radius"], 1.0, "a near field by default");
     assert!(j["near_field_entries"].as_u64().unwrap() > 0);

@@ -15,6 +15,7 @@ use rayon::prelude::*;
 use thiserror::Error;
 
 use crate::matrix::DenseMatrix;
+use crate::nearfield::{Landings, landings_of};
 use crate::patch::Quad;
 pub use crate::rays::{RayFate, RayScene, RayTally, Tracer};
 use crate::sample::{SamplePoint, nearest_sample};
@@ -155,7 +156,8 @@ pub struct NearRays<'a> {
     /// Every row's sample points, `per_row` a row.
     samples: &'a [SamplePoint],
     per_row: usize,
-    hits: Vec<u32>,
+    /// Per landing, its sample point and the albedo of the triangle it met.
+    hits: Vec<(u32, Vec3)>,
 }
 
 impl<'a> NearRays<'a> {
@@ -181,33 +183,23 @@ impl<'a> NearRays<'a> {
     }
 
     /// A ray landed at `point`, `t` from its origin, on row `row`'s surface of unit normal
-    /// `normal` (the side it met).
+    /// `normal` (the side it met), on a triangle of albedo `albedo`.
     #[inline]
-    pub fn landed(&mut self, t: f32, point: Vec3, normal: Vec3, row: usize) {
+    pub fn landed(&mut self, t: f32, point: Vec3, normal: Vec3, row: usize, albedo: Vec3) {
         let k = self.per_row;
         if t < self.radius && k > 0 {
             let own = &self.samples[row * k..(row + 1) * k];
-            self.hits
-                .push((row * k + nearest_sample(own, point, normal)) as u32);
+            self.hits.push((
+                (row * k + nearest_sample(own, point, normal)) as u32,
+                albedo,
+            ));
         }
     }
 
     /// The row of the near-field matrix after `rays` rays: per sample point landed on
-    /// (ascending), the share of the rays.
-    pub fn finish(mut self, rays: u32) -> Vec<(u32, f32)> {
-        self.hits.sort_unstable();
-        let mut row: Vec<(u32, f32)> = Vec::new();
-        for &q in &self.hits {
-            match row.last_mut() {
-                Some((c, v)) if *c == q => *v += 1.0,
-                _ => row.push((q, 1.0)),
-            }
-        }
-        let inv = 1.0 / rays as f32;
-        for e in &mut row {
-            e.1 *= inv;
-        }
-        row
+    /// (ascending), the share of the rays and their mean albedo.
+    pub fn finish(mut self, rays: u32) -> Vec<Landings> {
+        landings_of(&mut self.hits, rays)
     }
 }
 
@@ -278,7 +270,7 @@ pub struct Traced {
     /// With samples, each sample's view of the sky, `per_row` a row in row order.
     pub samples_sky: Option<SkyVisibility>,
     /// With samples and a near radius, each row's near-field row ([`NearRays::finish`]).
-    pub near: Option<Vec<Vec<(u32, f32)>>>,
+    pub near: Option<Vec<Vec<Landings>>>,
 }
 
 /// As [`form_factor_rows_tallied`], also each row's view of the sky from the same rays

@@ -35,7 +35,9 @@
 //! An element is not one colour either: a textured surface's triangles have their own albedos.
 //! A file from format version 11 keeps each sample point's (the albedo of the triangle it lies
 //! on), and the correction reflects a landing's light with it: `ρ_q ⊙ E_q − ρ_j ⊙ Ē_j` in
-//! place of `ρ_j ⊙ (E_q − Ē_j)`.
+//! place of `ρ_j ⊙ (E_q − Ē_j)`. A sample's triangle is not always the one its landings met,
+//! so from format version 12 each entry keeps the mean albedo of the triangles its rays landed
+//! on (`NearField::albedo`), and `ρ_q` is the entry's: `ΔE_i = Σ_e c_e (ρ_e ⊙ E_q − ρ_j ⊙ Ē_j)`.
 
 use std::ops::Range;
 
@@ -53,6 +55,8 @@ pub const DEFAULT_NEAR_RADIUS: f32 = 1.0;
 /// The largest radius a bake accepts, in voxels: beyond it the matrix grows towards `F`'s size
 /// and the correction stops being near.
 pub const MAX_NEAR_RADIUS: f32 = 4.0;
+/// f32s a sample's sky view takes.
+const SH_WORDS: usize = bounce_types::sh::SH_COEFFICIENTS;
 
 /// The sparse near-field matrix `C` in CSR form.
 #[derive(Debug, Clone, PartialEq)]
@@ -69,6 +73,50 @@ pub struct NearField {
     /// [`SkyVisibility`] sum over the row's form-factor rays whose origin that sample stands
     /// for ([`nearest_sample`]). `None` in files from before version 9.
     pub sky: Option<SkyVisibility>,
+    /// Per entry, the mean albedo of the triangles its rays landed on (each channel rounded to
+    /// f16, as the file keeps it): what a landing reflects. `None` in files from before version
+    /// 12, whose entries take their sample's albedo.
+    pub albedo: Option<Vec<[f32; 3]>>,
+}
+
+/// Where one row's near rays landed that one sample point stands for: an entry of the
+/// near-field matrix as the bake finds it ([`NearField::from_landings`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Landings {
+    /// The sample point (column).
+    pub sample: u32,
+    /// The share of the row's rays.
+    pub share: f32,
+    /// The mean albedo of the triangles they landed on, each channel rounded to f16.
+    pub albedo: [f32; 3],
+}
+
+/// A row's entries from its near rays' landings, in ray order: per landing, the sample point it
+/// went to and the albedo of the triangle it met. Sorted stably by sample, so the albedos sum in
+/// ray order and the form factors' pass and the retrace get the same bits; `hits` is left
+/// sorted.
+pub(crate) fn landings_of(hits: &mut [(u32, Vec3)], rays: u32) -> Vec<Landings> {
+    hits.sort_by_key(|h| h.0);
+    let mut row: Vec<(u32, u32, Vec3)> = Vec::new();
+    for &(q, albedo) in hits.iter() {
+        match row.last_mut() {
+            Some((c, count, sum)) if *c == q => {
+                *count += 1;
+                *sum += albedo;
+            }
+            _ => row.push((q, 1, albedo)),
+        }
+    }
+    let inv = 1.0 / rays as f32;
+    row.into_iter()
+        .map(|(sample, count, sum)| Landings {
+            sample,
+            share: count as f32 * inv,
+            albedo: (sum / count as f32)
+                .to_array()
+                .map(|a| half::f16::from_f32(a).to_f32()),
+        })
+        .collect()
 }
 
 impl NearField {
@@ -80,6 +128,7 @@ impl NearField {
             cols: Vec::new(),
             values: Vec::new(),
             sky: None,
+            albedo: None,
         }
     }
 
@@ -89,6 +138,15 @@ impl NearField {
 
     pub fn nnz(&self) -> usize {
         self.cols.len()
+    }
+
+    /// The bytes this matrix takes in a baked file's `NEAR` section (`crate::format`): offsets,
+    /// columns and shares, the samples' sky view and the entries' albedo (f16×3).
+    pub fn stored_bytes(&self) -> u64 {
+        let words = self.row_ptr.len()
+            + 2 * self.nnz()
+            + self.sky.as_ref().map_or(0, |s| s.rows.len() * SH_WORDS);
+        16 + 4 * words as u64 + self.albedo.as_ref().map_or(0, |a| 6 * a.len() as u64)
     }
 
     /// Row `i`'s columns and values.
@@ -158,6 +216,24 @@ impl NearField {
             sky.check(rows * per_row as usize)
                 .map_err(|m| format!("the samples' sky view: {m}"))?;
         }
+        if let Some(albedo) = &self.albedo {
+            if albedo.len() != self.cols.len() {
+                return Err(format!(
+                    "{} entries' albedo for {} entries",
+                    albedo.len(),
+                    self.cols.len()
+                ));
+            }
+            if let Some(e) = albedo
+                .iter()
+                .position(|a| a.iter().any(|c| !(0.0..=1.0).contains(c)))
+            {
+                return Err(format!(
+                    "entry {e}'s albedo {:?} is not within 0 to 1",
+                    albedo[e]
+                ));
+            }
+        }
         Ok(())
     }
 
@@ -175,11 +251,29 @@ impl NearField {
         out
     }
 
+    /// The matrix of a bake's `rows` (each a row's [`Landings`], samples ascending), with each
+    /// entry's albedo and without the samples' sky view.
+    pub fn from_landings(per_row: u32, rows: Vec<Vec<Landings>>) -> NearField {
+        let mut out = NearField::empty(per_row);
+        let mut albedo = Vec::new();
+        for row in rows {
+            for e in row {
+                out.cols.push(e.sample);
+                out.values.push(e.share);
+                albedo.push(e.albedo);
+            }
+            out.row_ptr.push(out.cols.len() as u32);
+        }
+        out.albedo = Some(albedo);
+        out
+    }
+
     /// The rows of `parts` one after the other (shards of one bake, in row order). The samples'
-    /// sky view is kept when every part has one.
+    /// sky view, and the entries' albedo, are kept when every part has them.
     pub fn concat(per_row: u32, parts: impl IntoIterator<Item = NearField>) -> NearField {
         let mut out = NearField::empty(per_row);
         let mut skies = Some(Vec::new());
+        let mut albedo = Some(Vec::new());
         for p in parts {
             let base = out.cols.len() as u32;
             out.row_ptr
@@ -190,8 +284,13 @@ impl NearField {
                 all.push(sky);
                 all
             });
+            albedo = albedo.zip(p.albedo).map(|(mut all, part)| {
+                all.extend(part);
+                all
+            });
         }
         out.sky = skies.map(SkyVisibility::concat);
+        out.albedo = albedo;
         out
     }
 
@@ -256,9 +355,11 @@ impl NearField {
     }
 
     /// `ΔE_i = Σ_q C_iq (ρ_q ⊙ e_q − ρ_j ⊙ ē_j)`: what row `i`'s near rays gather from the
-    /// exitance where they land (`ρ_q`, the albedo under sample `q`, times its irradiance
-    /// `e_q = E_q + s_q`) rather than from their element's (`ρ_j`, the row's albedo, times the
-    /// mean `ē_j = Ē_j + s̄_j`), with `s` a sky's [`Self::sky_samples`] when given. The
+    /// exitance where they land (`ρ_q`, the albedo where they landed, times the irradiance of
+    /// sample `q`, `e_q = E_q + s_q`) rather than from their element's (`ρ_j`, the row's albedo,
+    /// times the mean `ē_j = Ē_j + s̄_j`), with `s` a sky's [`Self::sky_samples`] when given.
+    /// `ρ_q` is the entry's own albedo ([`Self::albedo`]) where the matrix keeps it, else the
+    /// sample's (`albedo.samples`), else the row's. The
     /// punctual lights and the sky are corrected in one pass over the entries. Summed per row in
     /// entry order, in f32: the GPU twin (`near_field.wgsl`, after `sky_samples` added the sky
     /// on the device) sums in the same order.
@@ -297,21 +398,55 @@ impl NearField {
         {
             return vec![[0.0; 3]; n];
         }
+        let light = |q: usize| -> (Vec3, Vec3) {
+            let j = q / k;
+            match sky {
+                Some(sky) => (
+                    Vec3::from(per_sample[q]) + Vec3::from(sky.per_sample[q]),
+                    Vec3::from(mean[j]) + Vec3::from(sky.mean[j]),
+                ),
+                None => (Vec3::from(per_sample[q]), Vec3::from(mean[j])),
+            }
+        };
+        if let Some(landed) = &self.albedo {
+            // Each entry reflects with its own albedo: per sample its light, per row its
+            // element's exitance, once, and the albedo read an entry.
+            let e: Vec<Vec3> = (0..n * k).into_par_iter().map(|q| light(q).0).collect();
+            let exitance: Vec<Vec3> = (0..n)
+                .into_par_iter()
+                .map(|j| {
+                    let m = match sky {
+                        Some(sky) => Vec3::from(mean[j]) + Vec3::from(sky.mean[j]),
+                        None => Vec3::from(mean[j]),
+                    };
+                    Vec3::from(albedo.rows[j]) * m
+                })
+                .collect();
+            return (0..n)
+                .into_par_iter()
+                .map(|i| {
+                    let r = self.row_ptr[i] as usize..self.row_ptr[i + 1] as usize;
+                    let mut sum = Vec3::ZERO;
+                    for ((&q, &c), &a) in self.cols[r.clone()]
+                        .iter()
+                        .zip(&self.values[r.clone()])
+                        .zip(&landed[r])
+                    {
+                        let q = q as usize;
+                        sum += c * (Vec3::from(a) * e[q] - exitance[q / k]);
+                    }
+                    sum.to_array()
+                })
+                .collect();
+        }
         // Each sample's departure from its element's exitance, once: a sample is met by many
         // rows' near rays (pandora: 1.5 M entries over 190 k samples), and the row sums then
         // read one value an entry instead of three.
-        let departure: Vec<Vec3> = per_sample
-            .par_iter()
-            .enumerate()
-            .map(|(q, &e)| {
+        let departure: Vec<Vec3> = (0..n * k)
+            .into_par_iter()
+            .map(|q| {
                 let j = q / k;
-                let (e, m) = match sky {
-                    Some(sky) => (
-                        Vec3::from(e) + Vec3::from(sky.per_sample[q]),
-                        Vec3::from(mean[j]) + Vec3::from(sky.mean[j]),
-                    ),
-                    None => (Vec3::from(e), Vec3::from(mean[j])),
-                };
+                let (e, m) = light(q);
                 let rho_q = Vec3::from(albedo.samples.map_or(albedo.rows[j], |a| a[q]));
                 rho_q * e - Vec3::from(albedo.rows[j]) * m
             })
@@ -383,34 +518,23 @@ pub fn near_field_rows(
         k > 0 && samples.len() >= n * k,
         "sample points for every row"
     );
-    let inv = 1.0 / rays as f32;
-    let per: Vec<Vec<(u32, f32)>> = rows
+    let per: Vec<Vec<Landings>> = rows
         .into_par_iter()
-        .map_init(Vec::new, |hits: &mut Vec<u32>, i| {
+        .map_init(Vec::new, |hits: &mut Vec<(u32, Vec3)>, i| {
             hits.clear();
             for r in 0..rays {
-                let Some((point, normal, j)) = tracer.near_landing(i, r, seed, radius) else {
+                let Some((point, normal, j, albedo)) = tracer.near_landing(i, r, seed, radius)
+                else {
                     continue;
                 };
                 let nearest = nearest_sample(&samples[j * k..(j + 1) * k], point, normal);
-                hits.push((j * k + nearest) as u32);
-            }
-            hits.sort_unstable();
-            let mut row: Vec<(u32, f32)> = Vec::new();
-            for &q in hits.iter() {
-                match row.last_mut() {
-                    Some((c, v)) if *c == q => *v += 1.0,
-                    _ => row.push((q, 1.0)),
-                }
-            }
-            for e in &mut row {
-                e.1 *= inv;
+                hits.push(((j * k + nearest) as u32, albedo));
             }
             progress(1);
-            row
+            landings_of(hits, rays)
         })
         .collect();
-    Ok(NearField::from_rows(per_row, per))
+    Ok(NearField::from_landings(per_row, per))
 }
 
 /// A small matrix the tests of this module and of its file section share.
@@ -434,6 +558,7 @@ mod tests {
             sky: Some(SkyVisibility {
                 rows: (0..4).map(|s| view(0.1 * (s + 1) as f64)).collect(),
             }),
+            albedo: None,
         }
     }
 
@@ -504,6 +629,7 @@ mod tests {
             cols: first.to_vec(),
             values: vec![0.25, 0.125],
             sky: None,
+            albedo: None,
         };
         assert_eq!(shard.check(1, 2, 2), Ok(()));
         assert!(shard.check(1, 1, 2).unwrap_err().contains("past"));
@@ -534,6 +660,7 @@ mod tests {
                 cols: vec![2, 3],
                 values: vec![0.25, 0.125],
                 sky: f.sky.as_ref().map(|s| s.slice(0..2)),
+                albedo: None,
             },
             NearField {
                 per_row: 2,
@@ -541,6 +668,7 @@ mod tests {
                 cols: vec![0],
                 values: vec![0.5],
                 sky: f.sky.as_ref().map(|s| s.slice(2..4)),
+                albedo: None,
             },
         ];
         let mut without = parts.clone();
@@ -650,5 +778,120 @@ mod tests {
             None,
         );
         assert_eq!(a, f.correction(&rows, &lit_mean, &lit));
+    }
+
+    #[test]
+    fn a_landing_reflects_with_the_albedo_where_it_landed() {
+        let rows = [[0.5; 3], [0.6; 3]];
+        // Each entry's own albedo: row 0's landings on row 1's samples met a dark and a bright
+        // triangle; row 1's landing on row 0's sample 0 met one of its row's colour.
+        let mut f = field();
+        f.albedo = Some(vec![[0.2, 0.3, 0.4], [1.0, 0.9, 0.8], [0.5; 3]]);
+        assert_eq!(f.check(2, 2, 2), Ok(()));
+        // Uniform light over every element: what each landing reflects differs by its albedo.
+        let per_sample = [[2.0; 3], [2.0; 3], [7.0; 3], [7.0; 3]];
+        let mean = [[2.0; 3], [7.0; 3]];
+        let d = f.correction_with(Reflect::rows(&rows), &mean, &per_sample, None);
+        let want0 = 0.25 * 7.0 * (0.2 - 0.6) + 0.125 * 7.0 * (1.0 - 0.6);
+        assert!((d[0][0] - want0).abs() < 1e-5, "{d:?} against {want0}");
+        assert!(Vec3::from(d[1]).abs().max_element() < 1e-6, "{d:?}");
+        // The entries' albedo wins over the samples': the same result with samples of another
+        // colour.
+        let samples = [[0.9; 3]; 4];
+        let reflect = Reflect {
+            rows: &rows,
+            samples: Some(&samples),
+        };
+        assert_eq!(
+            f.correction_with(reflect, &mean, &per_sample, None),
+            d,
+            "the entries' albedo is the one taken"
+        );
+        // Entries that each take their sample's albedo give the samples' correction, sky and
+        // all.
+        let samples = [[0.5; 3], [0.5; 3], [0.2, 0.3, 0.4], [1.0, 0.9, 0.8]];
+        let reflect = Reflect {
+            rows: &rows,
+            samples: Some(&samples),
+        };
+        let lit = [[4.0; 3], [0.0; 3], [10.0; 3], [2.0; 3]];
+        let lit_mean = [[2.0; 3], [6.0; 3]];
+        let sky = f
+            .sky_samples(&bounce_types::sh::uniform_sh([1.0, 0.5, 2.0]))
+            .expect("the field has the view");
+        let mut plain = f.clone();
+        plain.albedo = None;
+        let want = plain.correction_with(reflect, &lit_mean, &lit, Some(&sky));
+        let mut own = f.clone();
+        own.albedo = Some(f.cols.iter().map(|&q| samples[q as usize]).collect());
+        let got = own.correction_with(Reflect::rows(&rows), &lit_mean, &lit, Some(&sky));
+        for (g, w) in got.iter().zip(&want) {
+            assert!(
+                (Vec3::from(*g) - Vec3::from(*w)).abs().max_element() < 1e-6,
+                "{got:?} against {want:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn the_entries_albedo_is_checked_and_kept_through_shards() {
+        let mut f = field();
+        f.albedo = Some(vec![[0.2; 3], [1.0; 3], [0.5; 3]]);
+        let mut short = f.clone();
+        short.albedo.as_mut().unwrap().pop();
+        assert!(
+            short
+                .check(2, 2, 2)
+                .unwrap_err()
+                .contains("entries' albedo")
+        );
+        let mut over = f.clone();
+        over.albedo.as_mut().unwrap()[1] = [1.5, 0.0, 0.0];
+        assert!(over.check(2, 2, 2).unwrap_err().contains("within 0 to 1"));
+        let mut nan = f.clone();
+        nan.albedo.as_mut().unwrap()[0][2] = f32::NAN;
+        assert!(nan.check(2, 2, 2).is_err());
+        // Two shards of one bake concatenate to the whole, albedo and all.
+        let (cols0, values0) = f.row(0);
+        let (cols1, values1) = f.row(1);
+        let part =
+            |cols: &[u32], values: &[f32], albedo: &[[f32; 3]], sky: Range<usize>| NearField {
+                per_row: 2,
+                row_ptr: vec![0, cols.len() as u32],
+                cols: cols.to_vec(),
+                values: values.to_vec(),
+                sky: f.sky.as_ref().map(|s| s.slice(sky)),
+                albedo: Some(albedo.to_vec()),
+            };
+        let a = f.albedo.clone().unwrap();
+        let parts = [
+            part(cols0, values0, &a[..2], 0..2),
+            part(cols1, values1, &a[2..], 2..4),
+        ];
+        assert_eq!(NearField::concat(2, parts.clone()), f);
+        // A part without it leaves the whole without it.
+        let mut without = parts;
+        without[0].albedo = None;
+        assert_eq!(NearField::concat(2, without).albedo, None);
+    }
+
+    #[test]
+    fn landings_of_sums_each_samples_albedo_in_ray_order() {
+        let mut hits = vec![
+            (5, Vec3::splat(0.2)),
+            (1, Vec3::new(1.0, 0.0, 0.0)),
+            (5, Vec3::splat(0.4)),
+            (1, Vec3::new(0.0, 1.0, 0.0)),
+            (5, Vec3::splat(0.6)),
+        ];
+        let row = landings_of(&mut hits, 10);
+        assert_eq!(row.len(), 2);
+        assert_eq!((row[0].sample, row[0].share), (1, 0.2));
+        assert_eq!(row[0].albedo, [0.5, 0.5, 0.0]);
+        assert_eq!((row[1].sample, row[1].share), (5, 0.3));
+        // Rounded to f16, as the file keeps it.
+        let f16 = |x: f32| half::f16::from_f32(x).to_f32();
+        assert_eq!(row[1].albedo, [f16((0.2 + 0.4 + 0.6) / 3.0); 3]);
+        assert!(landings_of(&mut [], 10).is_empty());
     }
 }

@@ -194,6 +194,8 @@ pub struct SurfaceScene {
     /// Per original triangle, whether its front and its back are surfaces (the back only of a
     /// double-sided triangle).
     sides: Vec<[bool; 2]>,
+    /// Per original triangle, its albedo: what a near landing on it reflects.
+    albedo: Vec<Vec3>,
     pieces: Pieces,
     cdf: Vec<f64>,
     /// Which row owns the surface a ray meets.
@@ -219,6 +221,7 @@ impl SurfaceScene {
         SurfaceScene {
             mesh,
             sides,
+            albedo: scene.triangles.iter().map(|t| t.albedo).collect(),
             cdf: piece_cdf(pieces),
             owners: Owners::new(scene, rows, pieces),
             pieces: pieces.clone(),
@@ -233,14 +236,15 @@ impl SurfaceScene {
     }
 
     /// [`Self::fate`] and the surface the ray ended on: how far along `dir` (infinite when it
-    /// escaped) and the unit normal of the side met.
+    /// escaped), the unit normal of the side met and its triangle's albedo.
     #[inline]
-    fn fate_at(&self, origin: Vec3, dir: Vec3) -> (RayFate, f32, Vec3) {
+    fn fate_at(&self, origin: Vec3, dir: Vec3) -> (RayFate, f32, Vec3, Vec3) {
         let Some(hit) = self.mesh.closest(origin, dir, f32::INFINITY) else {
-            return (RayFate::Escaped, f32::INFINITY, Vec3::ZERO);
+            return (RayFate::Escaped, f32::INFINITY, Vec3::ZERO, Vec3::ZERO);
         };
+        let albedo = self.albedo[hit.triangle as usize];
         if !self.sides[hit.triangle as usize][usize::from(!hit.front)] {
-            return (RayFate::BackFace, hit.t, hit.normal);
+            return (RayFate::BackFace, hit.t, hit.normal, albedo);
         }
         let fate = match self
             .owners
@@ -249,7 +253,7 @@ impl SurfaceScene {
             Some(j) => RayFate::Patch(j as usize),
             None => RayFate::Occluder,
         };
-        (fate, hit.t, hit.normal)
+        (fate, hit.t, hit.normal, albedo)
     }
 
     /// Where a ray from a point in free space ends (a probe's: no surface to push off from).
@@ -287,15 +291,15 @@ impl SurfaceScene {
 
     /// Where form-factor ray `k` of `row` (the ray [`RowTracer::trace_row`] traces with this
     /// seed) lands, if it lands within `radius` of its origin on surface that a row owns: the
-    /// hit point, the unit normal of the side met and that row. Only the first `radius` of the
-    /// ray is traced.
+    /// hit point, the unit normal of the side met, that row and the albedo of the triangle met.
+    /// Only the first `radius` of the ray is traced.
     pub(crate) fn near_landing(
         &self,
         row: usize,
         k: u32,
         seed: u64,
         radius: f32,
-    ) -> Option<(Vec3, Vec3, usize)> {
+    ) -> Option<(Vec3, Vec3, usize, Vec3)> {
         if self.pieces.of(row).is_empty() {
             return None;
         }
@@ -306,7 +310,12 @@ impl SurfaceScene {
         }
         let point = origin + dir * hit.t;
         let j = self.owners.row_at(point, hit.triangle, !hit.front)?;
-        Some((point, hit.normal, j as usize))
+        Some((
+            point,
+            hit.normal,
+            j as usize,
+            self.albedo[hit.triangle as usize],
+        ))
     }
 
     /// Ray `k` of row `row` in Sobol dimension set `set`: its origin (off the surface), the
@@ -345,11 +354,12 @@ impl RowTracer for SurfaceScene {
         }
         for k in 0..rays {
             let (origin, normal, dir) = self.ray(row, k, 0, s);
-            let (fate, t, landing_normal) = self.fate_at(origin, dir);
+            let (fate, t, landing_normal, albedo) = self.fate_at(origin, dir);
             if let RayFate::Patch(j) = fate {
                 counts[j] += 1;
                 // The same point and normal `near_landing` takes, for the same bits.
-                seen.near.landed(t, origin + dir * t, landing_normal, j);
+                seen.near
+                    .landed(t, origin + dir * t, landing_normal, j, albedo);
             }
             seen.sky.ray(origin, normal, dir, fate == RayFate::Escaped);
             tally.count(fate);

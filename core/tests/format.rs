@@ -400,7 +400,7 @@ fn layout_on_disk_matches_the_documentation() {
     let baked = sample(3, true);
     let b = baked.to_bytes().unwrap();
     assert_eq!(&b[..8], b"BOUNCE\0B");
-    assert_eq!(get_u32(&b, 8), 11);
+    assert_eq!(get_u32(&b, 8), 12);
     assert_eq!(get_u32(&b, 12), 5);
     assert_eq!(get_u64(&b, 16), b.len() as u64);
     let kinds: Vec<&[u8]> = (0..5).map(|i| &b[entry_at(i)..entry_at(i) + 4]).collect();
@@ -647,23 +647,23 @@ fn bad_magic() {
 #[test]
 fn future_version() {
     let mut b = sample_bytes();
-    put_u32(&mut b, 8, 12);
+    put_u32(&mut b, 8, 13);
     reseal(&mut b);
     let err = refuse(&b);
     assert!(
         matches!(
             err,
             FormatError::UnsupportedVersion {
-                found: 12,
+                found: 13,
                 oldest: 1,
-                supported: 11
+                supported: 12
             }
         ),
         "{err:?}"
     );
     assert_eq!(
         err.to_string(),
-        "unsupported format version 12 (this build reads versions 1 to 11); bake the scene again \
+        "unsupported format version 13 (this build reads versions 1 to 12); bake the scene again \
          with this bounce"
     );
 }
@@ -820,6 +820,8 @@ fn a_near_field_round_trips_and_is_checked() {
                 .map(|i| std::array::from_fn(|k| 0.01 * (i + k) as f32))
                 .collect(),
         }),
+        // Version 12: the albedo where each entry's rays landed (exact in f16).
+        albedo: Some(vec![[0.25, 0.5, 0.75], [1.0, 0.0, 0.125], [0.5; 3]]),
     };
     b.near_field = Some(near.clone());
     let bytes = b.to_bytes().expect("a near-field sample encodes");
@@ -829,6 +831,27 @@ fn a_near_field_round_trips_and_is_checked() {
     put_u32(&mut old, 8, 3);
     reseal(&mut old);
     assert!(matches!(refuse(&old), FormatError::NearField(_)));
+    // A version-11 file may not set the entries' albedo flag; without it, it reads, and the
+    // landings then reflect with their samples' albedo.
+    let mut v11 = bytes.clone();
+    put_u32(&mut v11, 8, 11);
+    reseal(&mut v11);
+    assert!(
+        matches!(refuse(&v11), FormatError::Reserved { .. }),
+        "{:?}",
+        refuse(&v11)
+    );
+    let mut plain = b.clone();
+    plain.near_field.as_mut().unwrap().albedo = None;
+    let mut v11 = plain
+        .to_bytes()
+        .expect("a near field without the entries' albedo encodes");
+    put_u32(&mut v11, 8, 11);
+    reseal(&mut v11);
+    assert_eq!(
+        Baked::from_bytes(&v11).unwrap().near_field,
+        plain.near_field
+    );
     // A near field sized for other rows, naming a sample past the stored ones, or in a file
     // without sample points is refused by the writer, as the reader would.
     let refuse = |edit: &dyn Fn(&mut Baked)| {
@@ -849,6 +872,17 @@ fn a_near_field_round_trips_and_is_checked() {
         let near = b.near_field.as_mut().unwrap();
         near.sky.as_mut().unwrap().rows[3][0] = -1.0;
     });
+    // Entries' albedo for other entries, or outside 0 to 1.
+    refuse(&|b| {
+        b.near_field
+            .as_mut()
+            .unwrap()
+            .albedo
+            .as_mut()
+            .unwrap()
+            .pop();
+    });
+    refuse(&|b| b.near_field.as_mut().unwrap().albedo.as_mut().unwrap()[2][1] = 1.5);
     // A near field without the samples' view (as versions 4-8 wrote it) still reads.
     let mut without = b.clone();
     without.near_field.as_mut().unwrap().sky = None;

@@ -41,7 +41,7 @@ pub fn print_summary(baked: &Baked, out: &Path, file_bytes: u64, total_s: f64) {
                 m.settings.near_radius,
                 near.nnz(),
                 near.nnz() as f64 / near.rows().max(1) as f64,
-                human_bytes(8 * near.nnz() as u64 + 4 * near.row_ptr.len() as u64)
+                human_bytes(near.stored_bytes())
             ),
             None => println!("  near field    none (--near-field 0)"),
         }

@@ -454,12 +454,12 @@ impl Rows {
 /// The near-field matrix of the rows the form factors' pass traced, with the samples' sky view:
 /// `None` where the pass kept none (voxel faces, or a radius of 0).
 pub(crate) fn near_field(
-    rows: Option<Vec<Vec<(u32, f32)>>>,
+    rows: Option<Vec<Vec<crate::nearfield::Landings>>>,
     samples_sky: Option<SkyVisibility>,
     samples: Option<(&[crate::surface::SamplePoint], u32)>,
 ) -> Option<NearField> {
     let (rows, (_, per_row)) = (rows?, samples?);
-    let mut near = NearField::from_rows(per_row, rows);
+    let mut near = NearField::from_landings(per_row, rows);
     near.sky = samples_sky;
     Some(near)
 }

@@ -464,6 +464,10 @@ fn slice_rows(all: &NearField, rows: Range<usize>) -> NearField {
             .collect(),
         cols: all.cols[lo as usize..hi as usize].to_vec(),
         values: all.values[lo as usize..hi as usize].to_vec(),
+        albedo: all
+            .albedo
+            .as_ref()
+            .map(|a| a[lo as usize..hi as usize].to_vec()),
         sky: all.sky.as_ref().map(|sky| {
             let k = all.per_row as usize;
             sky.slice(rows.start * k..rows.end * k)

@@ -330,6 +330,7 @@ impl Baked {
                 n,
                 n,
                 s.per_patch,
+                c.header.format_version >= 12,
             )?),
         };
         let sky = match c.entry(SectionKind::SKYV) {

@@ -65,8 +65,10 @@ pub use sky::SKY_HEADER_LEN;
 /// its sky then gets no near-field correction. Version 10 added each emitter's node (`EMIT`'s
 /// flag bit 0): an older file reads, and its emitters are changed by material only. Version 11
 /// added each sample point's albedo (`SURF`'s flag bit 0, once reserved): an older file reads,
-/// and its near field reflects a landing's light with its row's albedo.
-pub const FORMAT_VERSION: u32 = 11;
+/// and its near field reflects a landing's light with its row's albedo. Version 12 added each
+/// near-field entry's albedo, where its rays landed (`NEAR`'s flag bit 1): an older file reads,
+/// and its landings reflect with their sample's albedo.
+pub const FORMAT_VERSION: u32 = 12;
 /// The oldest version this build reads: a version-1 file is a voxel-face bake and is relit as
 /// one.
 pub const OLDEST_FORMAT_VERSION: u32 = 1;
@@ -74,8 +76,9 @@ pub const OLDEST_FORMAT_VERSION: u32 = 1;
 /// intermediate files of one bake, written and read by the same release, so there is no reason
 /// to read older ones. Version 5 added each shard's rows of the sky view (`SROW`), version 6 the
 /// emitters (`SEMT`), version 7 the samples' sky view in `NROW`, version 8 the probes' gather
-/// rows (`PROW`) and the emitters' nodes in `SEMT`, version 9 the samples' albedo in `SURF`.
-pub const SHARD_FORMAT_VERSION: u32 = 9;
+/// rows (`PROW`) and the emitters' nodes in `SEMT`, version 9 the samples' albedo in `SURF`,
+/// version 10 the near-field entries' albedo in `NROW`.
+pub const SHARD_FORMAT_VERSION: u32 = 10;
 
 /// Everything that can go wrong reading or writing a baked file.
 ///

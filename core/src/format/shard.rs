@@ -244,6 +244,7 @@ impl ShardFile {
                 m.end_row - m.first_row,
                 m.patches,
                 surface.per_patch,
+                true,
             )?),
             (None, _, false) => None,
             (Some(_), _, _) => return Err(bad("near-field rows in a shard that has none")),

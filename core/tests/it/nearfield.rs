@@ -172,7 +172,7 @@ fn the_form_factors_pass_keeps_the_near_field_a_retrace_finds() {
             &|_| {},
         )
         .expect("the form factors");
-        let kept = NearField::from_rows(per_patch, traced.near.expect("a near field"));
+        let kept = NearField::from_landings(per_patch, traced.near.expect("a near field"));
         assert!(kept.nnz() > range.len(), "{} entries", kept.nnz());
         assert_eq!(kept.row_ptr, retraced.row_ptr, "radius {radius}");
         assert_eq!(kept.cols, retraced.cols, "radius {radius}");
@@ -182,5 +182,23 @@ fn the_form_factors_pass_keeps_the_near_field_a_retrace_finds() {
             bits(&retraced.values),
             "radius {radius}"
         );
+        let albedo = |f: &NearField| {
+            f.albedo
+                .as_ref()
+                .expect("each entry's albedo")
+                .iter()
+                .flatten()
+                .map(|x| x.to_bits())
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(albedo(&kept), albedo(&retraced), "radius {radius}");
+        // The box's walls are not one colour: some entries landed on red or green.
+        let tinted = kept
+            .albedo
+            .iter()
+            .flatten()
+            .filter(|a| (a[0] - a[1]).abs() > 0.1)
+            .count();
+        assert!(tinted > 0, "no entry landed on a coloured wall");
     }
 }

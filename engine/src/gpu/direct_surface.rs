@@ -638,7 +638,7 @@ impl GpuSurfaceDirect {
                     (5, &out),
                     (6, per_sample),
                     (7, &delta),
-                    (11, &near.sample_albedo),
+                    (11, &near.landed_albedo),
                 ],
             );
             let (gx, gy) = grid(device, (n * u64::from(sets_n)).div_ceil(u64::from(NEAR_WG)))?;

@@ -1,10 +1,15 @@
 //! The near-field correction on the GPU (`bounce_core::nearfield`): the matrix `C` and the rows'
 //! albedo resident beside a [`super::GpuSurfaceDirect`], and the pass (`shaders/near_field.wgsl`)
 //! that turns the direct light's per-sample values and means, still on the device, into
-//! `ΔE = C · (ρ_q ⊙ E_q − ρ_j ⊙ Ē_j)` per light set and row, the twin of
+//! `ΔE = C · (ρ_e ⊙ E_q − ρ_j ⊙ Ē_j)` per light set and row (`ρ_e` the albedo where entry
+//! `e`'s rays landed), the twin of
 //! `NearField::correction_with`.
 //! [`super::GpuSurfaceDirect::with_near_field`] attaches it and
 //! [`super::GpuSurfaceDirect::irradiance_near`] runs it.
+//!
+//! Each entry's albedo goes up as f32×3 (12 bytes an entry, 17 MB for `pandora`'s 1.4 M
+//! entries): the file's own (format version 12), or for an older file its sample's or its row's,
+//! filled in here, so one pass serves every version.
 //!
 //! A file whose near field keeps its samples' sky view (format version 9) has it uploaded too
 //! (9 coefficients a sample: 6.8 MB for `pandora`'s 189 k samples). A slice of light sets with a
@@ -53,8 +58,9 @@ pub(super) struct NearBuffers {
     pub(super) cols: wgpu::Buffer,
     pub(super) values: wgpu::Buffer,
     pub(super) albedo: wgpu::Buffer,
-    /// Per sample point (its row's where the file keeps none).
-    pub(super) sample_albedo: wgpu::Buffer,
+    /// Per entry, the albedo its landings reflect with: the entry's own (format version 12), else
+    /// its sample's (11), else its sample's row's.
+    pub(super) landed_albedo: wgpu::Buffer,
     /// The samples' sky view and the pass that adds a sky through it, when the file has one.
     pub(super) sky: Option<SkyBuffers>,
 }
@@ -87,19 +93,25 @@ impl NearBuffers {
             )));
         }
         let samples = rows * per_row as usize;
-        // A file without the samples' albedo: each takes its row's, the same pass either way.
-        let sample_albedo: Vec<[f32; 3]> = match albedo.samples {
-            Some(a) if a.len() == samples => a.to_vec(),
-            Some(a) => {
-                return Err(GpuError::NearField(format!(
-                    "{} sample albedo values for {samples} sample points",
-                    a.len()
-                )));
-            }
-            None => albedo
-                .rows
+        if let Some(a) = albedo.samples
+            && a.len() != samples
+        {
+            return Err(GpuError::NearField(format!(
+                "{} sample albedo values for {samples} sample points",
+                a.len()
+            )));
+        }
+        // One albedo an entry whatever the file keeps, so one pass serves every version. The
+        // check above holds the columns inside the samples.
+        let landed_albedo: Vec<[f32; 3]> = match &near.albedo {
+            Some(a) => a.clone(),
+            None => near
+                .cols
                 .iter()
-                .flat_map(|a| std::iter::repeat_n(*a, per_row as usize))
+                .map(|&q| match albedo.samples {
+                    Some(a) => a[q as usize],
+                    None => albedo.rows[q as usize / per_row as usize],
+                })
                 .collect(),
         };
         Ok(NearBuffers {
@@ -125,10 +137,10 @@ impl NearBuffers {
                 "near-field albedo",
                 bytemuck::cast_slice(albedo.rows),
             )?,
-            sample_albedo: storage(
+            landed_albedo: storage(
                 device,
-                "near-field sample albedo",
-                bytemuck::cast_slice(&sample_albedo),
+                "near-field landings' albedo",
+                bytemuck::cast_slice(&landed_albedo),
             )?,
             sky: match &near.sky {
                 Some(view) => Some(SkyBuffers {

@@ -158,9 +158,13 @@ fn compare_near(
     let mut allowances = vec![[0.0f32; 3]; want.len()];
     for (i, (scale, allowance)) in scales.iter_mut().zip(&mut allowances).enumerate() {
         let (cols, values) = near.row(i);
-        for (&q, &c) in cols.iter().zip(values) {
+        let first = near.row_ptr[i] as usize;
+        for (e, (&q, &c)) in cols.iter().zip(values).enumerate() {
             let (q, j) = (q as usize, q as usize / k);
-            let rho_q = albedo.samples.map_or(albedo.rows[j], |a| a[q]);
+            let rho_q = match &near.albedo {
+                Some(landed) => landed[first + e],
+                None => albedo.samples.map_or(albedo.rows[j], |a| a[q]),
+            };
             for ch in 0..3 {
                 let (rq, rj) = (c * rho_q[ch], c * albedo.rows[j][ch]);
                 let (sq, sj) = sky.map_or((0.0, 0.0), |s| (s.per_sample[q][ch], s.mean[j][ch]));
@@ -328,15 +332,26 @@ fn with_sky_view(near: &NearField) -> NearField {
 }
 
 /// A sky's part of the correction runs on the device, in the same pass as the punctual lights',
-/// and a landing reflects with its sample's albedo: the twin of `NearField::correction_with` of
-/// the CPU's samples, the samples' albedo and the sky at the samples, for
-/// a sky with a light, a sky alone, an SH sky that rings below zero, and sets without a sky in
-/// the same batch; sliced batches give the same bits.
+/// and a landing reflects with the albedo where it landed (or, in a file before version 12, its
+/// sample's): the twin of `NearField::correction_with` of the CPU's samples, the entries' or the
+/// samples' albedo and the sky at the samples, for a sky with a light, a sky alone, an SH sky
+/// that rings below zero, and sets without a sky in the same batch; sliced batches give the same
+/// bits.
 #[test]
 fn a_sky_is_corrected_on_the_device_as_on_the_cpu() {
     let Some(ctx) = context() else { return };
     let case = room_with_pillar();
-    let near = with_sky_view(&case.near);
+    let mut near = with_sky_view(&case.near);
+    // Each entry's albedo, different from entry to entry, so an entry read in the wrong place
+    // shows (the room's own triangles are few colours).
+    near.albedo = Some(
+        (0..near.nnz())
+            .map(|e| {
+                let f = |m: usize, d: usize| ((e * m) % d) as f32 / (d - 1) as f32;
+                [0.1 + 0.9 * f(7, 11), 0.2 + 0.7 * f(5, 13), 0.9 * f(3, 7)]
+            })
+            .collect(),
+    );
     let json = |text: &str| {
         let set = LightSet::from_json(text).expect("a light set");
         set.validate().expect("valid lights");
@@ -370,6 +385,20 @@ fn a_sky_is_corrected_on_the_device_as_on_the_cpu() {
         samples: Some(&samples),
     };
     let delta = check_field(ctx, "pillar under a sky", case, &near, albedo, lit);
+    // A file from before version 12: each landing reflects with its sample's albedo.
+    let by_sample = NearField {
+        albedo: None,
+        ..near.clone()
+    };
+    let sampled = check_field(
+        ctx,
+        "pillar, samples' albedo",
+        case,
+        &by_sample,
+        albedo,
+        lit,
+    );
+    assert_ne!(sampled[0], delta[0], "the entries' albedo is the one taken");
     let gpu = upload_field(ctx, case, &near, albedo);
     let all = gpu.irradiance_near(&sets, PER_PATCH).unwrap().1;
     let all = all.expect("a correction");
@@ -380,7 +409,11 @@ fn a_sky_is_corrected_on_the_device_as_on_the_cpu() {
     );
     assert!(all[3].iter().all(|e| *e == [0.0; 3]), "nothing lights");
     // The sky moved the correction, and only where a set has one.
-    let plain = upload_field(ctx, case, &case.near, albedo)
+    let no_view = NearField {
+        sky: None,
+        ..near.clone()
+    };
+    let plain = upload_field(ctx, case, &no_view, albedo)
         .irradiance_near(lit, PER_PATCH)
         .unwrap()
         .1;
@@ -475,6 +508,7 @@ fn no_correction_without_every_sample_or_a_matrix() {
         cols: Vec::new(),
         values: Vec::new(),
         sky: None,
+        albedo: Some(Vec::new()),
     };
     let (_, d) = GpuSurfaceDirect::upload(ctx, &case.data)
         .unwrap()

@@ -1,7 +1,8 @@
-// The near-field correction `ΔE = C · (ρ_q ⊙ E_q − ρ_j ⊙ Ē_j)`: the twin of
+// The near-field correction `ΔE = C · (ρ_e ⊙ E_q − ρ_j ⊙ Ē_j)`: the twin of
 // `bounce_core::nearfield::NearField::correction_with` (read it and `bounce_core::nearfield` for
 // the model). One thread per (light set, row) walks the row's CSR entries in order and sums as
-// the CPU does, in f32: `sum += c * (ρ_q * E_q − ρ_j * Ē_j)`. It reads what `gather_samples`
+// the CPU does, in f32: `sum += c * (ρ_e * E_q − ρ_j * Ē_j)`, with `ρ_e` the albedo where entry
+// `e`'s rays landed. It reads what `gather_samples`
 // (`direct_surface.wgsl`) wrote for the same slice of light sets: every row's mean and every
 // sample's value, so it runs after the slice's last piece.
 
@@ -33,8 +34,9 @@ const NEAR_WG: u32 = 64u;
 @group(0) @binding(6) var<storage, read> per_sample: array<f32>;
 // Packed RGB, light set s, row i at (s * n + i) * 3.
 @group(0) @binding(7) var<storage, read_write> delta: array<f32>;
-// Packed RGB albedo per sample point (its row's where the file keeps none).
-@group(0) @binding(11) var<storage, read> sample_albedo: array<f32>;
+// Packed RGB albedo per entry: where its rays landed (the host fills in the sample's, or its
+// row's, for files that keep none).
+@group(0) @binding(11) var<storage, read> landed_albedo: array<f32>;
 
 fn albedo_of(j: u32) -> vec3<f32> {
     let o = j * 3u;
@@ -64,8 +66,8 @@ fn near_field(
         let mo = (means + j) * 3u;
         let eq = vec3<f32>(per_sample[so], per_sample[so + 1u], per_sample[so + 2u]);
         let ej = vec3<f32>(mean[mo], mean[mo + 1u], mean[mo + 2u]);
-        let aq = vec3<f32>(sample_albedo[q * 3u], sample_albedo[q * 3u + 1u], sample_albedo[q * 3u + 2u]);
-        let d = aq * eq - albedo_of(j) * ej;
+        let ae = vec3<f32>(landed_albedo[e * 3u], landed_albedo[e * 3u + 1u], landed_albedo[e * 3u + 2u]);
+        let d = ae * eq - albedo_of(j) * ej;
         sum += values[e] * d;
     }
     let o = id * 3u;
