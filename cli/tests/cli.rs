@@ -54,7 +54,10 @@ fn bake_then_inspect_the_cornell_box() {
         "version 9 keeps each sample's view of the sky with the near field"
     );
     assert_eq!(j["geometry"], "surface", "surface patches are the default");
-    assert_eq!(j["surface_samples"], 16);
+    assert_eq!(
+        j["surface_samples"], 32,
+        "32 direct-light samples a patch by default"
+    );
     assert_eq!(j["bounces"], 3);
     assert_eq!(j["channels"], 3, "the Cornell box has coloured walls");
     assert_eq!(j["codec"], "dense-f32");

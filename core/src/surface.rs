@@ -24,8 +24,11 @@ use crate::scene::Scene;
 
 use crate::trimesh::{TriMesh, extent_of, offset_origin};
 
-/// Direct-light sample points per patch a bake stores unless asked otherwise.
-pub const DEFAULT_SURFACE_SAMPLES: u32 = 16;
+/// Direct-light sample points per patch a bake stores unless asked otherwise. The near field's
+/// correction is as fine as the samples: on `pandora` 32 take the corridor light from 10.5% to
+/// 9.4% and a uniform sky from 10.7% to 10.0% against the reference, for 1.7× the CPU's
+/// direct-light time of 16 (README, "Accuracy").
+pub const DEFAULT_SURFACE_SAMPLES: u32 = 32;
 /// The most sample points per patch a bake stores.
 pub const MAX_SURFACE_SAMPLES: u32 = 256;
 

@@ -54,7 +54,7 @@ pub struct BenchTradeoffArgs {
     pub near_field: Vec<f32>,
     /// Direct-light sample points stored a row, comma separated (surface geometry; a relight
     /// uses them all).
-    #[arg(long, value_delimiter = ',', default_value = "16")]
+    #[arg(long, value_delimiter = ',', default_value = "32")]
     pub direct_samples: Vec<u32>,
     #[arg(long, default_value = "3")]
     pub bounces: Bounces,
