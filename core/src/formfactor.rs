@@ -14,8 +14,8 @@ use glam::Vec3;
 use rayon::prelude::*;
 use thiserror::Error;
 
+use crate::landings::{Landings, landings_of};
 use crate::matrix::DenseMatrix;
-use crate::nearfield::{Landings, landings_of};
 use crate::patch::Quad;
 pub use crate::rays::{RayFate, RayScene, RayTally, Tracer};
 use crate::sample::{SamplePoint, nearest_sample};

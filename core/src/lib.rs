@@ -23,6 +23,7 @@ pub mod extent;
 pub mod format;
 pub mod formfactor;
 pub mod import;
+pub mod landings;
 pub use bounce_types::light;
 pub use bounce_types::sh;
 pub mod matrix;
