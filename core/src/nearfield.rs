@@ -336,152 +336,95 @@ impl NearField {
         per_sample: &[[f32; 3]],
         sky: Option<&SkySamples>,
     ) -> Vec<[f32; 3]> {
-        let set = SetLight {
-            mean,
-            per_sample,
-            sky,
-        };
-        self.corrections(albedo, &[set])
-            .pop()
-            .expect("one correction a set")
-    }
-
-    /// [`Self::correction_with`] of several light sets, with the same bits for each: the sets'
-    /// values are laid out side by side per sample, so the pass over the entries (`pandora`:
-    /// 2.2 M at 32 samples a row) reads each entry once for up to [`CORRECTION_SETS`] sets and
-    /// gathers their values from one place, where one set at a time gathered 12 bytes from a
-    /// cache line per entry per set.
-    ///
-    /// # Panics
-    /// As [`Self::correction_with`], for any set.
-    pub fn corrections(&self, albedo: Reflect<'_>, sets: &[SetLight<'_>]) -> Vec<Vec<[f32; 3]>> {
         let (n, k) = (self.rows(), self.per_row as usize);
         assert_eq!(albedo.rows.len(), n, "one albedo per row");
+        assert_eq!(mean.len(), n, "one mean per row");
+        assert_eq!(per_sample.len(), n * k, "one value per sample point");
         if let Some(a) = albedo.samples {
             assert_eq!(a.len(), n * k, "one albedo per sample point");
         }
+        if let Some(sky) = sky {
+            assert_eq!(
+                sky.per_sample.len(),
+                n * k,
+                "one sky value per sample point"
+            );
+            assert_eq!(sky.mean.len(), n, "one sky mean per row");
+        }
+        // A set no light reaches has nothing to correct: skip the pass over every entry
+        // (pandora: 1.5 M) rather than sum its zeros.
         let dark = |v: &[[f32; 3]]| v.iter().all(|v| *v == [0.0; 3]);
-        let mut out = vec![Vec::new(); sets.len()];
-        // A set no light reaches has nothing to correct: it skips the pass over every entry
-        // rather than sum its zeros.
-        let mut lit = Vec::with_capacity(sets.len());
-        for (s, set) in sets.iter().enumerate() {
-            assert_eq!(set.mean.len(), n, "one mean per row");
-            assert_eq!(set.per_sample.len(), n * k, "one value per sample point");
-            if let Some(sky) = set.sky {
-                assert_eq!(
-                    sky.per_sample.len(),
-                    n * k,
-                    "one sky value per sample point"
-                );
-                assert_eq!(sky.mean.len(), n, "one sky mean per row");
-            }
-            let sky_dark = set.sky.is_none_or(|s| dark(&s.per_sample) && dark(&s.mean));
-            if dark(set.per_sample) && dark(set.mean) && sky_dark {
-                out[s] = vec![[0.0; 3]; n];
-            } else {
-                lit.push(s);
-            }
+        if dark(per_sample)
+            && dark(mean)
+            && sky.is_none_or(|s| dark(&s.per_sample) && dark(&s.mean))
+        {
+            return vec![[0.0; 3]; n];
         }
-        for chunk in lit.chunks(CORRECTION_SETS) {
-            let batch: Vec<&SetLight<'_>> = chunk.iter().map(|&s| &sets[s]).collect();
-            let rows = self.correct_batch(albedo, &batch);
-            for (b, &s) in chunk.iter().enumerate() {
-                out[s] = rows.iter().map(|r| r[b].to_array()).collect();
-            }
-        }
-        out
-    }
-
-    /// Per row, the corrections of `sets` (at most [`CORRECTION_SETS`], checked), side by side.
-    fn correct_batch(&self, albedo: Reflect<'_>, sets: &[&SetLight<'_>]) -> Vec<Vec<Vec3>> {
-        let (n, k, b) = (self.rows(), self.per_row as usize, sets.len());
-        // Set `s`'s light at sample `q` and its row's mean, with its sky when it has one.
-        let light = |s: &SetLight<'_>, q: usize| -> Vec3 {
-            match s.sky {
-                Some(sky) => Vec3::from(s.per_sample[q]) + Vec3::from(sky.per_sample[q]),
-                None => Vec3::from(s.per_sample[q]),
+        let light = |q: usize| -> (Vec3, Vec3) {
+            let j = q / k;
+            match sky {
+                Some(sky) => (
+                    Vec3::from(per_sample[q]) + Vec3::from(sky.per_sample[q]),
+                    Vec3::from(mean[j]) + Vec3::from(sky.mean[j]),
+                ),
+                None => (Vec3::from(per_sample[q]), Vec3::from(mean[j])),
             }
         };
-        let row_mean = |s: &SetLight<'_>, j: usize| -> Vec3 {
-            match s.sky {
-                Some(sky) => Vec3::from(s.mean[j]) + Vec3::from(sky.mean[j]),
-                None => Vec3::from(s.mean[j]),
-            }
-        };
-        // Per row and set, the element's exitance `ρ_j ⊙ ē_j`.
-        let exitance: Vec<Vec3> = (0..n * b)
-            .into_par_iter()
-            .map(|x| Vec3::from(albedo.rows[x / b]) * row_mean(sets[x % b], x / b))
-            .collect();
         if let Some(landed) = &self.albedo {
-            // Each entry reflects with its own albedo: per sample and set its light, read an
-            // entry with the entry's albedo.
-            let e: Vec<Vec3> = (0..n * k * b)
+            // Each entry reflects with its own albedo: per sample its light, per row its
+            // element's exitance, once, and the albedo read an entry.
+            let e: Vec<Vec3> = (0..n * k).into_par_iter().map(|q| light(q).0).collect();
+            let exitance: Vec<Vec3> = (0..n)
                 .into_par_iter()
-                .map(|x| light(sets[x % b], x / b))
+                .map(|j| {
+                    let m = match sky {
+                        Some(sky) => Vec3::from(mean[j]) + Vec3::from(sky.mean[j]),
+                        None => Vec3::from(mean[j]),
+                    };
+                    Vec3::from(albedo.rows[j]) * m
+                })
                 .collect();
             return (0..n)
                 .into_par_iter()
                 .map(|i| {
                     let r = self.row_ptr[i] as usize..self.row_ptr[i + 1] as usize;
-                    let mut sum = vec![Vec3::ZERO; b];
+                    let mut sum = Vec3::ZERO;
                     for ((&q, &c), &a) in self.cols[r.clone()]
                         .iter()
                         .zip(&self.values[r.clone()])
                         .zip(&landed[r])
                     {
-                        let (q, a) = (q as usize, Vec3::from(a));
-                        let (values, rows) = (&e[q * b..(q + 1) * b], &exitance[q / k * b..]);
-                        for ((acc, &v), &x) in sum.iter_mut().zip(values).zip(rows) {
-                            *acc += c * (a * v - x);
-                        }
+                        let q = q as usize;
+                        sum += c * (Vec3::from(a) * e[q] - exitance[q / k]);
                     }
-                    sum
+                    sum.to_array()
                 })
                 .collect();
         }
-        // Each sample's departure from its element's exitance, once per set: a sample is met by
-        // many rows' near rays, and the row sums then read one value an entry and set.
-        let departure: Vec<Vec3> = (0..n * k * b)
+        // Each sample's departure from its element's exitance, once: a sample is met by many
+        // rows' near rays (pandora: 1.5 M entries over 190 k samples), and the row sums then
+        // read one value an entry instead of three.
+        let departure: Vec<Vec3> = (0..n * k)
             .into_par_iter()
-            .map(|x| {
-                let (q, s) = (x / b, x % b);
+            .map(|q| {
                 let j = q / k;
+                let (e, m) = light(q);
                 let rho_q = Vec3::from(albedo.samples.map_or(albedo.rows[j], |a| a[q]));
-                rho_q * light(sets[s], q) - exitance[j * b + s]
+                rho_q * e - Vec3::from(albedo.rows[j]) * m
             })
             .collect();
         (0..n)
             .into_par_iter()
             .map(|i| {
                 let (cols, values) = self.row(i);
-                let mut sum = vec![Vec3::ZERO; b];
+                let mut sum = Vec3::ZERO;
                 for (&q, &c) in cols.iter().zip(values) {
-                    let q = q as usize;
-                    for (acc, &d) in sum.iter_mut().zip(&departure[q * b..(q + 1) * b]) {
-                        *acc += c * d;
-                    }
+                    sum += c * departure[q as usize];
                 }
-                sum
+                sum.to_array()
             })
             .collect()
     }
-}
-
-/// Light sets [`NearField::corrections`] takes through one pass over the entries: their
-/// per-sample values side by side (12 bytes a sample and set: 36 MB for `pandora`'s 378 k
-/// samples at 8).
-pub const CORRECTION_SETS: usize = 8;
-
-/// One light set's direct light as a near-field correction reads it
-/// ([`NearField::corrections`]): each row's mean of its samples, every sample's value, and its
-/// sky at the samples when it has one.
-#[derive(Debug, Clone, Copy)]
-pub struct SetLight<'a> {
-    pub mean: &'a [[f32; 3]],
-    pub per_sample: &'a [[f32; 3]],
-    pub sky: Option<&'a SkySamples>,
 }
 
 /// The albedos a near-field correction reflects with: each row's (its element's, what `B0`
@@ -892,70 +835,5 @@ mod tests {
         let mut without = parts;
         without[0].albedo = None;
         assert_eq!(NearField::concat(2, without).albedo, None);
-    }
-
-    #[test]
-    fn a_batch_of_sets_is_corrected_as_each_alone() {
-        let rows = [[0.5, 0.4, 0.3], [0.6, 0.7, 0.2]];
-        let samples = [[0.5; 3], [0.1, 0.2, 0.3], [0.2, 0.3, 0.4], [1.0, 0.9, 0.8]];
-        let reflect = Reflect {
-            rows: &rows,
-            samples: Some(&samples),
-        };
-        // Eleven sets (more than one batch): each lit differently, one dark, some with a sky.
-        let sky = field()
-            .sky_samples(&bounce_types::sh::uniform_sh([1.0, 0.5, 2.0]))
-            .expect("the field has the view");
-        // Per set, its samples' values and its rows' means.
-        type Lit = (Vec<[f32; 3]>, Vec<[f32; 3]>);
-        let lit: Vec<Lit> = (0..11)
-            .map(|s| {
-                let per_sample: Vec<[f32; 3]> = (0..4)
-                    .map(|q| {
-                        let v = if s == 3 {
-                            0.0
-                        } else {
-                            ((s * 5 + q * 3) % 7) as f32
-                        };
-                        [v, 0.5 * v, 2.0 * v]
-                    })
-                    .collect();
-                let mean = per_sample
-                    .chunks(2)
-                    .map(|p| std::array::from_fn(|c| 0.5 * (p[0][c] + p[1][c])))
-                    .collect();
-                (per_sample, mean)
-            })
-            .collect();
-        let sets: Vec<SetLight<'_>> = lit
-            .iter()
-            .enumerate()
-            .map(|(s, (per_sample, mean))| SetLight {
-                mean,
-                per_sample,
-                sky: (s % 3 == 1).then_some(&sky),
-            })
-            .collect();
-        for with_entries in [false, true] {
-            let mut f = field();
-            if with_entries {
-                f.albedo = Some(vec![[0.2, 0.3, 0.4], [1.0, 0.9, 0.8], [0.5; 3]]);
-            }
-            let all = f.corrections(reflect, &sets);
-            assert_eq!(all.len(), sets.len());
-            for (s, set) in sets.iter().enumerate() {
-                let alone = f.correction_with(reflect, set.mean, set.per_sample, set.sky);
-                let bits =
-                    |v: &[[f32; 3]]| v.iter().flatten().map(|x| x.to_bits()).collect::<Vec<_>>();
-                assert_eq!(
-                    bits(&all[s]),
-                    bits(&alone),
-                    "set {s}, entries' albedo {with_entries}"
-                );
-            }
-            assert_eq!(all[3], vec![[0.0; 3]; 2], "the dark set");
-            assert!(all[0].iter().flatten().any(|v| *v != 0.0));
-        }
-        assert!(field().corrections(reflect, &[]).is_empty());
     }
 }

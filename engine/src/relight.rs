@@ -38,7 +38,7 @@ use bounce_core::element::Elements;
 use bounce_core::emitter::{Emitters, check_names};
 use bounce_core::format::Baked;
 use bounce_core::light::{LightError, LightSet};
-use bounce_core::nearfield::{CORRECTION_SETS, NearField, Reflect, SetLight};
+use bounce_core::nearfield::{NearField, Reflect};
 use bounce_core::patch::PatchLayout;
 use bounce_core::probe::Probes;
 use bounce_core::sky::SkyVisibility;
@@ -412,29 +412,20 @@ impl Engine {
         if let (Some(near), DirectLight::Cpu(shadow, _)) = (in_use, &scene.direct) {
             let mut direct = Vec::with_capacity(lights.len());
             let mut corrections = Vec::with_capacity(lights.len());
-            // A few sets at a time: one pass over the entries corrects them together, and only
-            // their per-sample values are held at once.
-            'sets: for chunk in lights.chunks(CORRECTION_SETS) {
-                let mut sampled = Vec::with_capacity(chunk.len());
-                for set in chunk {
-                    let Some(s) =
-                        direct_with_samples(shadow, &scene.rows, set, self.samples_for(scene))
-                    else {
-                        break 'sets;
-                    };
-                    let sky = set.sky_sh().and_then(|sky| near.field.sky_samples(&sky));
-                    sampled.push((s, sky));
-                }
-                let sets: Vec<SetLight<'_>> = sampled
-                    .iter()
-                    .map(|(s, sky)| SetLight {
-                        mean: &s.mean,
-                        per_sample: &s.samples,
-                        sky: sky.as_ref(),
-                    })
-                    .collect();
-                corrections.extend(near.field.corrections(near.reflect(), &sets));
-                direct.extend(sampled.into_iter().map(|(s, _)| s.mean));
+            for set in lights {
+                let Some(sampled) =
+                    direct_with_samples(shadow, &scene.rows, set, self.samples_for(scene))
+                else {
+                    break;
+                };
+                let sky = set.sky_sh().and_then(|sky| near.field.sky_samples(&sky));
+                corrections.push(near.field.correction_with(
+                    near.reflect(),
+                    &sampled.mean,
+                    &sampled.samples,
+                    sky.as_ref(),
+                ));
+                direct.push(sampled.mean);
             }
             if direct.len() == lights.len() {
                 return Ok((direct, Some(corrections)));
