@@ -360,29 +360,22 @@ impl NearField {
         {
             return vec![[0.0; 3]; n];
         }
-        let light = |q: usize| -> (Vec3, Vec3) {
-            let j = q / k;
-            match sky {
-                Some(sky) => (
-                    Vec3::from(per_sample[q]) + Vec3::from(sky.per_sample[q]),
-                    Vec3::from(mean[j]) + Vec3::from(sky.mean[j]),
-                ),
-                None => (Vec3::from(per_sample[q]), Vec3::from(mean[j])),
-            }
+        // Sample `q`'s light and row `j`'s mean of its samples', the sky's added when given.
+        let sample_light = |q: usize| match sky {
+            Some(sky) => Vec3::from(per_sample[q]) + Vec3::from(sky.per_sample[q]),
+            None => Vec3::from(per_sample[q]),
+        };
+        let row_light = |j: usize| match sky {
+            Some(sky) => Vec3::from(mean[j]) + Vec3::from(sky.mean[j]),
+            None => Vec3::from(mean[j]),
         };
         if let Some(landed) = &self.albedo {
             // Each entry reflects with its own albedo: per sample its light, per row its
             // element's exitance, once, and the albedo read an entry.
-            let e: Vec<Vec3> = (0..n * k).into_par_iter().map(|q| light(q).0).collect();
+            let e: Vec<Vec3> = (0..n * k).into_par_iter().map(sample_light).collect();
             let exitance: Vec<Vec3> = (0..n)
                 .into_par_iter()
-                .map(|j| {
-                    let m = match sky {
-                        Some(sky) => Vec3::from(mean[j]) + Vec3::from(sky.mean[j]),
-                        None => Vec3::from(mean[j]),
-                    };
-                    Vec3::from(albedo.rows[j]) * m
-                })
+                .map(|j| Vec3::from(albedo.rows[j]) * row_light(j))
                 .collect();
             return (0..n)
                 .into_par_iter()
@@ -408,9 +401,8 @@ impl NearField {
             .into_par_iter()
             .map(|q| {
                 let j = q / k;
-                let (e, m) = light(q);
                 let rho_q = Vec3::from(albedo.samples.map_or(albedo.rows[j], |a| a[q]));
-                rho_q * e - Vec3::from(albedo.rows[j]) * m
+                rho_q * sample_light(q) - Vec3::from(albedo.rows[j]) * row_light(j)
             })
             .collect();
         (0..n)
