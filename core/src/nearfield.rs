@@ -47,7 +47,7 @@ use rayon::prelude::*;
 use crate::formfactor::{FormFactorError, check_rows};
 pub use crate::landings::Landings;
 use crate::landings::landings_of;
-use crate::sample::nearest_sample;
+use crate::sample::{check_albedo, nearest_sample};
 use crate::sky::SkyVisibility;
 use crate::surface::{SurfaceData, SurfaceScene};
 
@@ -178,25 +178,10 @@ impl NearField {
             sky.check(rows * per_row as usize)
                 .map_err(|m| format!("the samples' sky view: {m}"))?;
         }
-        if let Some(albedo) = &self.albedo {
-            if albedo.len() != self.cols.len() {
-                return Err(format!(
-                    "{} entries' albedo for {} entries",
-                    albedo.len(),
-                    self.cols.len()
-                ));
-            }
-            if let Some(e) = albedo
-                .iter()
-                .position(|a| a.iter().any(|c| !(0.0..=1.0).contains(c)))
-            {
-                return Err(format!(
-                    "entry {e}'s albedo {:?} is not within 0 to 1",
-                    albedo[e]
-                ));
-            }
+        match &self.albedo {
+            Some(albedo) => check_albedo(albedo, self.cols.len(), "entry"),
+            None => Ok(()),
         }
-        Ok(())
     }
 
     /// The matrix of `rows` (each a row's entries, columns ascending), without the samples'
@@ -793,15 +778,16 @@ mod tests {
         f.albedo = Some(vec![[0.2; 3], [1.0; 3], [0.5; 3]]);
         let mut short = f.clone();
         short.albedo.as_mut().unwrap().pop();
-        assert!(
-            short
-                .check(2, 2, 2)
-                .unwrap_err()
-                .contains("entries' albedo")
+        assert_eq!(
+            short.check(2, 2, 2).unwrap_err(),
+            "2 entry albedos, 3 expected"
         );
         let mut over = f.clone();
         over.albedo.as_mut().unwrap()[1] = [1.5, 0.0, 0.0];
-        assert!(over.check(2, 2, 2).unwrap_err().contains("within 0 to 1"));
+        assert_eq!(
+            over.check(2, 2, 2).unwrap_err(),
+            "entry 1's albedo [1.5, 0.0, 0.0] is not within [0, 1]"
+        );
         let mut nan = f.clone();
         nan.albedo.as_mut().unwrap()[0][2] = f32::NAN;
         assert!(nan.check(2, 2, 2).is_err());

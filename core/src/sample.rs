@@ -26,6 +26,28 @@ pub struct SamplePoint {
     pub normal: [f32; 3],
 }
 
+/// Checks albedos read from a file, one for each of `expected` things named `what` ("sample",
+/// "entry"): the count, and every channel within `[0, 1]`, as a reflectance must be. The
+/// message says which one failed.
+pub fn check_albedo(albedo: &[[f32; 3]], expected: usize, what: &str) -> Result<(), String> {
+    if albedo.len() != expected {
+        return Err(format!(
+            "{} {what} albedos, {expected} expected",
+            albedo.len()
+        ));
+    }
+    match albedo
+        .iter()
+        .position(|a| !a.iter().all(|c| (0.0..=1.0).contains(c)))
+    {
+        Some(i) => Err(format!(
+            "{what} {i}'s albedo {:?} is not within [0, 1]",
+            albedo[i]
+        )),
+        None => Ok(()),
+    }
+}
+
 /// How much more an offset across a surface counts than one along it, in squared distance, when
 /// a sample is chosen for a point ([`nearest_sample`]).
 const ACROSS_WEIGHT: f32 = 64.0;

@@ -2204,7 +2204,13 @@ fn the_samples_albedo_round_trips_and_is_checked() {
     if let Some(a) = bright.surface.as_mut().and_then(|s| s.albedo.as_mut()) {
         a[3] = [1.5, 0.5, 0.5];
     }
-    assert!(matches!(bright.to_bytes(), Err(FormatError::Surface(_))));
+    let e = bright.to_bytes().unwrap_err();
+    assert!(matches!(e, FormatError::Surface(_)), "{e:?}");
+    assert!(
+        e.to_string()
+            .contains("sample 3's albedo [1.5, 0.5, 0.5] is not within [0, 1]"),
+        "{e}"
+    );
     let mut short = b.clone();
     if let Some(a) = short.surface.as_mut().and_then(|s| s.albedo.as_mut()) {
         a.pop();

@@ -812,23 +812,10 @@ fn validate_surface(s: &SurfaceData, layout: &PatchLayout) -> Result<(), FormatE
     {
         return bad(format!("triangle {i} has a non-finite corner"));
     }
-    if let Some(albedo) = &s.albedo {
-        if albedo.len() != s.points.len() {
-            return bad(format!(
-                "{} sample albedos for {} sample points",
-                albedo.len(),
-                s.points.len()
-            ));
-        }
-        if let Some(i) = albedo
-            .iter()
-            .position(|a| !a.iter().all(|v| (0.0..=1.0).contains(v)))
-        {
-            return bad(format!(
-                "sample {i}'s albedo {:?} is not within [0, 1]",
-                albedo[i]
-            ));
-        }
+    if let Some(albedo) = &s.albedo
+        && let Err(m) = crate::sample::check_albedo(albedo, s.points.len(), "sample")
+    {
+        return bad(m);
     }
     for (i, p) in s.points.iter().enumerate() {
         let n = glam::Vec3::from(p.normal);
