@@ -55,7 +55,9 @@ pub struct VerifyArgs {
     #[arg(long)]
     pub json: bool,
     /// Also write every patch's values as CSV: its reference point, the reference and its
-    /// standard error, and the pipeline's values (compressed, exact, exact on the surfaces' B0).
+    /// standard error, and the pipeline's values (compressed, exact, exact on the surfaces' B0,
+    /// exact without the near field, exact with the first bounce taken where each ray lands; the
+    /// last two empty where verify does not split them).
     #[arg(long, value_name = "FILE.csv")]
     pub patches_out: Option<PathBuf>,
     /// Reference sample paths per probe direction, for a file with probes (each probe is six
@@ -222,8 +224,16 @@ pub fn run(args: &VerifyArgs) -> Result<()> {
     if let Some(path) = &args.patches_out {
         let mut csv = String::from(
             "patch,x,y,z,nx,ny,nz,ref_r,ref_g,ref_b,se_r,se_g,se_b,compressed_r,compressed_g,\
-             compressed_b,exact_r,exact_g,exact_b,surface_b0_r,surface_b0_g,surface_b0_b\n",
+             compressed_b,exact_r,exact_g,exact_b,surface_b0_r,surface_b0_g,surface_b0_b,\
+             without_near_r,without_near_g,without_near_b,pointwise_r,pointwise_g,pointwise_b\n",
         );
+        // Columns of a split verify could not make here (no near field, a sky) stay empty.
+        let optional = |v: Option<&[[f32; 3]]>, i: usize| -> Vec<String> {
+            match v {
+                Some(v) => v[i].iter().map(|x| x.to_string()).collect(),
+                None => vec![String::new(); 3],
+            }
+        };
         for (i, (p, e)) in traced.points.iter().zip(&traced.estimates).enumerate() {
             let row: Vec<String> = p
                 .position
@@ -238,6 +248,8 @@ pub fn run(args: &VerifyArgs) -> Result<()> {
                         .chain(&surface_lit[i])
                         .map(|v| v.to_string()),
                 )
+                .chain(optional(without_near.as_deref(), i))
+                .chain(optional(pointwise.as_deref(), i))
                 .collect();
             csv += &format!("{i},{}\n", row.join(","));
         }

@@ -38,7 +38,7 @@ fn bake_then_inspect_the_cornell_box() {
     assert!(summary.contains("patches"), "{summary}");
 
     let j = inspect_json(&file);
-    assert_eq!(j["format_version"], 12);
+    assert_eq!(j["format_version"], 13);
     assert_eq!(
         j["sample_albedo"], true,
         "version 11 keeps each sample's albedo for the near field"
@@ -1291,6 +1291,33 @@ fn verify_and_reference_on_the_cornell_box() {
     assert_eq!(histogram, patches);
     let csv = std::fs::read_to_string(&patches_csv).unwrap();
     assert_eq!(csv.lines().count(), patches + 1);
+    // The per-patch columns hold what the report's errors are made of: the method error
+    // with the pointwise first bounce, summed again from them, is the report's.
+    let header: Vec<&str> = csv.lines().next().unwrap().split(',').collect();
+    let column = |name: &str| {
+        header
+            .iter()
+            .position(|h| *h == name)
+            .unwrap_or_else(|| panic!("{name} in {header:?}"))
+    };
+    let (reference, pointwise) = (column("ref_r"), column("pointwise_r"));
+    let (mut diff, mut norm) = (0.0f64, 0.0f64);
+    for line in csv.lines().skip(1) {
+        let cells: Vec<&str> = line.split(',').collect();
+        assert_eq!(cells.len(), header.len(), "{line}");
+        for c in 0..3 {
+            let r: f64 = cells[reference + c].parse().unwrap();
+            let p: f64 = cells[pointwise + c].parse().unwrap();
+            diff += (p - r) * (p - r);
+            norm += r * r;
+        }
+    }
+    let summed = (diff / norm).sqrt();
+    let reported = get("method_pointwise_source_rel_l2");
+    assert!(
+        (summed - reported).abs() < 1e-4 * reported.max(1.0),
+        "{summed} from the CSV against {reported} reported"
+    );
 
     // The same table for a person.
     let out = run(bounce()

@@ -461,7 +461,8 @@ pub fn direct_irradiance(
         .filter_map(PreparedLight::new)
         .collect();
     if let Shadows::Surface { mesh, surface } = &scene.inner {
-        let count = samples.clamp(1, surface.per_patch) as usize;
+        // Only the samples spread by area make the mean; landing samples serve the near field.
+        let count = surface.mean_count(samples.clamp(1, surface.per_patch) as usize);
         return (0..layout.len())
             .into_par_iter()
             .map_init(
@@ -599,6 +600,7 @@ pub fn direct_with_samples(
     // A file stores at least one sample a row; a hand-built `SurfaceData` may store none, and
     // its rows are then unlit.
     let count = samples.max(1).min(surface.per_patch) as usize;
+    let averaged = surface.mean_count(count);
     let n = layout.len();
     let mut out = SampledDirect {
         count: count as u32,
@@ -619,11 +621,17 @@ pub fn direct_with_samples(
             || ShadowCache::new(prepared.len()),
             |cache, (i, (values, mean))| {
                 let mut sum = Vec3::ZERO;
-                for (v, s) in values.iter_mut().zip(&surface.samples(i)[..count]) {
+                for (k, (v, s)) in values
+                    .iter_mut()
+                    .zip(&surface.samples(i)[..count])
+                    .enumerate()
+                {
                     *v = point_irradiance(mesh, s, &prepared, cache);
-                    sum += Vec3::from(*v);
+                    if k < averaged {
+                        sum += Vec3::from(*v);
+                    }
                 }
-                *mean = mean_of(sum, count);
+                *mean = mean_of(sum, averaged);
             },
         );
     Some(out)
@@ -634,7 +642,7 @@ pub fn direct_with_samples(
 pub struct SampledDirect {
     /// Sample points used a row.
     pub count: u32,
-    /// Per row, the mean of its samples: `E_direct`.
+    /// Per row, the mean of its samples spread by area (`SurfaceData::mean_count`): `E_direct`.
     pub mean: Vec<[f32; 3]>,
     /// Per row, `count` values in sample order.
     pub samples: Vec<[f32; 3]>,

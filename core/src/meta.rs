@@ -95,6 +95,10 @@ pub struct BakeSettings {
     /// samples are drawn on the face at run time).
     #[serde(default)]
     pub direct_samples: u32,
+    /// How many of those lie where near-field rays land (`surface::SurfaceScene::landing_samples`);
+    /// 0 in files without, and in files from before them.
+    #[serde(default)]
+    pub landing_samples: u32,
     /// The largest change of `E_ind` one grey transport channel may make before the bake keeps
     /// three (`transport::choose_channels`). Files from before the choice kept three whenever
     /// albedos differed, which is 0.

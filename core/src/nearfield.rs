@@ -251,12 +251,25 @@ impl NearField {
         &self,
         sky: &[[f32; 3]; bounce_types::sh::SH_COEFFICIENTS],
     ) -> Option<SkySamples> {
+        self.sky_samples_averaging(sky, self.per_row)
+    }
+
+    /// [`Self::sky_samples`] with each row's mean over its first `averaged` samples only: those
+    /// spread by area (`SurfaceData::area_samples`), whose mean the punctual lights' is too; the
+    /// landing samples after them are not in it.
+    pub fn sky_samples_averaging(
+        &self,
+        sky: &[[f32; 3]; bounce_types::sh::SH_COEFFICIENTS],
+        averaged: u32,
+    ) -> Option<SkySamples> {
         let view = self.sky.as_ref()?;
         let per_sample = view.irradiance(sky);
         let k = self.per_row as usize;
+        let averaged = (averaged as usize).clamp(1, k.max(1));
         let mean = per_sample
             .chunks(k.max(1))
             .map(|samples| {
+                let samples = &samples[..averaged.min(samples.len())];
                 let sum = samples.iter().fold(Vec3::ZERO, |s, &e| s + Vec3::from(e));
                 (sum / samples.len() as f32).to_array()
             })

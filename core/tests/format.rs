@@ -103,6 +103,7 @@ fn sample_meta() -> BakeMeta {
             patch_order: bounce_core::voxel::PatchOrder::Morton,
             geometry: bounce_core::voxel::Geometry::VoxelFaces,
             direct_samples: 0,
+            landing_samples: 0,
             max_grey_error: 0.02,
             near_radius: 0.0,
             probes: None,
@@ -400,7 +401,7 @@ fn layout_on_disk_matches_the_documentation() {
     let baked = sample(3, true);
     let b = baked.to_bytes().unwrap();
     assert_eq!(&b[..8], b"BOUNCE\0B");
-    assert_eq!(get_u32(&b, 8), 12);
+    assert_eq!(get_u32(&b, 8), 13);
     assert_eq!(get_u32(&b, 12), 5);
     assert_eq!(get_u64(&b, 16), b.len() as u64);
     let kinds: Vec<&[u8]> = (0..5).map(|i| &b[entry_at(i)..entry_at(i) + 4]).collect();
@@ -647,23 +648,23 @@ fn bad_magic() {
 #[test]
 fn future_version() {
     let mut b = sample_bytes();
-    put_u32(&mut b, 8, 13);
+    put_u32(&mut b, 8, 14);
     reseal(&mut b);
     let err = refuse(&b);
     assert!(
         matches!(
             err,
             FormatError::UnsupportedVersion {
-                found: 13,
+                found: 14,
                 oldest: 1,
-                supported: 12
+                supported: 13
             }
         ),
         "{err:?}"
     );
     assert_eq!(
         err.to_string(),
-        "unsupported format version 13 (this build reads versions 1 to 12); bake the scene again \
+        "unsupported format version 14 (this build reads versions 1 to 13); bake the scene again \
          with this bounce"
     );
 }
@@ -681,6 +682,7 @@ fn surface_sample() -> Baked {
             [[0.0, 0.0, 1.0], [1.0, 0.0, 1.0], [0.0, 1.0, 1.0]],
         ],
         per_patch: 2,
+        area_samples: 2,
         points: (0..10)
             .map(|k| bounce_core::surface::SamplePoint {
                 position: [k as f32 * 0.1, 0.5, 0.25],
@@ -2219,6 +2221,39 @@ fn the_samples_albedo_round_trips_and_is_checked() {
     // A version-10 file cannot hold it: the flag was reserved then.
     let mut old = bytes.clone();
     put_u32(&mut old, 8, 10);
+    reseal(&mut old);
+    assert!(matches!(refuse(&old), FormatError::Reserved { .. }));
+}
+
+/// Landing samples (version 13): how many of a row's samples are spread by area is written only
+/// when some are not, read back, and checked; a version-12 file cannot say it.
+#[test]
+fn the_area_sample_count_round_trips_and_is_checked() {
+    let mut b = element_sample();
+    let plain = b.to_bytes().expect("samples all spread by area encode");
+    if let Some(s) = &mut b.surface {
+        s.area_samples = 1;
+    }
+    let bytes = b.to_bytes().expect("one landing sample a row encodes");
+    assert_eq!(bytes.len(), plain.len() + 4, "one u32 more");
+    assert_eq!(Baked::from_bytes(&bytes).unwrap(), b);
+    for bad in [0, 3] {
+        let mut wrong = b.clone();
+        if let Some(s) = &mut wrong.surface {
+            s.area_samples = bad;
+        }
+        let e = wrong.to_bytes().unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            format!(
+                "section 'SURF': {bad} of 2 samples per patch spread by area (1 to 2 are \
+                 valid)"
+            ),
+            "{e:?}"
+        );
+    }
+    let mut old = bytes.clone();
+    put_u32(&mut old, 8, 12);
     reseal(&mut old);
     assert!(matches!(refuse(&old), FormatError::Reserved { .. }));
 }

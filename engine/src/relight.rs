@@ -253,6 +253,7 @@ impl Engine {
             emitters: baked.emitters.clone(),
             probes: baked.probes.clone(),
             stored_samples: baked.surface.as_ref().map(|s| s.per_patch),
+            area_samples: baked.surface.as_ref().map(|s| s.area_samples),
             elements: baked.elements.clone(),
             direct,
             shadow_source,
@@ -418,7 +419,10 @@ impl Engine {
                 else {
                     break;
                 };
-                let sky = set.sky_sh().and_then(|sky| near.field.sky_samples(&sky));
+                let sky = set.sky_sh().and_then(|sky| {
+                    near.field
+                        .sky_samples_averaging(&sky, scene.area_samples.unwrap_or(u32::MAX))
+                });
                 corrections.push(near.field.correction_with(
                     near.reflect(),
                     &sampled.mean,
@@ -576,6 +580,8 @@ pub struct Scene {
     probes: Option<Probes>,
     /// Sample points a surface bake stores per row.
     stored_samples: Option<u32>,
+    /// Of those, how many (the first) are spread by area and make a row's mean.
+    area_samples: Option<u32>,
     elements: Option<Elements>,
     direct: DirectLight,
     shadow_source: ShadowSource,

@@ -9,7 +9,7 @@ use bounce_core::meta::Bounces;
 use bounce_core::nearfield::{DEFAULT_NEAR_RADIUS, MAX_NEAR_RADIUS};
 use bounce_core::probe::ProbeOptions;
 use bounce_core::rays::Tracer;
-use bounce_core::surface::{DEFAULT_SURFACE_SAMPLES, MAX_SURFACE_SAMPLES};
+use bounce_core::surface::{DEFAULT_SURFACE_SAMPLES, MAX_SURFACE_SAMPLES, default_landing_samples};
 use bounce_core::voxel::{Geometry, PatchOrder, Resolution};
 use clap::Args;
 
@@ -86,6 +86,12 @@ pub struct BakeArgs {
     /// evaluates each light, with shadow rays against the triangles.
     #[arg(long, value_name = "N", default_value_t = DEFAULT_SURFACE_SAMPLES)]
     pub direct_samples: u32,
+    /// How many of those --direct-samples to place where near-field rays land (where surfaces
+    /// meet and shadows start) rather than spread by area: they sharpen the near field's
+    /// correction and cost no more rays. The rest, spread by area, make each patch's mean.
+    /// Needs a near field; less than --direct-samples. Default: a quarter of them.
+    #[arg(long, value_name = "K")]
+    pub landing_samples: Option<u32>,
     /// Near-field first bounce (surface geometry): form-factor rays that land within R voxels
     /// of where they start also record the direct-light sample point they land nearest, and a
     /// relight gathers the light there rather than the element's mean (docs/design.md §4).
@@ -162,6 +168,17 @@ impl BakeArgs {
                 self.direct_samples
             );
         }
+        let landing_samples = self
+            .landing_samples
+            .unwrap_or_else(|| default_landing_samples(self.direct_samples));
+        if landing_samples >= self.direct_samples {
+            bail!(
+                "--landing-samples must be less than --direct-samples ({}), got {}: at least one \
+                 sample a patch is spread by area for its mean",
+                self.direct_samples,
+                landing_samples
+            );
+        }
         if !(0.0..=MAX_NEAR_RADIUS).contains(&self.near_field) {
             bail!(
                 "--near-field must be from 0 to {MAX_NEAR_RADIUS} voxels, got {}",
@@ -201,6 +218,7 @@ impl BakeArgs {
             patch_order: self.patch_order,
             geometry: self.geometry,
             direct_samples: self.direct_samples,
+            landing_samples,
             max_grey_error: self.max_grey_error,
             near_radius: self.near_field,
             probes: (self.probes || self.probe_spacing.is_some()).then_some(ProbeOptions {

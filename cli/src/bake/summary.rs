@@ -28,12 +28,16 @@ pub fn print_summary(baked: &Baked, out: &Path, file_bytes: u64, total_s: f64) {
         println!(
             "  surface       {} geometry: {:.4} of {:.4} units² ({:.2}%) belongs to no patch (dropped \
              patches that see nothing, surface inside closed solids, slivers); {} direct-light \
-             samples a patch",
+             samples a patch{}",
             m.settings.geometry,
             s.unassigned_area,
             s.surface_area,
             100.0 * s.unassigned_area / s.surface_area.max(f64::MIN_POSITIVE),
-            m.settings.direct_samples
+            m.settings.direct_samples,
+            match m.settings.landing_samples {
+                0 => String::new(),
+                k => format!(" ({k} of them where near-field rays land)"),
+            }
         );
         match &baked.near_field {
             Some(near) => println!(

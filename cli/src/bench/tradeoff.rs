@@ -139,17 +139,19 @@ pub fn run(args: &BenchTradeoffArgs) -> Result<()> {
                 .iter()
                 .flat_map(|r| lighting.iter().map(move |l| (r, l)))
             {
+                let direct_samples = if samples > 0 {
+                    samples
+                } else {
+                    BakeOptions::default().direct_samples
+                };
                 let options = BakeOptions {
                     resolution: Resolution::TargetPatches(target),
                     rays,
                     bounces: args.bounces,
                     geometry,
                     codec: CodecRequest::Named(DENSE_F32.to_string()),
-                    direct_samples: if samples > 0 {
-                        samples
-                    } else {
-                        BakeOptions::default().direct_samples
-                    },
+                    direct_samples,
+                    landing_samples: bounce_core::surface::default_landing_samples(direct_samples),
                     near_radius: near_field,
                     ..BakeOptions::default()
                 };

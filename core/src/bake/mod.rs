@@ -56,6 +56,9 @@ pub struct BakeOptions {
     pub geometry: voxel::Geometry,
     /// Direct-light sample points stored per patch (surface geometry).
     pub direct_samples: u32,
+    /// How many of those lie where near-field rays land rather than spread by area
+    /// ([`SurfaceScene::landing_samples`]); 0 without a near field.
+    pub landing_samples: u32,
     /// How much one grey transport channel may change `E_ind` before the bake keeps three
     /// ([`transport::choose_channels`]).
     pub max_grey_error: f64,
@@ -108,6 +111,9 @@ impl Default for BakeOptions {
             patch_order: voxel::PatchOrder::Scan,
             geometry: voxel::Geometry::Surface,
             direct_samples: crate::surface::DEFAULT_SURFACE_SAMPLES,
+            landing_samples: crate::surface::default_landing_samples(
+                crate::surface::DEFAULT_SURFACE_SAMPLES,
+            ),
             max_grey_error: transport::DEFAULT_MAX_GREY_ERROR,
             near_radius: crate::nearfield::DEFAULT_NEAR_RADIUS,
             probes: None,
@@ -125,6 +131,8 @@ pub enum Stage {
     FormFactors,
     /// The near-field matrix: the form-factor rays that land close by, traced again that far.
     NearField,
+    /// Direct-light sample points: spread by area, and placed where near-field rays land.
+    Samples,
     /// Irradiance probes: placed, then gathered at (counted in probes).
     Probes,
     Transport,
@@ -141,6 +149,7 @@ impl Stage {
             Stage::RayScene => "ray scene",
             Stage::FormFactors => "form factors",
             Stage::NearField => "near field",
+            Stage::Samples => "samples",
             Stage::Probes => "probes",
             Stage::Transport => "transport",
             Stage::Encode => "encode",
@@ -386,20 +395,28 @@ pub(crate) fn prepare(
     })?;
     match (mesh, &vox.pieces) {
         (Some(mesh), Some(pieces)) => {
-            let (points, albedo) = surface::sample_points_with_albedo(
-                scene,
-                pieces,
-                options.direct_samples,
-                options.seed,
-            );
+            let triangles = surface::occluder_triangles_of(&mesh);
+            let emitters = Emitters::of_pieces(scene, pieces);
+            let rays = SurfaceScene::new(scene, mesh, vox.transport_layout(), pieces);
+            let landing = landing_samples(options);
+            let area = options.direct_samples - landing;
+            let (points, albedo) = timer.run(Stage::Samples, 0, || {
+                rays.landing_samples(
+                    scene,
+                    area,
+                    landing,
+                    options.rays,
+                    options.seed,
+                    options.near_radius * vox.transport_layout().voxel_size,
+                )
+            });
             let surface = SurfaceData {
-                triangles: surface::occluder_triangles_of(&mesh),
+                triangles,
                 per_patch: options.direct_samples,
+                area_samples: area,
                 points,
                 albedo: Some(albedo),
             };
-            let emitters = Emitters::of_pieces(scene, pieces);
-            let rays = SurfaceScene::new(scene, mesh, vox.transport_layout(), pieces);
             Ok(Prepared {
                 vox,
                 rays: Rows::Surface(Box::new(rays)),
@@ -421,6 +438,18 @@ pub(crate) fn prepare(
                 emitters: None,
             })
         }
+    }
+}
+
+/// How many of a row's samples a surface bake places where near-field rays land: none without
+/// a near field (nothing reads them), and always at least one spread by area (the row's mean).
+pub(crate) fn landing_samples(options: &BakeOptions) -> u32 {
+    if options.near_radius > 0.0 {
+        options
+            .landing_samples
+            .min(options.direct_samples.saturating_sub(1))
+    } else {
+        0
     }
 }
 
@@ -534,6 +563,10 @@ pub(crate) fn settings(options: &BakeOptions, tracer: Tracer) -> BakeSettings {
             Geometry::Surface => options.direct_samples,
             Geometry::VoxelFaces => 0,
         },
+        landing_samples: match options.geometry {
+            Geometry::Surface => landing_samples(options),
+            Geometry::VoxelFaces => 0,
+        },
         max_grey_error: options.max_grey_error,
         probes: match options.geometry {
             Geometry::Surface => options.probes,
@@ -572,6 +605,7 @@ pub fn options_of(settings: &BakeSettings, keep_form_factors: bool) -> BakeOptio
         patch_order: settings.patch_order,
         geometry: settings.geometry,
         direct_samples: settings.direct_samples,
+        landing_samples: settings.landing_samples,
         max_grey_error: settings.max_grey_error,
         near_radius: settings.near_radius,
         probes: settings.probes,

@@ -26,7 +26,11 @@
 //! then per triangle its three corners f32×9 (36 bytes; every triangle blocks shadow rays from
 //! both sides), then `rows × samples per row` sample points, position f32×3 and unit normal
 //! f32×3 (24 bytes), row by row; with flag bit 0 (version 11), then each sample's albedo f32×3
-//! (12 bytes), in the same order. Positions are already pushed off their surface
+//! (12 bytes), in the same order; with flag bit 1 (version 13), a u32 between the header and
+//! the triangles: how many of each row's samples, its first, are spread over it by area (1 to
+//! samples per row; the row's direct light is their mean), the rest lying where near-field rays
+//! land (`crate::surface::SurfaceScene::landing_samples`); without it, all are spread by area.
+//! Positions are already pushed off their surface
 //! ([`crate::trimesh::offset_origin`]). Every value is finite, an albedo within `[0, 1]`; the
 //! rows are the transport's (the elements, or the patches in a file without `ELEM`). Before
 //! version 11 the flags word was reserved (0).
@@ -797,6 +801,12 @@ fn validate_surface(s: &SurfaceData, layout: &PatchLayout) -> Result<(), FormatE
             s.per_patch
         ));
     }
+    if !(1..=s.per_patch).contains(&s.area_samples) {
+        return bad(format!(
+            "{} of {} samples per patch spread by area (1 to {} are valid)",
+            s.area_samples, s.per_patch, s.per_patch
+        ));
+    }
     if s.points.len() as u64 != layout.len() as u64 * u64::from(s.per_patch) {
         return bad(format!(
             "{} sample points for {} patches of {} samples",
@@ -845,9 +855,14 @@ pub(super) fn encode_surface(
             + s.points.len() * SAMPLE_RECORD_LEN as usize
             + albedo.len() * ALBEDO_RECORD_LEN as usize,
     );
-    let flags = if s.albedo.is_some() { SURF_ALBEDO } else { 0 };
+    let landing = s.area_samples < s.per_patch;
+    let flags = if s.albedo.is_some() { SURF_ALBEDO } else { 0 }
+        | if landing { SURF_AREA_SAMPLES } else { 0 };
     for v in [count, s.per_patch, layout.len() as u32, flags] {
         out.extend_from_slice(&v.to_le_bytes());
+    }
+    if landing {
+        out.extend_from_slice(&s.area_samples.to_le_bytes());
     }
     for x in s.triangles.iter().flatten().flatten() {
         out.extend_from_slice(&x.to_le_bytes());
@@ -865,6 +880,9 @@ pub(super) fn encode_surface(
 
 /// `SURF`'s flag: each sample's albedo follows the sample points (version 11).
 const SURF_ALBEDO: u32 = 1;
+/// `SURF`'s flag: how many of a row's samples are spread by area follows the header (version
+/// 13); the rest are landing samples.
+const SURF_AREA_SAMPLES: u32 = 2;
 /// Bytes of one sample's albedo.
 const ALBEDO_RECORD_LEN: u64 = 12;
 
@@ -880,13 +898,22 @@ pub(super) fn decode_surface(
     let per_patch = r.u32("samples per patch")?;
     let patches = r.u32("patch count")?;
     let flags = r.u32("flags")?;
-    let known = if version >= 11 { SURF_ALBEDO } else { 0 };
+    let known = match version {
+        13.. => SURF_ALBEDO | SURF_AREA_SAMPLES,
+        11 | 12 => SURF_ALBEDO,
+        _ => 0,
+    };
     if flags & !known != 0 {
         return Err(FormatError::Reserved {
             what: format!("section '{kind}' flags"),
         });
     }
     let with_albedo = flags & SURF_ALBEDO != 0;
+    let area_samples = if flags & SURF_AREA_SAMPLES != 0 {
+        r.u32("samples per patch spread by area")?
+    } else {
+        per_patch
+    };
     if patches as usize != layout.len() {
         return Err(FormatError::Surface(format!(
             "{patches} patches, but the layout has {}",
@@ -928,6 +955,7 @@ pub(super) fn decode_surface(
             .map(|c| [[c[0], c[1], c[2]], [c[3], c[4], c[5]], [c[6], c[7], c[8]]])
             .collect(),
         per_patch,
+        area_samples,
         points: sample_floats
             .chunks_exact(6)
             .map(|c| SamplePoint {

@@ -67,8 +67,10 @@ pub use sky::SKY_HEADER_LEN;
 /// added each sample point's albedo (`SURF`'s flag bit 0, once reserved): an older file reads,
 /// and its near field reflects a landing's light with its row's albedo. Version 12 added each
 /// near-field entry's albedo, where its rays landed (`NEAR`'s flag bit 1): an older file reads,
-/// and its landings reflect with their sample's albedo.
-pub const FORMAT_VERSION: u32 = 12;
+/// and its landings reflect with their sample's albedo. Version 13 added landing samples, sample
+/// points placed where near-field rays land (`SURF`'s flag bit 1 and the count of samples spread
+/// by area): an older file reads, and all its samples are spread by area.
+pub const FORMAT_VERSION: u32 = 13;
 /// The oldest version this build reads: a version-1 file is a voxel-face bake and is relit as
 /// one.
 pub const OLDEST_FORMAT_VERSION: u32 = 1;
@@ -77,8 +79,8 @@ pub const OLDEST_FORMAT_VERSION: u32 = 1;
 /// to read older ones. Version 5 added each shard's rows of the sky view (`SROW`), version 6 the
 /// emitters (`SEMT`), version 7 the samples' sky view in `NROW`, version 8 the probes' gather
 /// rows (`PROW`) and the emitters' nodes in `SEMT`, version 9 the samples' albedo in `SURF`,
-/// version 10 the near-field entries' albedo in `NROW`.
-pub const SHARD_FORMAT_VERSION: u32 = 10;
+/// version 10 the near-field entries' albedo in `NROW`, version 11 the landing samples in `SURF`.
+pub const SHARD_FORMAT_VERSION: u32 = 11;
 
 /// Everything that can go wrong reading or writing a baked file.
 ///

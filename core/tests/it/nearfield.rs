@@ -153,6 +153,7 @@ fn the_form_factors_pass_keeps_the_near_field_a_retrace_finds() {
     let data = SurfaceData {
         triangles: occluder_triangles_of(&mesh),
         per_patch,
+        area_samples: per_patch,
         points: sample_points(pieces, per_patch, 3),
         albedo: None,
     };

@@ -90,6 +90,10 @@ pub struct SurfaceParams {
     pub sets: u32,
     /// BVH nodes, 0 when there is no triangle.
     pub nodes: u32,
+    /// Samples a patch's mean is taken over: the first of the `count` used (those spread by
+    /// area, `SurfaceData::mean_count`).
+    pub averaged: u32,
+    pub pad: [u32; 3],
 }
 
 /// One sample point as the kernel reads it (`GpuSample` in `direct_surface.wgsl`):
@@ -185,6 +189,8 @@ pub struct GpuSurfaceDirect {
     points: wgpu::Buffer,
     n: u32,
     per_patch: u32,
+    /// Samples of a patch spread by area, its first: its mean is theirs.
+    area_samples: u32,
     /// BVH nodes, 0 when there is no triangle to trace.
     node_count: u32,
     /// The most rays one `shadow` pass covers.
@@ -270,6 +276,7 @@ impl GpuSurfaceDirect {
             queue: ctx.queue.clone(),
             n,
             per_patch,
+            area_samples: surface.area_samples,
             node_count,
             rays_per_piece: RAYS_PER_PIECE,
             binding_cap: u64::MAX,
@@ -355,11 +362,17 @@ impl GpuSurfaceDirect {
         want_near: bool,
     ) -> Result<(Vec<Vec<[f32; 3]>>, Option<Vec<Vec<[f32; 3]>>>), GpuError> {
         let n = self.n as usize;
-        let count = samples.max(1).min(self.per_patch);
+        let used = samples.max(1).min(self.per_patch);
         let near = self
             .near
             .as_ref()
-            .filter(|(b, _)| want_near && b.per_row == count);
+            .filter(|(b, _)| want_near && b.per_row == used);
+        // Without the near field only the samples of the mean (spread by area) are lit.
+        let count = if near.is_some() {
+            used
+        } else {
+            used.min(self.area_samples)
+        };
         if n == 0 || sets.is_empty() {
             let zeros = vec![vec![[0.0; 3]; n]; sets.len()];
             return Ok((zeros.clone(), near.map(|_| zeros)));
@@ -540,6 +553,8 @@ impl GpuSurfaceDirect {
                 patches: patches as u32,
                 sets: sets_n,
                 nodes: self.node_count,
+                averaged: self.area_samples.min(count),
+                pad: [0; 3],
             };
             let params_buf = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
                 label: Some("direct_surface params"),
@@ -600,7 +615,7 @@ impl GpuSurfaceDirect {
                 n: self.n,
                 sets: sets_n,
                 per_row: count,
-                pad: 0,
+                averaged: self.area_samples.min(count),
             };
             let params_buf = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
                 label: Some("near_field params"),

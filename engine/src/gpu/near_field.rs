@@ -43,7 +43,9 @@ pub struct NearParams {
     pub sets: u32,
     /// Sample points per row, the matrix's and the values kept.
     pub per_row: u32,
-    pub pad: u32,
+    /// Samples a row's mean is taken over, its first (those spread by area): the sky's mean
+    /// must be the one the punctual lights' means are.
+    pub averaged: u32,
 }
 
 pub fn near_field_source() -> &'static str {

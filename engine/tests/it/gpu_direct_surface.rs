@@ -47,12 +47,15 @@ struct Case {
     open: ShadowScene,
 }
 
-fn case(scene: &Scene, voxel: f32) -> Case {
+/// `area` of each patch's `PER_PATCH` samples make its mean (the rest stand in for landing
+/// samples, which only the near field reads).
+fn case_with(scene: &Scene, voxel: f32, area: u32) -> Case {
     let vox = cluster_at(scene, voxel).expect("the scene clusters");
     let pieces = vox.pieces.as_ref().expect("surface pieces");
     let data = SurfaceData {
         triangles: occluder_triangles_of(&scene_mesh(scene)),
         per_patch: PER_PATCH,
+        area_samples: area,
         points: sample_points(pieces, PER_PATCH, 7),
         albedo: None,
     };
@@ -80,9 +83,18 @@ fn box_with_hole() -> Case {
     )
 }
 
-/// About 2,000 patches: a finer room with a pillar that casts shadows at every angle.
+fn case(scene: &Scene, voxel: f32) -> Case {
+    case_with(scene, voxel, PER_PATCH)
+}
+
+/// About 2,000 patches: a finer room with a pillar that casts shadows at every angle, with
+/// four of each patch's samples outside its mean, as landing samples are.
 fn room_with_pillar() -> Case {
-    case(&room(None, Some(([1.4, 2.2], 2.5))), SIZE / 18.5)
+    case_with(
+        &room(None, Some(([1.4, 2.2], 2.5))),
+        SIZE / 18.5,
+        PER_PATCH - 4,
+    )
 }
 
 /// Two `SIZE` cubes side by side along x, closed by inward walls, parted at `x = SIZE` by one
@@ -408,6 +420,7 @@ fn a_bvh_deeper_than_the_stack_is_refused() {
     let data = SurfaceData {
         triangles,
         per_patch: 1,
+        area_samples: 1,
         points: Vec::new(),
         albedo: None,
     };

@@ -44,13 +44,16 @@ struct NearCase {
     albedo: Vec<[f32; 3]>,
 }
 
-fn near_case(scene: &Scene, voxel: f32) -> NearCase {
+/// `area` of each row's `PER_PATCH` samples make its mean (the rest stand in for landing
+/// samples: only the near field reads them).
+fn near_case(scene: &Scene, voxel: f32, area: u32) -> NearCase {
     let vox = cluster_at(scene, voxel).expect("the scene clusters");
     let pieces = vox.pieces.as_ref().expect("surface pieces");
     let mesh = Arc::new(scene_mesh(scene));
     let data = SurfaceData {
         triangles: occluder_triangles_of(&mesh),
         per_patch: PER_PATCH,
+        area_samples: area,
         points: sample_points(pieces, PER_PATCH, 7),
         albedo: None,
     };
@@ -86,12 +89,18 @@ fn near_case(scene: &Scene, voxel: f32) -> NearCase {
 
 fn closed_box() -> &'static NearCase {
     static CASE: OnceLock<NearCase> = OnceLock::new();
-    CASE.get_or_init(|| near_case(&room(None, None), VOXEL))
+    CASE.get_or_init(|| near_case(&room(None, None), VOXEL, PER_PATCH))
 }
 
 fn room_with_pillar() -> &'static NearCase {
     static CASE: OnceLock<NearCase> = OnceLock::new();
-    CASE.get_or_init(|| near_case(&room(None, Some(([1.4, 2.2], 2.5))), SIZE / 18.5))
+    CASE.get_or_init(|| {
+        near_case(
+            &room(None, Some(([1.4, 2.2], 2.5))),
+            SIZE / 18.5,
+            PER_PATCH - 4,
+        )
+    })
 }
 
 fn upload(ctx: &GpuContext, case: &NearCase) -> GpuSurfaceDirect {
@@ -261,7 +270,9 @@ fn check_field(
         let open = direct_with_samples(&case.open, &case.layout, s, PER_PATCH).unwrap();
         assert_eq!(cpu.count, PER_PATCH);
         let direct = compare(&means[k], &cpu.mean, &open.mean, PER_PATCH);
-        let sky = s.sky_sh().and_then(|sky| near.sky_samples(&sky));
+        let sky = s
+            .sky_sh()
+            .and_then(|sky| near.sky_samples_averaging(&sky, case.data.area_samples));
         let a = compare_near(
             near,
             albedo,

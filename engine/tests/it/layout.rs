@@ -378,6 +378,10 @@ fn direct_surface_structs_match_wgsl() {
             ("patches", offset_of!(SurfaceParams, patches)),
             ("sets", offset_of!(SurfaceParams, sets)),
             ("nodes", offset_of!(SurfaceParams, nodes)),
+            ("averaged", offset_of!(SurfaceParams, averaged)),
+            ("pad0", offset_of!(SurfaceParams, pad)),
+            ("pad1", offset_of!(SurfaceParams, pad) + 4),
+            ("pad2", offset_of!(SurfaceParams, pad) + 8),
         ])
     );
 
@@ -471,7 +475,7 @@ fn near_field_params_match_wgsl() {
             ("n", offset_of!(NearParams, n)),
             ("sets", offset_of!(NearParams, sets)),
             ("per_row", offset_of!(NearParams, per_row)),
-            ("pad", offset_of!(NearParams, pad)),
+            ("averaged", offset_of!(NearParams, averaged)),
         ])
     );
     assert_eq!(constant(&parse("near_field", source), "NEAR_WG"), NEAR_WG);

@@ -35,6 +35,12 @@ struct SurfaceParams {
     sets: u32,
     // BVH nodes; 0 when there is no triangle (nothing blocks light).
     nodes: u32,
+    // Samples a patch's mean is taken over: the first `averaged` of the `count` used (those
+    // spread by area; landing samples after them serve the near field only).
+    averaged: u32,
+    pad0: u32,
+    pad1: u32,
+    pad2: u32,
 }
 
 // `bounce_core::trimesh::MeshTri`: a corner and two edges.
@@ -297,8 +303,8 @@ fn lit_set(sid: u32) -> bool {
 
 fn write_mean(sid: u32, pid: u32, sum: vec3<f32>) {
     var e = vec3<f32>(0.0);
-    if params.count > 0u {
-        e = min(sum / f32(params.count), vec3<f32>(BIG));
+    if params.averaged > 0u {
+        e = min(sum / f32(params.averaged), vec3<f32>(BIG));
     }
     let o = (sid * params.n + pid) * 3u;
     out[o] = e.x;
@@ -321,7 +327,8 @@ fn gather(
     let pid = params.first + i;
     var sum = vec3<f32>(0.0);
     if lit_set(sid) {
-        for (var k = 0u; k < params.count; k++) {
+        // Samples beyond `averaged` are not in the mean: `gather` need not light them.
+        for (var k = 0u; k < params.averaged; k++) {
             sum += sample_value(sid, i, pid, k);
         }
     }
@@ -354,7 +361,9 @@ fn gather_samples(
         if lit {
             e = sample_value(sid, i, pid, k);
         }
-        sum += e;
+        if k < params.averaged {
+            sum += e;
+        }
         let o = ((sid * params.n + pid) * params.count + k) * 3u;
         per_sample[o] = e.x;
         per_sample[o + 1u] = e.y;

@@ -14,7 +14,8 @@ struct NearParams {
     // Sample points per row, both the matrix's columns per row and the values `gather_samples`
     // kept per row (the host runs this pass only when the two agree).
     per_row: u32,
-    pad: u32,
+    // Samples a row's mean is taken over: its first (those spread by area), as `gather`'s.
+    averaged: u32,
 }
 
 const NEAR_WG: u32 = 64u;
@@ -118,10 +119,10 @@ fn sky_samples(
     let j = id % params.n;
     let first = j * params.per_row;
     var sum = vec3<f32>(0.0);
-    for (var k = 0u; k < params.per_row; k++) {
+    for (var k = 0u; k < params.averaged; k++) {
         sum += sky_at(sid, first + k);
     }
-    let mean = sum / f32(params.per_row);
+    let mean = sum / f32(max(params.averaged, 1u));
     let samples = sid * params.n * params.per_row;
     for (var k = 0u; k < params.per_row; k++) {
         let q = first + k;
