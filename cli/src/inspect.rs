@@ -73,6 +73,7 @@ pub fn run(args: &InspectArgs) -> Result<()> {
             "patches": l.len(),
             "geometry": m.settings.geometry,
             "surface_samples": baked.surface.as_ref().map(|s| s.per_patch),
+            "landing_samples": baked.surface.as_ref().map(|s| s.per_patch - s.area_samples),
             "surface_triangles": baked.surface.as_ref().map(|s| s.triangles.len()),
             "near_field_radius": baked.near_field.as_ref().map(|_| m.settings.near_radius),
             "near_field_entries": baked.near_field.as_ref().map(|n| n.nnz()),
@@ -183,10 +184,14 @@ pub fn run(args: &InspectArgs) -> Result<()> {
     );
     if let Some(near) = &baked.near_field {
         println!(
-            "  near field    rays landing within {} voxel(s): {} entries over {} samples a row; {}",
+            "  near field    rays landing within {} voxel(s): {} entries over {} samples a row{}; {}",
             m.settings.near_radius,
             near.nnz(),
             near.per_row,
+            match baked.surface.as_ref().map(|s| s.per_patch - s.area_samples) {
+                Some(k) if k > 0 => format!(" ({k} of them placed where near rays land)"),
+                _ => String::new(),
+            },
             if near.sky.is_some() {
                 "each sample's own sky view (a sky is corrected too)"
             } else {

@@ -58,6 +58,11 @@ fn bake_then_inspect_the_cornell_box() {
         j["surface_samples"], 32,
         "32 direct-light samples a patch by default"
     );
+    assert_eq!(
+        j["landing_samples"], 8,
+        "a quarter of them where near-field rays land (version 13)"
+    );
+    assert_eq!(j["settings"]["landing_samples"], 8);
     assert_eq!(j["bounces"], 3);
     assert_eq!(j["channels"], 3, "the Cornell box has coloured walls");
     assert_eq!(j["codec"], "dense-f32");
@@ -192,6 +197,24 @@ fn one_grey_channel_only_where_colour_matters_little() {
     assert!(!out.status.success());
     assert!(
         stderr(&out).contains("--max-grey-error must be from 0 to 1"),
+        "{}",
+        stderr(&out)
+    );
+    // Every landing sample needs an area sample beside it for the mean.
+    let out = run(bounce()
+        .args([
+            "bake",
+            "--direct-samples",
+            "4",
+            "--landing-samples",
+            "4",
+            "-o",
+        ])
+        .arg(dir.path().join("x.bounce"))
+        .arg(cornell()));
+    assert!(!out.status.success());
+    assert!(
+        stderr(&out).contains("--landing-samples must be less than --direct-samples (4), got 4"),
         "{}",
         stderr(&out)
     );
