@@ -13,6 +13,7 @@ use bounce_core::format::Baked;
 use bounce_core::import::import_path;
 use bounce_core::light::LightSet;
 use bounce_core::matrix::DENSE_F32;
+use bounce_core::meta::Bounces;
 use bounce_core::pointwise;
 use bounce_engine::{Engine, EngineChoice, Irradiance};
 use bounce_reference::compare::{Meta, Report, Variants, compare};
@@ -103,6 +104,13 @@ pub fn run(args: &VerifyArgs) -> Result<()> {
     if let Err(why) = engine.near_field(&exact_scene) {
         eprintln!("verify: the file's near field is not applied: {why}");
     }
+    // What carrying the near field through the later bounces gains.
+    let first_bounce_near = if exact_scene.near_carried() {
+        exact_scene.first_bounce_near_field();
+        Some(relight(&exact_scene)?)
+    } else {
+        None
+    };
     // The near field's gain, and the base the pointwise split starts from.
     let without_near = if engine.near_field(&exact_scene) == Ok(true) {
         exact_scene.disable_near_field();
@@ -209,6 +217,7 @@ pub fn run(args: &VerifyArgs) -> Result<()> {
         Variants {
             pointwise_source: pointwise.as_deref(),
             without_near_field: without_near.as_deref(),
+            first_bounce_near_field: first_bounce_near.as_deref(),
         },
         traced.rel_stderr(),
         Meta {
@@ -225,7 +234,8 @@ pub fn run(args: &VerifyArgs) -> Result<()> {
         let mut csv = String::from(
             "patch,x,y,z,nx,ny,nz,ref_r,ref_g,ref_b,se_r,se_g,se_b,compressed_r,compressed_g,\
              compressed_b,exact_r,exact_g,exact_b,surface_b0_r,surface_b0_g,surface_b0_b,\
-             without_near_r,without_near_g,without_near_b,pointwise_r,pointwise_g,pointwise_b\n",
+             without_near_r,without_near_g,without_near_b,pointwise_r,pointwise_g,pointwise_b,\
+             first_bounce_near_r,first_bounce_near_g,first_bounce_near_b\n",
         );
         // Columns of a split verify could not make here (no near field, a sky) stay empty.
         let optional = |v: Option<&[[f32; 3]]>, i: usize| -> Vec<String> {
@@ -250,6 +260,7 @@ pub fn run(args: &VerifyArgs) -> Result<()> {
                 )
                 .chain(optional(without_near.as_deref(), i))
                 .chain(optional(pointwise.as_deref(), i))
+                .chain(optional(first_bounce_near.as_deref(), i))
                 .collect();
             csv += &format!("{i},{}\n", row.join(","));
         }
@@ -387,8 +398,10 @@ fn check_probes(
 }
 
 /// A surface bake's exact `E_ind` (without the near field, `exact_e`) with its first bounce
-/// gathered with `B0` where each form-factor ray lands (`bounce_core::pointwise`), restricted to
-/// the patches as a relight is: `E_ind + restrict(pointwise − F · B0)`. The rays are the bake's
+/// gathered with `B0` where each form-factor ray lands (`bounce_core::pointwise`), the later
+/// bounces carrying the change as a relight carries the near field's, restricted to the patches
+/// as a relight is: `E_ind + restrict(d + T · (ρ ⊙ d))`, `d = pointwise − F · B0` (`d` alone
+/// for a one-bounce transport). The rays are the bake's
 /// (its seed and count, its elements found again from its recorded settings). `None` for voxel
 /// faces.
 fn pointwise_source(
@@ -446,12 +459,26 @@ fn pointwise_source(
         scene
     };
     let first = pointwise::first_bounce(scene, rows, pieces, lights, &b0, s.rays_per_patch, s.seed);
-    let shift: Vec<[f32; 3]> = first
+    let mut shift: Vec<[f32; 3]> = first
         .pointwise
         .iter()
         .zip(&first.element)
         .map(|(p, e)| std::array::from_fn(|c| p[c] - e[c]))
         .collect();
+    // The later bounces carry the first bounce's change as a relight carries the near field's
+    // (`bounce_engine::carried_source`): `T · (ρ ⊙ shift)` on top.
+    if s.bounces != Bounces::K(1) {
+        let reflected: Vec<[f32; 3]> = shift
+            .iter()
+            .zip(&rows.patches)
+            .map(|(d, p)| std::array::from_fn(|c| p.albedo[c] * d[c]))
+            .collect();
+        let mut carried = vec![[0.0f32; 3]; shift.len()];
+        engine.indirect(loaded, &reflected, &mut carried)?;
+        for (d, t) in shift.iter_mut().zip(&carried) {
+            *d = std::array::from_fn(|c| d[c] + t[c]);
+        }
+    }
     let shift = elements.restrict(&baked.layout, &shift);
     Ok(Some(
         exact_e
@@ -537,6 +564,12 @@ fn print_table(r: &Report) {
         println!(
             "| · the same without the near-field first bounce | {} |",
             pct(plain)
+        );
+    }
+    if let Some(first) = r.method_first_bounce_near_field_rel_l2 {
+        println!(
+            "| · the same with the near field in the first bounce only (the later bounces not carrying it) | {} |",
+            pct(first)
         );
     }
     match (r.source_rel_l2, r.method_pointwise_source_rel_l2) {

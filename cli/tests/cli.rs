@@ -1295,6 +1295,9 @@ fn verify_and_reference_on_the_cornell_box() {
         // A surface bake: the first bounce with the light where each ray lands.
         "source_rel_l2",
         "method_pointwise_source_rel_l2",
+        // Three bounces and a near field: what carrying it through the later bounces gains.
+        "method_without_near_field_rel_l2",
+        "method_first_bounce_near_field_rel_l2",
     ] {
         let v = get(key);
         assert!(v.is_finite() && v >= 0.0, "{key} = {v}");
@@ -1323,23 +1326,43 @@ fn verify_and_reference_on_the_cornell_box() {
             .position(|h| *h == name)
             .unwrap_or_else(|| panic!("{name} in {header:?}"))
     };
-    let (reference, pointwise) = (column("ref_r"), column("pointwise_r"));
-    let (mut diff, mut norm) = (0.0f64, 0.0f64);
-    for line in csv.lines().skip(1) {
-        let cells: Vec<&str> = line.split(',').collect();
-        assert_eq!(cells.len(), header.len(), "{line}");
-        for c in 0..3 {
-            let r: f64 = cells[reference + c].parse().unwrap();
-            let p: f64 = cells[pointwise + c].parse().unwrap();
-            diff += (p - r) * (p - r);
-            norm += r * r;
-        }
+    let reference = column("ref_r");
+    let rows: Vec<Vec<&str>> = csv
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').collect())
+        .collect();
+    for cells in &rows {
+        assert_eq!(cells.len(), header.len(), "{cells:?}");
     }
-    let summed = (diff / norm).sqrt();
-    let reported = get("method_pointwise_source_rel_l2");
-    assert!(
-        (summed - reported).abs() < 1e-4 * reported.max(1.0),
-        "{summed} from the CSV against {reported} reported"
+    for (name, key) in [
+        ("pointwise_r", "method_pointwise_source_rel_l2"),
+        (
+            "first_bounce_near_r",
+            "method_first_bounce_near_field_rel_l2",
+        ),
+    ] {
+        let at = column(name);
+        let (mut diff, mut norm) = (0.0f64, 0.0f64);
+        for cells in &rows {
+            for c in 0..3 {
+                let r: f64 = cells[reference + c].parse().unwrap();
+                let p: f64 = cells[at + c].parse().unwrap();
+                diff += (p - r) * (p - r);
+                norm += r * r;
+            }
+        }
+        let summed = (diff / norm).sqrt();
+        let reported = get(key);
+        assert!(
+            (summed - reported).abs() < 1e-4 * reported.max(1.0),
+            "{name}: {summed} from the CSV against {key} {reported} reported"
+        );
+    }
+    // The near field in the first bounce alone is another relight, not the same numbers.
+    assert_ne!(
+        get("method_first_bounce_near_field_rel_l2"),
+        get("method_rel_l2")
     );
 
     // The same table for a person.

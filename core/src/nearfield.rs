@@ -20,7 +20,9 @@
 //! sample `q`, `Ē_j` the mean it takes of them, `ρ_j` the element's albedo and `ρ_q` the
 //! sample's (below; the element's in files without it). The correction is zero-sum over each
 //! source element's samples in expectation and exactly zero when direct light and albedo are
-//! uniform over every element; it is first order (the later bounces keep the element means).
+//! uniform over every element. It corrects the first bounce; the relight carries it through the
+//! later ones (`bounce_engine::carried_source`: `T · (B0 + ρ ⊙ ΔE) + ΔE`), whose sources within
+//! an element are still its mean.
 //!
 //! [`NearField::correction_with`] is the CPU twin of the GPU engine's `near_field.wgsl`.
 //!

@@ -18,4 +18,4 @@ pub mod gpu;
 mod relight;
 
 pub use error::EngineError;
-pub use relight::{Engine, EngineChoice, EngineKind, Irradiance, Scene, Timing};
+pub use relight::{Engine, EngineChoice, EngineKind, Irradiance, Scene, Timing, carried_source};

@@ -6,6 +6,11 @@
 //! `B0 = L_e + ρ ⊙ E_direct`, then `E_ind = T · B0` for the whole batch in one product, on the GPU
 //! or the CPU. The batch is where a GPU wins: one pass over the matrix serves every light set.
 //!
+//! With a near field (`bounce_core::nearfield`) the first bounce gains `ΔE`, the light near
+//! landings gather where they land rather than as their element's mean. The later bounces carry
+//! it too: a receiver re-emits the first bounce it really gathered, so the product takes
+//! `T · (B0 + ρ ⊙ ΔE)` and adds `ΔE` ([`Scene::near_carried`]), in the same one product.
+//!
 //! Direct light runs where its shadows can. The GPU engine computes it with
 //! [`GpuSurfaceDirect`] for a surface-geometry bake (shadow rays from the stored sample points
 //! through a BVH of the original triangles) and with [`GpuDirect`] for a voxel-face bake with
@@ -38,6 +43,7 @@ use bounce_core::element::Elements;
 use bounce_core::emitter::{Emitters, check_names};
 use bounce_core::format::Baked;
 use bounce_core::light::{LightError, LightSet};
+use bounce_core::meta::Bounces;
 use bounce_core::nearfield::{NearField, Reflect};
 use bounce_core::patch::PatchLayout;
 use bounce_core::probe::Probes;
@@ -192,6 +198,8 @@ impl Engine {
                 albedo: row_albedo(baked),
                 sample_albedo: baked.surface.as_ref().and_then(|s| s.albedo.clone()),
                 field,
+                // A one-bounce transport has no later bounce to carry it into.
+                carried: baked.meta.settings.bounces != Bounces::K(1),
             }
         });
         let direct = match (&self.gpu, &baked.surface, baked.occupancy.as_deref()) {
@@ -304,7 +312,13 @@ impl Engine {
         let start = Instant::now();
         let mut indirect = vec![[0.0f32; 3]; b0.len()];
         if !b0.is_empty() {
-            scene.transport.apply(&b0, &mut indirect)?;
+            match (&near, scene.near_carried()) {
+                (Some(corrections), true) => {
+                    let source = carried_source(&b0, corrections, &scene.rows);
+                    scene.transport.apply(&source, &mut indirect)?;
+                }
+                _ => scene.transport.apply(&b0, &mut indirect)?,
+            }
             for (v, d) in indirect.iter_mut().zip(near.iter().flatten().flatten()) {
                 // The near rays' element-mean share is part of `T · B0`, so the exact sum stays
                 // at or above zero; a lossy codec's product may fall a little short of it.
@@ -675,6 +689,21 @@ impl Scene {
         self.near = None;
     }
 
+    /// Whether the later bounces carry the near field's correction: the product takes
+    /// `B0 + ρ ⊙ ΔE` ([`carried_source`]) rather than `B0`. True for a scene with a near field
+    /// and a transport of more than one bounce.
+    pub fn near_carried(&self) -> bool {
+        self.near.as_ref().is_some_and(|n| n.carried)
+    }
+
+    /// Keep the near field's correction in the first bounce alone from now on (the relights
+    /// before session 27): how `bounce verify` shows what carrying it gains.
+    pub fn first_bounce_near_field(&mut self) {
+        if let Some(n) = &mut self.near {
+            n.carried = false;
+        }
+    }
+
     /// The transport's codec.
     pub fn codec(&self) -> &str {
         &self.codec
@@ -740,6 +769,34 @@ impl Scene {
     }
 }
 
+/// What the product multiplies when the later bounces carry the near field: per light set and
+/// row, `B0 + ρ ⊙ ΔE`, the row's own exitance plus what it re-emits of its first bounce's
+/// correction (`corrections`, per set, per row; `ρ` the rows' albedo, as in `B0`).
+///
+/// `T = Σ_{k<b} (F R)^k F` then takes `ΔE` through bounces 2 to `b + 1`: one further than
+/// `B0`'s light goes, by `(F R)^b ΔE`, a term of order `ρ^b` of the correction, which a `b`-bounce
+/// transport leaves out of `B0`'s light anyway (it is light there is). The exact `b − 1` would
+/// need `F`, which a baked file does not keep. A sum may be negative where a row's near
+/// landings gather less than its sources' means; the product is linear, and the sum of its
+/// parts is what is clamped.
+pub fn carried_source(
+    b0: &[[f32; 3]],
+    corrections: &[Vec<[f32; 3]>],
+    rows: &PatchLayout,
+) -> Vec<[f32; 3]> {
+    debug_assert_eq!(
+        corrections.iter().map(Vec::len).sum::<usize>(),
+        b0.len(),
+        "one correction per set and row"
+    );
+    let albedo = rows.patches.iter().map(|p| p.albedo).cycle();
+    b0.iter()
+        .zip(corrections.iter().flatten())
+        .zip(albedo)
+        .map(|((b, d), a)| std::array::from_fn(|c| b[c] + a[c] * d[c]))
+        .collect()
+}
+
 /// Per transport row, its albedo: what the near-field correction multiplies by.
 fn row_albedo(baked: &Baked) -> Vec<[f32; 3]> {
     baked
@@ -757,6 +814,8 @@ struct NearRows {
     albedo: Vec<[f32; 3]>,
     /// Per sample point, when the file keeps them (format version 11).
     sample_albedo: Option<Vec<[f32; 3]>>,
+    /// Whether the later bounces carry the correction ([`Scene::near_carried`]).
+    carried: bool,
 }
 
 impl NearRows {

@@ -49,6 +49,9 @@ pub struct Report {
     /// Bakes with a near-field first bounce (`bounce_core::nearfield`): the method error
     /// without it, so what it gains shows beside `method_rel_l2`.
     pub method_without_near_field_rel_l2: Option<f64>,
+    /// Bakes whose later bounces carry the near field's correction (more than one bounce): the
+    /// method error with it in the first bounce alone, so what carrying it gains shows too.
+    pub method_first_bounce_near_field_rel_l2: Option<f64>,
     /// `method_rel_l2` with the reference's noise taken out in quadrature.
     pub method_rel_l2_without_noise: f64,
     /// `‖stderr‖ / ‖reference‖`.
@@ -121,6 +124,9 @@ pub struct Variants<'a> {
     pub pointwise_source: Option<&'a [[f32; 3]]>,
     /// Without the near-field first bounce.
     pub without_near_field: Option<&'a [[f32; 3]]>,
+    /// With the near field's correction in the first bounce alone, the later bounces not
+    /// carrying it.
+    pub first_bounce_near_field: Option<&'a [[f32; 3]]>,
 }
 
 pub fn compare(
@@ -186,6 +192,9 @@ pub fn compare(
             .map(|p| rel_l2(base, p) * norm_ratio(p, reference)),
         method_pointwise_source_rel_l2: pointwise_source.as_ref().map(|p| rel_l2(p, reference)),
         method_without_near_field_rel_l2: plain.as_ref().map(|p| rel_l2(p, reference)),
+        method_first_bounce_near_field_rel_l2: variants
+            .first_bounce_near_field
+            .map(|v| rel_l2(&widen(v), reference)),
         method_rel_l2_without_noise: (method * method
             - reference_rel_stderr * reference_rel_stderr)
             .max(0.0)
@@ -221,7 +230,8 @@ pub fn leak_share(pipeline: &[[f64; 3]], reference: &[[f64; 3]]) -> f64 {
         .filter(|(_, r)| sum(r) < 0.1 * median)
         .map(|(p, _)| sum(p))
         .sum();
-    if total > 0.0 { dark / total } else { 0.0 }
+    // An empty sum of f64 is −0.0, which a report would print as "-0.00%".
+    if total > 0.0 { dark / total + 0.0 } else { 0.0 }
 }
 
 #[cfg(test)]
@@ -306,7 +316,7 @@ mod tests {
             &reference,
             Variants {
                 pointwise_source: Some(&pointwise),
-                without_near_field: None,
+                ..Variants::default()
             },
             0.0,
             meta(),
@@ -332,6 +342,7 @@ mod tests {
         let reference = [[1.0; 3], [2.0; 3]];
         let plain = [[1.2f32; 3], [2.0; 3]];
         let with_near = [[1.1f32; 3], [2.0; 3]];
+        let first_bounce_only = [[1.15f32; 3], [2.0; 3]];
         let pointwise = [[1.0f32; 3], [2.0; 3]];
         let r = compare(
             &with_near,
@@ -341,6 +352,7 @@ mod tests {
             Variants {
                 pointwise_source: Some(&pointwise),
                 without_near_field: Some(&plain),
+                first_bounce_near_field: Some(&first_bounce_only),
             },
             0.0,
             meta(),
@@ -352,6 +364,10 @@ mod tests {
         assert!(within(
             r.method_without_near_field_rel_l2.unwrap(),
             2.0 * tenth / norm_ref
+        ));
+        assert!(within(
+            r.method_first_bounce_near_field_rel_l2.unwrap(),
+            1.5 * tenth / norm_ref
         ));
         // The source's share is measured from the pipeline without the near field.
         assert!(
@@ -365,6 +381,8 @@ mod tests {
     fn nothing_leaks_where_every_patch_is_lit() {
         let reference = [[1.0; 3], [1.0; 3], [0.5; 3]];
         assert_eq!(leak_share(&reference, &reference), 0.0);
+        // Positive zero: a report prints "0.00%", not "-0.00%".
+        assert!(leak_share(&reference, &reference).is_sign_positive());
         // A dim patch under a tenth of the median holds its own share of the reference.
         let dim = [[1.0; 3], [1.0; 3], [0.05; 3]];
         assert!((leak_share(&dim, &dim) - 0.05 / 2.05).abs() < 1e-12);

@@ -315,6 +315,73 @@ fn classic_radiosity_agrees_with_the_precomputed_transport() {
 }
 
 #[test]
+fn the_later_bounces_carry_the_near_fields_first_bounce() {
+    let baked = baked();
+    let Bounces::K(k) = baked.meta.settings.bounces else {
+        panic!("the fixture bakes a fixed bounce count")
+    };
+    let cpu = Engine::new(EngineChoice::Cpu).unwrap();
+    let mut scene = cpu.load(baked).unwrap();
+    assert!(scene.near_carried(), "3 bounces and a near field");
+    let sets = light_sets(3);
+    let carried = cpu.relight(&scene, &sets).unwrap();
+    let (_, corrections) = cpu.direct_and_near(&scene, &sets).unwrap();
+    let corrections = corrections.expect("the fixture's near field applies");
+    // ΔE through the later bounces by iterating `F` (not `T`): Σ_{h=1..k} (F R)^h ΔE, which is
+    // Jacobi's `k` gathers of `ρ ⊙ ΔE`.
+    let rows = baked.transport_layout();
+    let reflected: Vec<[f32; 3]> = corrections
+        .iter()
+        .flat_map(|set| {
+            set.iter()
+                .zip(&rows.patches)
+                .map(|(d, p)| std::array::from_fn(|c| p.albedo[c] * d[c]))
+        })
+        .collect();
+    let f = decode(baked.form_factors.as_ref().unwrap()).unwrap();
+    let later = jacobi(f.as_ref(), rows, &reflected, k).unwrap();
+    let elements = baked
+        .elements
+        .as_ref()
+        .expect("a surface bake has elements");
+    scene.first_bounce_near_field();
+    assert!(!scene.near_carried());
+    let first_only = cpu.relight(&scene, &sets).unwrap();
+    let n = rows.len();
+    for (s, ((c, f), d)) in carried
+        .iter()
+        .zip(&first_only)
+        .zip(&corrections)
+        .enumerate()
+    {
+        assert!(
+            d.iter().flatten().any(|v| *v != 0.0),
+            "set {s}: a correction to carry"
+        );
+        let added = elements.restrict(&baked.layout, &later[s * n..(s + 1) * n]);
+        let expected: Vec<[f32; 3]> = f
+            .indirect
+            .iter()
+            .zip(&added)
+            .map(|(e, a)| std::array::from_fn(|ch| (e[ch] + a[ch]).max(0.0)))
+            .collect();
+        // `T` against `F` iterated, in f32, and the clamp at zero taken once instead of twice.
+        let err = rel_l2(&c.indirect, &expected);
+        assert!(err < 1e-5, "set {s}: carried vs F iterated rel L2 {err:e}");
+        // What carrying adds is no rounding: the test fails if the later bounces drop it.
+        let gain = rel_l2(&c.indirect, &f.indirect);
+        assert!(
+            gain > 1e-3,
+            "set {s}: carrying ΔE moved E_ind by only {gain:e}"
+        );
+    }
+    // A one-bounce transport has no later bounce to carry it into.
+    let mut one = baked.clone();
+    one.meta.settings.bounces = Bounces::K(1);
+    assert!(!cpu.load(&one).unwrap().near_carried());
+}
+
+#[test]
 fn bad_lights_are_refused_with_their_place_in_the_batch() {
     let cpu = Engine::new(EngineChoice::Cpu).unwrap();
     let scene = cpu.load(baked()).unwrap();
