@@ -320,8 +320,10 @@ impl Engine {
                 _ => scene.transport.apply(&b0, &mut indirect)?,
             }
             for (v, d) in indirect.iter_mut().zip(near.iter().flatten().flatten()) {
-                // The near rays' element-mean share is part of `T · B0`, so the exact sum stays
-                // at or above zero; a lossy codec's product may fall a little short of it.
+                // The near rays' element-mean share is part of `T · B0`, so the exact first
+                // bounce stays at or above zero, and so does every later bounce re-emitting it;
+                // the carried correction's one extra bounce (`carried_source`) and a lossy
+                // codec's product may fall a little short of it.
                 *v = std::array::from_fn(|c| (v[c] + d[c]).max(0.0));
             }
             // Direct light is clamped to f32::MAX, but `T · B0` sums many such terms and can
