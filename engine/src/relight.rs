@@ -310,31 +310,7 @@ impl Engine {
         }
         let direct_s = start.elapsed().as_secs_f64();
         let start = Instant::now();
-        let mut indirect = vec![[0.0f32; 3]; b0.len()];
-        if !b0.is_empty() {
-            match (&near, scene.near_carried()) {
-                (Some(corrections), true) => {
-                    let source = carried_source(&b0, corrections, &scene.rows);
-                    scene.transport.apply(&source, &mut indirect)?;
-                }
-                _ => scene.transport.apply(&b0, &mut indirect)?,
-            }
-            for (v, d) in indirect.iter_mut().zip(near.iter().flatten().flatten()) {
-                // The near rays' element-mean share is part of `T · B0`, so the exact first
-                // bounce stays at or above zero, and so does every later bounce re-emitting it;
-                // the carried correction's one extra bounce (`carried_source`) and a lossy
-                // codec's product may fall a little short of it.
-                *v = std::array::from_fn(|c| (v[c] + d[c]).max(0.0));
-            }
-            // Direct light is clamped to f32::MAX, but `T · B0` sums many such terms and can
-            // overflow: keep E_ind finite too (a frame then clamps it to its format's largest
-            // and flags it). NaN is left alone: it would be a bug to see, not light to clamp.
-            for v in indirect.iter_mut().flatten() {
-                if *v == f32::INFINITY {
-                    *v = f32::MAX;
-                }
-            }
-        }
+        let indirect = self.indirect_with_near(scene, &b0, near.as_deref())?;
         let out = direct
             .into_iter()
             .zip(skies)
@@ -501,6 +477,49 @@ impl Engine {
     /// the GPU direct kernel cannot take (see [`Scene::direct_fallback`]).
     pub fn direct_engine(&self, scene: &Scene) -> EngineKind {
         scene.direct_engine()
+    }
+
+    /// `E_ind` per row (`batch × rows`) from a batch's `B0` and, where the scene has a near
+    /// field, its corrections `ΔE` (per set, per row: [`Engine::direct_and_near`]), as
+    /// [`Engine::relight`] finishes it before restricting to the patches: `T · (B0 + ρ ⊙ ΔE) + ΔE`
+    /// when the later bounces carry the correction ([`Scene::near_carried`]), else
+    /// `T · B0 + ΔE`, clamped at zero and kept finite.
+    pub fn indirect_with_near(
+        &self,
+        scene: &Scene,
+        b0: &[[f32; 3]],
+        near: Option<&[Vec<[f32; 3]>]>,
+    ) -> Result<Vec<[f32; 3]>, EngineError> {
+        let mut indirect = vec![[0.0f32; 3]; b0.len()];
+        if b0.is_empty() {
+            return Ok(indirect);
+        }
+        match (near, scene.near_carried()) {
+            (Some(corrections), true) => {
+                let source = carried_source(b0, corrections, &scene.rows);
+                scene.transport.apply(&source, &mut indirect)?;
+            }
+            _ => scene.transport.apply(b0, &mut indirect)?,
+        }
+        for (v, d) in indirect
+            .iter_mut()
+            .zip(near.into_iter().flatten().flatten())
+        {
+            // The near rays' element-mean share is part of `T · B0`, so the exact first bounce
+            // stays at or above zero, and so does every later bounce re-emitting it; the carried
+            // correction's one extra bounce (`carried_source`) and a lossy codec's product may
+            // fall a little short of it.
+            *v = std::array::from_fn(|c| (v[c] + d[c]).max(0.0));
+        }
+        // Direct light is clamped to f32::MAX, but `T · B0` sums many such terms and can
+        // overflow: keep E_ind finite too (a frame then clamps it to its format's largest and
+        // flags it). NaN is left alone: it would be a bug to see, not light to clamp.
+        for v in indirect.iter_mut().flatten() {
+            if *v == f32::INFINITY {
+                *v = f32::MAX;
+            }
+        }
+        Ok(indirect)
     }
 
     /// `E_ind = T · B0` alone, for a batch of given `B0` vectors (`batch × rows`, the

@@ -628,12 +628,8 @@ fn probe_rows(args: &BenchEnginesArgs, baked: &Baked, sets: &[LightSet]) -> Resu
         for (set, d) in sets.iter().zip(&direct) {
             b0.extend(scene.exitance(set, d)?);
         }
-        let mut ind = vec![[0.0f32; 3]; b0.len()];
-        cpu.indirect(&scene, &b0, &mut ind)?;
-        // As a relight finishes `E_ind`: with the near-field first bounce, where there is one.
-        for (v, d) in ind.iter_mut().zip(near.iter().flatten().flatten()) {
-            *v = std::array::from_fn(|c| (v[c] + d[c]).max(0.0));
-        }
+        // As a relight finishes `E_ind`: with the near field, where there is one.
+        let ind = cpu.indirect_with_near(&scene, &b0, near.as_deref())?;
         let gather = || -> Vec<[f32; 3]> {
             sets.iter()
                 .zip(b0.chunks(n).zip(ind.chunks(n)))
