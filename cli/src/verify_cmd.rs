@@ -13,7 +13,6 @@ use bounce_core::format::Baked;
 use bounce_core::import::import_path;
 use bounce_core::light::LightSet;
 use bounce_core::matrix::DENSE_F32;
-use bounce_core::meta::Bounces;
 use bounce_core::pointwise;
 use bounce_engine::{Engine, EngineChoice, Irradiance};
 use bounce_reference::compare::{Meta, Report, Variants, compare};
@@ -467,7 +466,7 @@ fn pointwise_source(
         .collect();
     // The later bounces carry the first bounce's change as a relight carries the near field's
     // (`bounce_engine::carried_source`): `T · (ρ ⊙ shift)` on top.
-    if s.bounces != Bounces::K(1) {
+    if bounce_engine::carries_near_field(s.bounces) {
         let reflected: Vec<[f32; 3]> = shift
             .iter()
             .zip(&rows.patches)

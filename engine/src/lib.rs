@@ -18,4 +18,6 @@ pub mod gpu;
 mod relight;
 
 pub use error::EngineError;
-pub use relight::{Engine, EngineChoice, EngineKind, Irradiance, Scene, Timing, carried_source};
+pub use relight::{
+    Engine, EngineChoice, EngineKind, Irradiance, Scene, Timing, carried_source, carries_near_field,
+};

@@ -198,8 +198,7 @@ impl Engine {
                 albedo: row_albedo(baked),
                 sample_albedo: baked.surface.as_ref().and_then(|s| s.albedo.clone()),
                 field,
-                // A one-bounce transport has no later bounce to carry it into.
-                carried: baked.meta.settings.bounces != Bounces::K(1),
+                carried: carries_near_field(baked.meta.settings.bounces),
             }
         });
         let direct = match (&self.gpu, &baked.surface, baked.occupancy.as_deref()) {
@@ -788,6 +787,12 @@ impl Scene {
             Transport::Cpu(_) => usize::from(sets > 0),
         }
     }
+}
+
+/// Whether a transport of `bounces` carries the near field's correction through its later
+/// bounces: every one but a one-bounce transport, which has no later bounce to carry it into.
+pub fn carries_near_field(bounces: Bounces) -> bool {
+    bounces != Bounces::K(1)
 }
 
 /// What the product multiplies when the later bounces carry the near field: per light set and
