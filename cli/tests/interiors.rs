@@ -1,14 +1,16 @@
 //! The method on interiors it has never seen: small houses generated from a seed (rooms on a
 //! grid, walls thinner than a voxel, 0.9 m doorways, furniture, single-sided closed boxes as
-//! game levels are built, point lights in only some rooms), baked at 250 patches a room and
-//! checked against the reference path tracer with `bounce verify`.
+//! game levels are built), baked at 250 patches a room and checked against the reference path
+//! tracer with `bounce verify`. Lit two ways: point lights in only some rooms, and daylight (a
+//! low sun, or a sky) through windows in the outer walls, no lamps.
 //!
 //! Nothing here is tuned to a scene: the houses are drawn from seeds, and what is asserted is
 //! what any interior must give. The method error stays bounded, light does not cross walls
-//! (the leak share), and a room with no light of its own is lit through its doorways about as
-//! much as the reference says, neither black nor lit through a wall.
+//! (the leak share), and a room with no light (or window) of its own is lit through its
+//! doorways about as much as the reference says, neither black nor lit through a wall.
 //!
-//! `cargo test -p bounce-cli --test interiors -- --nocapture` prints the table the README quotes.
+//! `cargo test -p bounce-cli --test interiors -- --nocapture` prints the tables the README
+//! quotes; with `BOUNCE_KEEP_HOUSES=DIR` it also keeps each house's glTF and lights there.
 
 mod common;
 
@@ -104,16 +106,62 @@ struct House {
     lit: Vec<bool>,
 }
 
+/// How a house is lit.
+#[derive(Clone, Copy)]
+enum Lighting {
+    /// Closed outer walls; a point light in about half the rooms.
+    Lamps,
+    /// Windows in the outer walls and daylight through them: `light` is the light set's one
+    /// entry (a sun, or a sky), no lamps. A room is "lit" when it has a window.
+    Daylight(fn() -> Value),
+}
+
+impl Lighting {
+    /// Paths a point the reference traces. Light through a window reaches most of a room by
+    /// way of the bright patch the sun or sky lays on the floor, and paths that find it are
+    /// few: at 512 the reference's own error was 13-17% (against 7% under lamps), and the
+    /// patches it left dark by chance made up most of the leak share.
+    fn paths(self) -> u32 {
+        match self {
+            Lighting::Lamps => 512,
+            Lighting::Daylight(_) => 2048,
+        }
+    }
+
+    fn name(self) -> String {
+        match self {
+            Lighting::Lamps => "lamps".into(),
+            Lighting::Daylight(light) => light()["type"].as_str().unwrap_or("daylight").into(),
+        }
+    }
+}
+
 const HEIGHT: f32 = 2.6;
 const WALL: f32 = 0.12;
 const DOOR_WIDTH: f32 = 0.9;
 const DOOR_HEIGHT: f32 = 2.1;
+const SILL: f32 = 0.9;
+
+/// A low sun (about 30° up) from +x, +z: it falls through the windows on those two sides onto
+/// the floors a metre or two in, and the rest of the house sees only its bounces.
+fn sun() -> Value {
+    json!({"type": "directional", "direction": [-0.55, -0.5, -0.67],
+           "color": [1.0, 0.95, 0.85], "intensity": 3.0})
+}
+
+/// A uniform sky (all directions, as `bounce_types` defines it): a house with no ground outside
+/// takes it through its windows from above and below.
+fn sky() -> Value {
+    json!({"type": "sky", "color": [0.6, 0.7, 0.9]})
+}
 
 /// Writes house `seed` (`house.gltf`, `house.bin`, `lights.json`) into `dir`: `nx × nz` rooms
 /// of 3–5.5 m, every wall 12 cm thick, a spanning tree of doorways plus a few more, one to
-/// three pieces of furniture a room, a point light in about half the rooms (at least one room
-/// stays dark).
-fn house(dir: &Path, seed: u64, nx: usize, nz: usize) -> House {
+/// three pieces of furniture a room, and, with [`Lighting::Lamps`], a point light in about half
+/// the rooms (at least one room stays dark). With [`Lighting::Daylight`] each outer wall of a
+/// room holds a window (1–1.8 m wide, from 0.9 to 2.1 m) with probability 0.6, and the light set
+/// is the daylight alone. The rooms, doorways and furniture of a seed are the same either way.
+fn house(dir: &Path, seed: u64, nx: usize, nz: usize, lighting: Lighting) -> House {
     let mut rng = Rng(seed);
     let widths: Vec<f32> = (0..nx).map(|_| rng.range(3.0, 5.5)).collect();
     let depths: Vec<f32> = (0..nz).map(|_| rng.range(3.0, 5.5)).collect();
@@ -185,18 +233,21 @@ fn house(dir: &Path, seed: u64, nx: usize, nz: usize) -> House {
         min: [-h, HEIGHT, -h],
         max: [sx + h, HEIGHT + 0.2, sz + h],
     });
-    for (min, max) in [
-        ([-h, 0.0, -h], [sx + h, HEIGHT, h]),
-        ([-h, 0.0, sz - h], [sx + h, HEIGHT, sz + h]),
-        ([-h, 0.0, h], [h, HEIGHT, sz - h]),
-        ([sx - h, 0.0, h], [sx + h, HEIGHT, sz - h]),
-    ] {
-        walls.cuboid(Cuboid { min, max });
+    if matches!(lighting, Lighting::Lamps) {
+        for (min, max) in [
+            ([-h, 0.0, -h], [sx + h, HEIGHT, h]),
+            ([-h, 0.0, sz - h], [sx + h, HEIGHT, sz + h]),
+            ([-h, 0.0, h], [h, HEIGHT, sz - h]),
+            ([sx - h, 0.0, h], [sx + h, HEIGHT, sz - h]),
+        ] {
+            walls.cuboid(Cuboid { min, max });
+        }
     }
     // Inner walls, one segment per room boundary, with its doorway cut out (two pillars and a
     // lintel) where there is one. Segments meet at the grid's corners and overlap there, as
     // modelled walls do.
-    let mut segment = |axis_x: bool, at: f32, from: f32, to: f32, door: Option<f32>| {
+    // An opening is (centre, width, bottom, top) along the segment.
+    let mut segment = |axis_x: bool, at: f32, from: f32, to: f32, opening: Option<[f32; 4]>| {
         let span = |a: f32, b: f32, y0: f32, y1: f32| {
             if axis_x {
                 // A wall at x = at running along z.
@@ -211,22 +262,26 @@ fn house(dir: &Path, seed: u64, nx: usize, nz: usize) -> House {
                 }
             }
         };
-        match door {
+        match opening {
             None => walls.cuboid(span(from, to, 0.0, HEIGHT)),
-            Some(c) => {
-                let (d0, d1) = (c - DOOR_WIDTH / 2.0, c + DOOR_WIDTH / 2.0);
+            Some([c, width, bottom, top]) => {
+                let (d0, d1) = (c - width / 2.0, c + width / 2.0);
                 walls.cuboid(span(from, d0, 0.0, HEIGHT));
                 walls.cuboid(span(d1, to, 0.0, HEIGHT));
-                walls.cuboid(span(d0, d1, DOOR_HEIGHT, HEIGHT));
+                walls.cuboid(span(d0, d1, top, HEIGHT));
+                if bottom > 0.0 {
+                    walls.cuboid(span(d0, d1, 0.0, bottom));
+                }
             }
         }
     };
+    let doorway = |c: f32| [c, DOOR_WIDTH, 0.0, DOOR_HEIGHT];
     // Inner wall lines: xs[1..nx] and zs[1..nz]; a line's segments span the rooms beside it.
     for (i, &x) in xs.iter().enumerate().take(nx).skip(1) {
         for (j, z) in zs.windows(2).enumerate() {
             let door = doors
                 .contains(&(room(i - 1, j), room(i, j)))
-                .then(|| rng.range(z[0] + 0.8, z[1] - 0.8));
+                .then(|| doorway(rng.range(z[0] + 0.8, z[1] - 0.8)));
             segment(true, x, z[0] - h, z[1] + h, door);
         }
     }
@@ -234,7 +289,7 @@ fn house(dir: &Path, seed: u64, nx: usize, nz: usize) -> House {
         for (i, x) in xs.windows(2).enumerate() {
             let door = doors
                 .contains(&(room(i, j - 1), room(i, j)))
-                .then(|| rng.range(x[0] + 0.8, x[1] - 0.8));
+                .then(|| doorway(rng.range(x[0] + 0.8, x[1] - 0.8)));
             segment(false, z, x[0] - h, x[1] + h, door);
         }
     }
@@ -255,24 +310,61 @@ fn house(dir: &Path, seed: u64, nx: usize, nz: usize) -> House {
         }
     }
 
-    // Lights: about half the rooms, never all of them, at least one.
-    let mut lit: Vec<bool> = (0..rooms.len()).map(|_| rng.chance(0.5)).collect();
-    if !lit.iter().any(|&l| l) {
-        lit[0] = true;
+    let lights: Vec<Value>;
+    let mut lit: Vec<bool>;
+    match lighting {
+        Lighting::Lamps => {
+            // Lights: about half the rooms, never all of them, at least one.
+            lit = (0..rooms.len()).map(|_| rng.chance(0.5)).collect();
+            if !lit.iter().any(|&l| l) {
+                lit[0] = true;
+            }
+            if lit.iter().all(|&l| l) {
+                let last = lit.len() - 1;
+                lit[last] = false;
+            }
+            lights = rooms
+                .iter()
+                .zip(&lit)
+                .filter(|(_, l)| **l)
+                .map(|(&([x0, z0], [x1, z1]), _)| {
+                    json!({"type": "point", "position": [(x0 + x1) / 2.0, HEIGHT - 0.4, (z0 + z1) / 2.0],
+                           "color": [1.0, 0.95, 0.85], "intensity": 10.0})
+                })
+                .collect();
+        }
+        Lighting::Daylight(light) => {
+            // The outer walls, a segment per room side (overlapping at the corners as the inner
+            // ones do), each with a window or not.
+            lit = vec![false; rooms.len()];
+            let window = |rng: &mut Rng, a: f32, b: f32| {
+                rng.chance(0.6).then(|| {
+                    let width = rng.range(1.0, 1.8).min(b - a - 1.0);
+                    [
+                        rng.range(a + 0.5 + width / 2.0, b - 0.5 - width / 2.0),
+                        width,
+                        SILL,
+                        DOOR_HEIGHT,
+                    ]
+                })
+            };
+            for (j, z) in zs.windows(2).enumerate() {
+                for (i, x) in [(0, xs[0]), (nx - 1, xs[nx])] {
+                    let w = window(&mut rng, z[0], z[1]);
+                    lit[room(i, j)] |= w.is_some();
+                    segment(true, x, z[0] - h, z[1] + h, w);
+                }
+            }
+            for (i, x) in xs.windows(2).enumerate() {
+                for (j, z) in [(0, zs[0]), (nz - 1, zs[nz])] {
+                    let w = window(&mut rng, x[0], x[1]);
+                    lit[room(i, j)] |= w.is_some();
+                    segment(false, z, x[0] - h, x[1] + h, w);
+                }
+            }
+            lights = vec![light()];
+        }
     }
-    if lit.iter().all(|&l| l) {
-        let last = lit.len() - 1;
-        lit[last] = false;
-    }
-    let lights: Vec<Value> = rooms
-        .iter()
-        .zip(&lit)
-        .filter(|(_, l)| **l)
-        .map(|(&([x0, z0], [x1, z1]), _)| {
-            json!({"type": "point", "position": [(x0 + x1) / 2.0, HEIGHT - 0.4, (z0 + z1) / 2.0],
-                   "color": [1.0, 0.95, 0.85], "intensity": 10.0})
-        })
-        .collect();
     let lights_path = dir.join("lights.json");
     std::fs::write(&lights_path, json!({ "lights": lights }).to_string()).unwrap();
 
@@ -370,9 +462,11 @@ struct Checked {
     /// light is most of that set): a leak is measured beyond it.
     reference_leak: f64,
     dark_rooms: Vec<(f64, f64, f64)>,
+    /// The reference's summed floor `E_ind` of the rooms with a light (or a window), averaged.
+    lit_floor: f64,
 }
 
-fn check(dir: &Path, house: &House, patches: u32) -> Checked {
+fn check(dir: &Path, house: &House, patches: u32, spp: u32) -> Checked {
     let baked = dir.join("house.bounce");
     // Baked from the scene's own directory by its bare file name, as a user in that directory
     // types it: the model packed into the file must find `house.bin` beside it (a bare name's
@@ -399,7 +493,13 @@ fn check(dir: &Path, house: &House, patches: u32) -> Checked {
         .arg(&house.gltf)
         .arg("--lights")
         .arg(&house.lights)
-        .args(["--spp", "512", "--json", "--quiet", "--patches-out"])
+        .args([
+            "--spp",
+            &spp.to_string(),
+            "--json",
+            "--quiet",
+            "--patches-out",
+        ])
         .arg(&csv));
     assert!(out.status.success(), "verify: {}", stderr(&out));
     let report: Value = serde_json::from_slice(&out.stdout).expect("verify --json prints JSON");
@@ -413,8 +513,11 @@ fn check(dir: &Path, house: &House, patches: u32) -> Checked {
     let mut sums = vec![(0.0f64, 0.0f64, 0.0f64); house.rooms.len()];
     let text = std::fs::read_to_string(&csv).expect("verify --patches-out wrote its CSV");
     for line in text.lines().skip(1) {
+        // The columns read here come before those verify leaves empty where it does not split
+        // (under a sky).
         let v: Vec<f64> = line
             .split(',')
+            .take(19)
             .map(|x| {
                 x.parse()
                     .unwrap_or_else(|e| panic!("verify's CSV: '{x}' in '{line}': {e}"))
@@ -445,6 +548,15 @@ fn check(dir: &Path, house: &House, patches: u32) -> Checked {
         noise: get("reference_rel_stderr"),
         leak: get("leak_share"),
         reference_leak: get("leak_reference_share"),
+        lit_floor: {
+            let lit: Vec<f64> = sums
+                .iter()
+                .zip(&house.lit)
+                .filter(|(_, lit)| **lit)
+                .map(|(s, _)| s.1)
+                .collect();
+            lit.iter().sum::<f64>() / lit.len().max(1) as f64
+        },
         dark_rooms: sums
             .into_iter()
             .zip(&house.lit)
@@ -463,16 +575,64 @@ const PATCHES_A_ROOM: u32 = 250;
 
 #[test]
 fn generated_interiors_against_the_reference() {
-    let mut table = String::from(
+    let (table, failures) =
+        houses_against_the_reference(Lighting::Lamps, &[(1, 2, 2), (2, 3, 2), (3, 3, 3)]);
+    println!("{table}");
+    assert!(failures.is_empty(), "{}\n{table}", failures.join("\n"));
+}
+
+#[test]
+fn daylit_interiors_against_the_reference() {
+    let (mut tables, mut failures) = (String::new(), Vec::new());
+    for light in [sun, sky] {
+        let (table, failed) = houses_against_the_reference(
+            Lighting::Daylight(light),
+            &[(1, 2, 2), (2, 3, 2), (3, 3, 3)],
+        );
+        tables.push_str(&table);
+        failures.extend(failed);
+    }
+    println!("{tables}");
+    assert!(failures.is_empty(), "{}\n{tables}", failures.join("\n"));
+}
+
+/// Bakes and verifies the houses `(seed, nx, nz)` under `lighting`: the README's table, and what
+/// no interior may do that they did.
+fn houses_against_the_reference(
+    lighting: Lighting,
+    houses: &[(u64, usize, usize)],
+) -> (String, Vec<String>) {
+    let mut table = match lighting {
+        Lighting::Lamps => "lamps in some rooms\n".to_string(),
+        Lighting::Daylight(light) => format!("daylight through windows: {}\n", light()),
+    };
+    table.push_str(
         "house  rooms  lit  patches  method  (noise removed)  ref. noise  leak (reference's)  dark rooms' floors, pipeline/reference\n",
     );
     let mut failures = Vec::new();
-    for (seed, nx, nz) in [(1u64, 2, 2), (2, 3, 2), (3, 3, 3)] {
+    for &(seed, nx, nz) in houses {
         let dir = tempfile::tempdir().unwrap();
-        let house = house(dir.path(), seed, nx, nz);
+        let house = house(dir.path(), seed, nx, nz, lighting);
+        if let Ok(keep) = std::env::var("BOUNCE_KEEP_HOUSES") {
+            let to = Path::new(&keep).join(format!("{}-{seed}", lighting.name()));
+            std::fs::create_dir_all(&to).unwrap();
+            for f in ["house.gltf", "house.bin", "lights.json"] {
+                std::fs::copy(dir.path().join(f), to.join(f)).unwrap();
+            }
+        }
         let patches = PATCHES_A_ROOM * house.rooms.len() as u32;
-        let c = check(dir.path(), &house, patches);
-        let ratios: Vec<f64> = c.dark_rooms.iter().map(|(p, r, _)| p / r).collect();
+        let c = check(dir.path(), &house, patches, lighting.paths());
+        let ratios: Vec<String> = c
+            .dark_rooms
+            .iter()
+            .map(|(p, r, _)| {
+                if *r > 0.0 {
+                    format!("{:.2}", p / r)
+                } else {
+                    format!("({:.4} of a lit room's, no path)", p / c.lit_floor)
+                }
+            })
+            .collect();
         let _ = writeln!(
             table,
             "{seed:>5}  {:>5}  {:>3}  {:>7}  {:>5.1}%  {:>14.1}%  {:>9.1}%  {:>4.2}% ({:>4.2}%)  {}",
@@ -484,11 +644,7 @@ fn generated_interiors_against_the_reference() {
             100.0 * c.noise,
             100.0 * c.leak,
             100.0 * c.reference_leak,
-            ratios
-                .iter()
-                .map(|r| format!("{r:.2}"))
-                .collect::<Vec<_>>()
-                .join(" "),
+            ratios.join(" "),
         );
         // The reference's own noise (about 7% at 512 paths) taken out: what is left is the
         // method's, 2-6% on these houses, against 23-55% with voxel faces on interiors like them.
@@ -513,13 +669,21 @@ fn generated_interiors_against_the_reference() {
         // half to twice the reference widened by three of its standard errors.
         for (k, (p, r, se)) in c.dark_rooms.iter().enumerate() {
             let (lo, hi) = (0.5 * (r - 3.0 * se), 2.0 * (r + 3.0 * se));
+            // A room three reflections from any sunlit surface (through two doorways) may get no
+            // path at all: nothing to compare with, but a room lit through a wall would still
+            // read a share of a lit room's floor.
+            let unresolved = *r == 0.0 && *se == 0.0 && *p < 1e-2 * c.lit_floor;
+            if unresolved {
+                continue;
+            }
             if *r <= 0.0 || !(lo..=hi).contains(p) {
                 failures.push(format!(
-                    "house {seed}: dark room {k}'s floor {p:.4} against the reference's {r:.4} ± {se:.4}"
+                    "house {seed}: dark room {k}'s floor {p:.4} against the reference's {r:.4} ± {se:.4} \
+                     (a lit room's {:.4})",
+                    c.lit_floor
                 ));
             }
         }
     }
-    println!("{table}");
-    assert!(failures.is_empty(), "{}\n{table}", failures.join("\n"));
+    (table, failures)
 }

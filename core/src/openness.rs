@@ -36,24 +36,27 @@ pub fn mean_distance(mesh: &TriMesh, p: Vec3, n: Vec3, extent: f32, reach: f32) 
 /// closed box), where glTF says no light can reach it and no eye can see it.
 fn look_around(mesh: &TriMesh, p: Vec3, n: Vec3, extent: f32, reach: f32) -> (f32, bool) {
     let origin = offset_origin(p, n, extent);
-    let (t, b) = n.any_orthonormal_pair();
-    let side = (RAYS as f32).sqrt() as u32;
     let mut sum = 0.0f32;
     let mut behind = 0;
     for k in 0..RAYS {
-        let (row, col) = (k / side, k % side);
-        let u1 = (row as f32 + 0.5) / side as f32;
-        // Each ring turned by a fraction of a step, so no azimuth repeats.
-        let u2 = ((col as f32 + 0.5) / side as f32 + row as f32 / (side * side) as f32).fract();
-        let r = u1.sqrt();
-        let phi = std::f32::consts::TAU * u2;
-        let dir = (t * (r * phi.cos()) + b * (r * phi.sin()) + n * (1.0 - u1).max(0.0).sqrt())
-            .normalize();
-        let hit = mesh.closest(origin, dir, reach);
+        let hit = mesh.closest(origin, direction(n, k), reach);
         behind += u32::from(hit.is_some_and(|h| !h.front && !h.double_sided));
         sum += hit.map_or(reach, |hit| hit.t);
     }
     (sum / RAYS as f32, behind >= ENCLOSED_SHARE * RAYS / 4)
+}
+
+/// Ray `k` of the 4 × 4 stratified cosine-weighted pattern about unit `n`.
+fn direction(n: Vec3, k: u32) -> Vec3 {
+    let (t, b) = n.any_orthonormal_pair();
+    let side = (RAYS as f32).sqrt() as u32;
+    let (row, col) = (k / side, k % side);
+    let u1 = (row as f32 + 0.5) / side as f32;
+    // Each ring turned by a fraction of a step, so no azimuth repeats.
+    let u2 = ((col as f32 + 0.5) / side as f32 + row as f32 / (side * side) as f32).fract();
+    let r = u1.sqrt();
+    let phi = std::f32::consts::TAU * u2;
+    (t * (r * phi.cos()) + b * (r * phi.sin()) + n * (1.0 - u1).max(0.0).sqrt()).normalize()
 }
 
 /// Of every four rays, how many must meet the back of a single-sided triangle for a part to be
@@ -95,6 +98,30 @@ pub fn probe(mesh: &TriMesh, p: Vec3, n: Vec3, extent: f32, voxel: f32) -> i8 {
     } else {
         class_of(d, voxel)
     }
+}
+
+/// Whether the surface at `p` facing `n` lies inside a closed solid, as [`probe`] decides it,
+/// tracing only the rays that take to decide it (a point in the open is settled after five).
+pub fn enclosed(mesh: &TriMesh, p: Vec3, n: Vec3, extent: f32, voxel: f32) -> bool {
+    let origin = offset_origin(p, n, extent);
+    let reach = voxel * REACH_VOXELS;
+    let needed = ENCLOSED_SHARE * RAYS / 4;
+    let (mut behind, mut other) = (0, 0);
+    for k in 0..RAYS {
+        let hit = mesh.closest(origin, direction(n, k), reach);
+        if hit.is_some_and(|h| !h.front && !h.double_sided) {
+            behind += 1;
+            if behind >= needed {
+                return true;
+            }
+        } else {
+            other += 1;
+            if other > RAYS - needed {
+                return false;
+            }
+        }
+    }
+    false
 }
 
 #[cfg(test)]
@@ -221,6 +248,32 @@ mod tests {
             probe(&mesh, Vec3::new(5.0, 0.0, 5.0), Vec3::Y, 10.0, 0.2),
             ENCLOSED
         );
+    }
+
+    /// `enclosed` stops tracing once the answer is settled; it must be `probe`'s answer.
+    #[test]
+    fn enclosed_decides_as_the_probe_does() {
+        let mut seen = [0; 2];
+        for double_sided in [false, true] {
+            let mesh = box_on_floor(double_sided);
+            for voxel in [0.2f32, 1.0] {
+                for i in 0..=40 {
+                    // Across the floor under the box and out beside it, and on its walls.
+                    let x = 3.0 + i as f32 * 0.1;
+                    for (p, n) in [
+                        (Vec3::new(x, 0.0, 5.0), Vec3::Y),
+                        (Vec3::new(x, 0.0, 4.01), Vec3::Y),
+                        (Vec3::new(4.0, x - 3.0, 5.0), Vec3::NEG_X),
+                        (Vec3::new(4.0, x - 3.0, 5.0), Vec3::X),
+                    ] {
+                        let e = enclosed(&mesh, p, n, 10.0, voxel);
+                        assert_eq!(e, probe(&mesh, p, n, 10.0, voxel) == ENCLOSED, "{p} {n}");
+                        seen[usize::from(e)] += 1;
+                    }
+                }
+            }
+        }
+        assert!(seen[0] > 0 && seen[1] > 0, "{seen:?}");
     }
 
     #[test]

@@ -22,7 +22,8 @@ use crate::rays::{RayFate, RayTally};
 pub use crate::sample::SamplePoint;
 use crate::scene::Scene;
 
-use crate::trimesh::{TriMesh, extent_of, offset_origin};
+use crate::openness;
+use crate::trimesh::{Hit, TriMesh, extent_of, offset_origin};
 
 /// Direct-light sample points per patch a bake stores unless asked otherwise. The near field's
 /// correction is as fine as the samples: on `pandora` 32 take the corridor light from 10.5% to
@@ -263,6 +264,46 @@ impl SurfaceScene {
         self.fate_at(origin, dir).0
     }
 
+    /// The row a ray that met surface side `hit` at `point` is credited to: the row whose piece
+    /// contains the point; else, on surface of no row, the row of the nearest piece of that
+    /// side within half a voxel, unless the point lies inside a closed solid.
+    ///
+    /// Parts inside closed solids are left out of every row (`openness::probe`), but a part is
+    /// tested as a whole, so one straddling a wall's foot leaves out the visible strip of floor
+    /// beside it too, and the rays that met that strip carried nothing: on a generated house
+    /// under a low sun, a wall's lowest patch read a quarter of its light (README, "Unseen
+    /// interiors"). A part is at most a lattice cell wide, a quarter voxel, so such a strip's
+    /// light is taken as its nearest piece's. A ray that slipped through a seam into a wall is
+    /// told apart by the same probe that left the surface out (and credited to nothing, or it
+    /// would carry light across the wall); further than half a voxel from any row's piece, the
+    /// surface is a dropped patch's, which carries nothing.
+    fn owner(&self, point: Vec3, hit: &Hit) -> Option<u32> {
+        let back = !hit.front;
+        if let Some(row) = self.owners.row_containing(point, hit.triangle, back) {
+            return Some(row);
+        }
+        let row = self
+            .owners
+            .nearest_within(point, hit.triangle, back, NEAREST_REACH)?;
+        let voxel = self.owners.size;
+        (!openness::enclosed(&self.mesh, point, hit.normal, self.extent, voxel)).then_some(row)
+    }
+
+    /// Whether a ray from a row sees another row's surface: as [`Self::fate`], except that
+    /// surface of no row is never credited to a piece beside it. A row whose rays reach only
+    /// surface left out as enclosed (the top of a wall under the ceiling slab) lies inside a
+    /// solid itself, and goes.
+    fn sees_a_row(&self, origin: Vec3, dir: Vec3) -> bool {
+        let Some(hit) = self.mesh.closest(origin, dir, f32::INFINITY) else {
+            return false;
+        };
+        self.sides[hit.triangle as usize][usize::from(!hit.front)]
+            && self
+                .owners
+                .row_containing(origin + dir * hit.t, hit.triangle, !hit.front)
+                .is_some()
+    }
+
     /// [`Self::fate`] and the surface the ray ended on: how far along `dir` (infinite when it
     /// escaped), the unit normal of the side met and its triangle's albedo.
     #[inline]
@@ -274,10 +315,7 @@ impl SurfaceScene {
         if !self.sides[hit.triangle as usize][usize::from(!hit.front)] {
             return (RayFate::BackFace, hit.t, hit.normal, albedo);
         }
-        let fate = match self
-            .owners
-            .row_at(origin + dir * hit.t, hit.triangle, !hit.front)
-        {
+        let fate = match self.owner(origin + dir * hit.t, &hit) {
             Some(j) => RayFate::Patch(j as usize),
             None => RayFate::Occluder,
         };
@@ -303,7 +341,7 @@ impl SurfaceScene {
             return None;
         }
         let point = origin + dir * hit.t;
-        let row = self.owners.row_at(point, hit.triangle, !hit.front)? as usize;
+        let row = self.owner(point, &hit)? as usize;
         Some(Landing {
             position: offset_origin(point, hit.normal, self.extent),
             normal: hit.normal,
@@ -402,7 +440,7 @@ impl SurfaceScene {
             return None;
         }
         let point = origin + dir * hit.t;
-        let j = self.owners.row_at(point, hit.triangle, !hit.front)?;
+        let j = self.owner(point, &hit)?;
         Some((
             point,
             hit.normal,
@@ -467,7 +505,7 @@ impl RowTracer for SurfaceScene {
         let s = row_seed(seed, row);
         (0..rays).any(|k| {
             let (origin, _, dir) = self.ray(row, k, PROBE_DIMENSION_SET, s);
-            matches!(self.fate(origin, dir), RayFate::Patch(_))
+            self.sees_a_row(origin, dir)
         })
     }
 }
@@ -511,6 +549,9 @@ struct Owned {
 const OUTSIDE: f32 = 1e-3;
 /// Sides with more pieces than this are searched in the hit's voxel first.
 const SCAN_ALL: usize = 16;
+/// How far (in voxels) a hit on surface of no row may lie from a piece of its side that a row
+/// owns and still be that row's ([`SurfaceScene::owner`]).
+const NEAREST_REACH: f32 = 0.5;
 
 impl Owners {
     fn new(scene: &Scene, rows: &PatchLayout, pieces: &Pieces) -> Owners {
@@ -553,11 +594,29 @@ impl Owners {
         }
     }
 
-    /// The row owning point `p` on `triangle`'s back (`back`) or front side, if any row does.
-    fn row_at(&self, p: Vec3, triangle: u32, back: bool) -> Option<u32> {
+    /// The row of the piece of `triangle`'s back (`back`) or front side nearest to `p`, if one
+    /// lies within `reach` voxels.
+    fn nearest_within(&self, p: Vec3, triangle: u32, back: bool, reach: f32) -> Option<u32> {
+        let reach = self.size * reach;
+        self.side(triangle, back)?
+            .iter()
+            .map(|o| (o.row, distance_to_triangle(p, o.corners)))
+            .filter(|&(_, d)| d <= reach)
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+            .map(|(row, _)| row)
+    }
+
+    /// The pieces of `triangle`'s back (`back`) or front side that rows own.
+    fn side(&self, triangle: u32, back: bool) -> Option<&[Owned]> {
         let slot = 2 * triangle as usize + usize::from(back);
         let (lo, hi) = (*self.start.get(slot)?, *self.start.get(slot + 1)?);
-        let all = &self.entries[lo as usize..hi as usize];
+        Some(&self.entries[lo as usize..hi as usize])
+    }
+
+    /// The row whose piece contains point `p` on `triangle`'s back (`back`) or front side, if
+    /// any row's does.
+    fn row_containing(&self, p: Vec3, triangle: u32, back: bool) -> Option<u32> {
+        let all = self.side(triangle, back)?;
         if all.len() > SCAN_ALL {
             let voxel = key(self.dims, cell(p, self.origin, self.size, self.dims));
             let from = all.partition_point(|o| o.voxel < voxel);
@@ -585,6 +644,43 @@ fn nearest(owned: &[Owned], p: Vec3) -> Option<(u32, f32)> {
         }
     }
     best
+}
+
+/// The distance from `p` to the nearest point of triangle `[a, b, c]` (Ericson, "Real-Time
+/// Collision Detection", 5.1.5); infinite for a triangle with no area.
+fn distance_to_triangle(p: Vec3, [a, b, c]: [Vec3; 3]) -> f32 {
+    let (ab, ac, ap) = (b - a, c - a, p - a);
+    if ab.cross(ac).length_squared() <= 0.0 {
+        return f32::INFINITY;
+    }
+    let (d1, d2) = (ab.dot(ap), ac.dot(ap));
+    if d1 <= 0.0 && d2 <= 0.0 {
+        return p.distance(a);
+    }
+    let bp = p - b;
+    let (d3, d4) = (ab.dot(bp), ac.dot(bp));
+    if d3 >= 0.0 && d4 <= d3 {
+        return p.distance(b);
+    }
+    let vc = d1 * d4 - d3 * d2;
+    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
+        return p.distance(a + ab * (d1 / (d1 - d3)));
+    }
+    let cp = p - c;
+    let (d5, d6) = (ab.dot(cp), ac.dot(cp));
+    if d6 >= 0.0 && d5 <= d6 {
+        return p.distance(c);
+    }
+    let vb = d5 * d2 - d1 * d6;
+    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
+        return p.distance(a + ac * (d2 / (d2 - d6)));
+    }
+    let va = d3 * d6 - d5 * d4;
+    if va <= 0.0 && d4 - d3 >= 0.0 && d5 - d6 >= 0.0 {
+        return p.distance(b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6))));
+    }
+    let denom = 1.0 / (va + vb + vc);
+    p.distance(a + ab * (vb * denom) + ac * (vc * denom))
 }
 
 /// The smallest barycentric coordinate of `p` (projected onto the triangle's plane) in triangle
