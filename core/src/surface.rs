@@ -8,7 +8,8 @@
 //! row owning the piece it met: the piece of that side of that triangle which contains the hit
 //! point, found exactly rather than from the voxel, so the rows may cut a voxel's surface however
 //! they like. A ray that escapes, meets the back of a single-sided triangle, or meets surface that
-//! belongs to no row (a dropped patch's) carries nothing. So a row sums to
+//! belongs to no row (a dropped patch's) carries nothing; visible surface left out with an
+//! enclosed part beside it goes to its nearest piece ([`SurfaceScene`]'s `owner`). So a row sums to
 //! at most 1, and its samples depend on its index and the seed alone. The directions of the rays
 //! that escape make the row's view of the sky ([`crate::sky`]).
 
