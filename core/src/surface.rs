@@ -267,7 +267,8 @@ impl SurfaceScene {
 
     /// The row a ray that met surface side `hit` at `point` is credited to: the row whose piece
     /// contains the point; else, on surface of no row, the row of the nearest piece of that
-    /// side within half a voxel, unless the point lies inside a closed solid.
+    /// side within half a voxel and in view of the point, unless the point lies inside a closed
+    /// solid.
     ///
     /// Parts inside closed solids are left out of every row (`openness::probe`), but a part is
     /// tested as a whole, so one straddling a wall's foot leaves out the visible strip of floor
@@ -283,9 +284,20 @@ impl SurfaceScene {
         if let Some(row) = self.owners.row_containing(point, hit.triangle, back) {
             return Some(row);
         }
-        let row = self
-            .owners
-            .nearest_within(point, hit.triangle, back, NEAREST_REACH)?;
+        let (row, nearest) =
+            self.owners
+                .nearest_within(point, hit.triangle, back, NEAREST_REACH)?;
+        // The piece must be in view along the surface: the nearest owned floor may be the
+        // other room's, across a wall thinner than the strip left out.
+        let (from, to) = (
+            offset_origin(point, hit.normal, self.extent),
+            offset_origin(nearest, hit.normal, self.extent),
+        );
+        let gap = to - from;
+        let length = gap.length();
+        if length > 0.0 && self.mesh.occluded(from, gap / length, length) {
+            return None;
+        }
         let voxel = self.owners.size;
         (!openness::enclosed(&self.mesh, point, hit.normal, self.extent, voxel)).then_some(row)
     }
@@ -596,15 +608,21 @@ impl Owners {
     }
 
     /// The row of the piece of `triangle`'s back (`back`) or front side nearest to `p`, if one
-    /// lies within `reach` voxels.
-    fn nearest_within(&self, p: Vec3, triangle: u32, back: bool, reach: f32) -> Option<u32> {
+    /// lies within `reach` voxels, and that piece's point nearest to `p`.
+    fn nearest_within(
+        &self,
+        p: Vec3,
+        triangle: u32,
+        back: bool,
+        reach: f32,
+    ) -> Option<(u32, Vec3)> {
         let reach = self.size * reach;
         self.side(triangle, back)?
             .iter()
-            .map(|o| (o.row, distance_to_triangle(p, o.corners)))
-            .filter(|&(_, d)| d <= reach)
-            .min_by(|a, b| a.1.total_cmp(&b.1))
-            .map(|(row, _)| row)
+            .filter_map(|o| closest_on_triangle(p, o.corners).map(|q| (o.row, q, p.distance(q))))
+            .filter(|&(_, _, d)| d <= reach)
+            .min_by(|a, b| a.2.total_cmp(&b.2))
+            .map(|(row, q, _)| (row, q))
     }
 
     /// The pieces of `triangle`'s back (`back`) or front side that rows own.
@@ -647,41 +665,41 @@ fn nearest(owned: &[Owned], p: Vec3) -> Option<(u32, f32)> {
     best
 }
 
-/// The distance from `p` to the nearest point of triangle `[a, b, c]` (Ericson, "Real-Time
-/// Collision Detection", 5.1.5); infinite for a triangle with no area.
-fn distance_to_triangle(p: Vec3, [a, b, c]: [Vec3; 3]) -> f32 {
+/// The nearest point to `p` of triangle `[a, b, c]` (Ericson, "Real-Time Collision Detection",
+/// 5.1.5); `None` for a triangle with no area.
+fn closest_on_triangle(p: Vec3, [a, b, c]: [Vec3; 3]) -> Option<Vec3> {
     let (ab, ac, ap) = (b - a, c - a, p - a);
     if ab.cross(ac).length_squared() <= 0.0 {
-        return f32::INFINITY;
+        return None;
     }
     let (d1, d2) = (ab.dot(ap), ac.dot(ap));
     if d1 <= 0.0 && d2 <= 0.0 {
-        return p.distance(a);
+        return Some(a);
     }
     let bp = p - b;
     let (d3, d4) = (ab.dot(bp), ac.dot(bp));
     if d3 >= 0.0 && d4 <= d3 {
-        return p.distance(b);
+        return Some(b);
     }
     let vc = d1 * d4 - d3 * d2;
     if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
-        return p.distance(a + ab * (d1 / (d1 - d3)));
+        return Some(a + ab * (d1 / (d1 - d3)));
     }
     let cp = p - c;
     let (d5, d6) = (ab.dot(cp), ac.dot(cp));
     if d6 >= 0.0 && d5 <= d6 {
-        return p.distance(c);
+        return Some(c);
     }
     let vb = d5 * d2 - d1 * d6;
     if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
-        return p.distance(a + ac * (d2 / (d2 - d6)));
+        return Some(a + ac * (d2 / (d2 - d6)));
     }
     let va = d3 * d6 - d5 * d4;
     if va <= 0.0 && d4 - d3 >= 0.0 && d5 - d6 >= 0.0 {
-        return p.distance(b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6))));
+        return Some(b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6))));
     }
     let denom = 1.0 / (va + vb + vc);
-    p.distance(a + ab * (vb * denom) + ac * (vc * denom))
+    Some(a + ab * (vb * denom) + ac * (vc * denom))
 }
 
 /// The smallest barycentric coordinate of `p` (projected onto the triangle's plane) in triangle
