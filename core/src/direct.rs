@@ -36,6 +36,7 @@ use glam::Vec3;
 use rayon::prelude::*;
 
 use crate::light::{Light, LightSet, unit_vector};
+use crate::occluder::{OccluderMap, OccluderMaps};
 use crate::patch::{Face, PatchLayout, Quad};
 use crate::rays::{MAX_GRID_TRACER_CELLS, RayScene, Tracer};
 use crate::surface::{SamplePoint, SurfaceData};
@@ -71,6 +72,7 @@ enum Shadows {
     Surface {
         mesh: TriMesh,
         surface: SurfaceData,
+        occluders: OccluderMaps,
     },
 }
 
@@ -78,11 +80,39 @@ impl ShadowScene {
     /// The scene of a surface-geometry bake: shadow rays from its stored sample points against
     /// its triangles (a BVH).
     pub fn surface(surface: &SurfaceData) -> ShadowScene {
+        let mesh = surface.mesh();
         ShadowScene {
             inner: Shadows::Surface {
-                mesh: surface.mesh(),
+                occluders: OccluderMaps::new(&mesh),
+                mesh,
                 surface: surface.clone(),
             },
+        }
+    }
+
+    /// Sets the resolution of the occluder maps that spare the CPU's shadow rays on a surface
+    /// scene ([`crate::occluder`]: cells a side of a cube face; 0 traces every ray). The values
+    /// are the same bits at any resolution, only their cost changes. No effect on a voxel-face
+    /// scene.
+    pub fn set_occluder_resolution(&mut self, res: u32) {
+        if let Shadows::Surface { occluders, .. } = &mut self.inner {
+            occluders.set_resolution(res);
+        }
+    }
+
+    /// How many occluder maps the scene keeps now (0 on a voxel-face scene).
+    pub fn occluder_maps_kept(&self) -> usize {
+        match &self.inner {
+            Shadows::Surface { occluders, .. } => occluders.kept(),
+            Shadows::Voxels { .. } => 0,
+        }
+    }
+
+    /// The occluder maps' resolution (0 where every ray is traced, as on a voxel-face scene).
+    pub fn occluder_resolution(&self) -> u32 {
+        match &self.inner {
+            Shadows::Surface { occluders, .. } => occluders.resolution(),
+            Shadows::Voxels { .. } => 0,
         }
     }
 
@@ -460,14 +490,21 @@ pub fn direct_irradiance(
         .iter()
         .filter_map(PreparedLight::new)
         .collect();
-    if let Shadows::Surface { mesh, surface } = &scene.inner {
+    if let Shadows::Surface {
+        mesh,
+        surface,
+        occluders,
+    } = &scene.inner
+    {
         // Only the samples spread by area make the mean; landing samples serve the near field.
         let count = surface.mean_count(samples.clamp(1, surface.per_patch) as usize);
+        let maps = occluders.for_lights(mesh, &prepared);
+        let shadows = Shadowing { mesh, maps: &maps };
         return (0..layout.len())
             .into_par_iter()
             .map_init(
                 || ShadowCache::new(prepared.len()),
-                |cache, i| surface_irradiance(mesh, &surface.samples(i)[..count], &prepared, cache),
+                |cache, i| shadows.mean_irradiance(&surface.samples(i)[..count], &prepared, cache),
             )
             .collect();
     }
@@ -494,14 +531,62 @@ pub fn surface_irradiance(
     lights: &[PreparedLight],
     cache: &mut ShadowCache,
 ) -> [f32; 3] {
-    if lights.is_empty() || samples.is_empty() {
-        return [0.0; 3];
+    Shadowing { mesh, maps: &[] }.mean_irradiance(samples, lights, cache)
+}
+
+/// What a surface scene's shadow rays are answered from: the occluder maps of the light set's
+/// lights where they prove a ray blocked (one per prepared light, in order, or none at all),
+/// else the triangles.
+#[derive(Clone, Copy)]
+struct Shadowing<'a> {
+    mesh: &'a TriMesh,
+    maps: &'a [Option<std::sync::Arc<OccluderMap>>],
+}
+
+impl Shadowing<'_> {
+    /// [`surface_irradiance`] with the maps.
+    fn mean_irradiance(
+        &self,
+        samples: &[SamplePoint],
+        lights: &[PreparedLight],
+        cache: &mut ShadowCache,
+    ) -> [f32; 3] {
+        if lights.is_empty() || samples.is_empty() {
+            return [0.0; 3];
+        }
+        let mut sum = Vec3::ZERO;
+        for s in samples {
+            sum += Vec3::from(self.point_irradiance(s, lights, cache));
+        }
+        mean_of(sum, samples.len())
     }
-    let mut sum = Vec3::ZERO;
-    for s in samples {
-        sum += Vec3::from(point_irradiance(mesh, s, lights, cache));
+
+    /// One sample point's irradiance: its lights summed in light order, kept finite.
+    fn point_irradiance(
+        &self,
+        s: &SamplePoint,
+        lights: &[PreparedLight],
+        cache: &mut ShadowCache,
+    ) -> [f32; 3] {
+        let (p, n) = (Vec3::from(s.position), Vec3::from(s.normal));
+        let mut e = Vec3::ZERO;
+        for (k, (light, recent)) in lights.iter().zip(cache.0.iter_mut()).enumerate() {
+            if let Some(l) = light_sample(light, p, n) {
+                let proved = self
+                    .maps
+                    .get(k)
+                    .and_then(Option::as_ref)
+                    .and_then(|m| m.blocker(p, l.distance));
+                let blocker =
+                    proved.or_else(|| self.mesh.blocker(p, l.dir, l.distance * SHADOW_END, recent));
+                match blocker {
+                    Some(b) => remember(recent, b),
+                    None => e += l.irradiance,
+                }
+            }
+        }
+        e.min(Vec3::splat(f32::MAX)).to_array()
     }
-    mean_of(sum, samples.len())
 }
 
 /// Direct irradiance at each of `samples` (the values [`surface_irradiance`] averages).
@@ -511,9 +596,10 @@ pub fn sample_irradiance(
     lights: &[PreparedLight],
     cache: &mut ShadowCache,
 ) -> Vec<[f32; 3]> {
+    let shadows = Shadowing { mesh, maps: &[] };
     samples
         .iter()
-        .map(|s| point_irradiance(mesh, s, lights, cache))
+        .map(|s| shadows.point_irradiance(s, lights, cache))
         .collect()
 }
 
@@ -554,26 +640,6 @@ fn mean_of(sum: Vec3, count: usize) -> [f32; 3] {
     (sum / count as f32).min(Vec3::splat(f32::MAX)).to_array()
 }
 
-/// One sample point's irradiance: its lights summed in light order, kept finite.
-fn point_irradiance(
-    mesh: &TriMesh,
-    s: &SamplePoint,
-    lights: &[PreparedLight],
-    cache: &mut ShadowCache,
-) -> [f32; 3] {
-    let (p, n) = (Vec3::from(s.position), Vec3::from(s.normal));
-    let mut e = Vec3::ZERO;
-    for (light, recent) in lights.iter().zip(cache.0.iter_mut()) {
-        if let Some(l) = light_sample(light, p, n) {
-            match mesh.blocker(p, l.dir, l.distance * SHADOW_END, recent) {
-                Some(b) => remember(recent, b),
-                None => e += l.irradiance,
-            }
-        }
-    }
-    e.min(Vec3::splat(f32::MAX)).to_array()
-}
-
 /// Direct light of a surface scene on every transport row of `layout` and at every one of its
 /// first `samples` sample points (clamped to what the file stores), for the near-field
 /// correction: per row the mean (as [`direct_irradiance`] gives it) and per row its samples'
@@ -584,7 +650,12 @@ pub fn direct_with_samples(
     lights: &LightSet,
     samples: u32,
 ) -> Option<SampledDirect> {
-    let Shadows::Surface { mesh, surface } = &scene.inner else {
+    let Shadows::Surface {
+        mesh,
+        surface,
+        occluders,
+    } = &scene.inner
+    else {
         return None;
     };
     assert_eq!(
@@ -610,6 +681,8 @@ pub fn direct_with_samples(
     if prepared.is_empty() || count == 0 {
         return Some(out);
     }
+    let maps = occluders.for_lights(mesh, &prepared);
+    let shadows = Shadowing { mesh, maps: &maps };
     // Written in place, a row's samples and its mean by one thread: no allocation per row, and
     // the same values in the same order as before (the cache changes what a ray costs, never
     // its answer).
@@ -626,7 +699,7 @@ pub fn direct_with_samples(
                     .zip(&surface.samples(i)[..count])
                     .enumerate()
                 {
-                    *v = point_irradiance(mesh, s, &prepared, cache);
+                    *v = shadows.point_irradiance(s, &prepared, cache);
                     if k < averaged {
                         sum += Vec3::from(*v);
                     }

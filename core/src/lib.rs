@@ -29,6 +29,7 @@ pub use bounce_types::sh;
 pub mod matrix;
 pub mod meta;
 pub mod nearfield;
+pub mod occluder;
 pub mod openness;
 pub mod patch;
 pub mod pointwise;

@@ -709,6 +709,15 @@ impl Scene {
         self.near = None;
     }
 
+    /// Trace every CPU shadow ray from now on, without occluder maps
+    /// (`bounce_core::occluder`): the same values at their old cost, which is how `bounce
+    /// bench engines` shows what the maps spare. No effect where direct light runs on the GPU.
+    pub fn trace_every_shadow_ray(&mut self) {
+        if let DirectLight::Cpu(shadow, _) = &mut self.direct {
+            shadow.set_occluder_resolution(0);
+        }
+    }
+
     /// Whether the later bounces carry the near field's correction: the product takes
     /// `B0 + ρ ⊙ ΔE` ([`carried_source`]) rather than `B0`. True for a scene with a near field
     /// and a transport of more than one bounce.
