@@ -135,8 +135,11 @@ struct MapKey {
 }
 
 /// Maps kept per scene: a light set's lights and the last few sets' (about 0.8 MB a map at
-/// the default resolution), and as many places of lights seen once.
+/// the default resolution).
 pub const KEPT_MAPS: usize = 16;
+/// Places of lights seen once kept per scene: two full light sets' worth, so that a set of
+/// many lights finds its own from the time before (16 bytes each).
+const SEEN_PLACES: usize = 2 * crate::light::MAX_LIGHTS;
 
 impl OccluderMaps {
     /// The maps of `mesh`, built [`DEFAULT_RESOLUTION`] cells a side.
@@ -177,17 +180,35 @@ impl OccluderMaps {
         if self.res == 0 {
             return Vec::new();
         }
-        lights.iter().map(|l| self.for_light(mesh, l)).collect()
+        let keys: Vec<MapKey> = lights.iter().map(|l| self.key(l)).collect();
+        lights
+            .iter()
+            .zip(&keys)
+            .map(|(l, &key)| self.for_light(mesh, l, key, &keys))
+            .collect()
     }
 
-    fn for_light(&self, mesh: &TriMesh, light: &PreparedLight) -> Option<Arc<OccluderMap>> {
+    fn key(&self, light: &PreparedLight) -> MapKey {
         let beam = light.kind == LightKind::Directional;
         let place = if beam { light.axis } else { light.position };
-        let key = MapKey {
+        MapKey {
             beam,
             place: place.to_array().map(f32::to_bits),
             res: self.res,
-        };
+        }
+    }
+
+    /// The map of `light` (whose key is `key`), built if this is its second time and there is
+    /// room: a map evicts the oldest kept map no light of this set (`set`) uses, so a set of
+    /// more lights than [`KEPT_MAPS`] keeps maps for some of them instead of rebuilding them
+    /// all in turn.
+    fn for_light(
+        &self,
+        mesh: &TriMesh,
+        light: &PreparedLight,
+        key: MapKey,
+        set: &[MapKey],
+    ) -> Option<Arc<OccluderMap>> {
         {
             // A poisoned lock only means another thread panicked while holding it: what it
             // holds is whole (a map is built before it is inserted).
@@ -197,10 +218,15 @@ impl OccluderMaps {
             }
             match recent.seen.iter().position(|k| *k == key) {
                 Some(at) => {
+                    if recent.maps.len() >= KEPT_MAPS
+                        && recent.maps.iter().all(|(k, _)| set.contains(k))
+                    {
+                        return None;
+                    }
                     recent.seen.remove(at);
                 }
                 None => {
-                    if recent.seen.len() >= KEPT_MAPS {
+                    if recent.seen.len() >= SEEN_PLACES {
                         recent.seen.pop_front();
                     }
                     recent.seen.push_back(key);
@@ -211,7 +237,13 @@ impl OccluderMaps {
         let map = Arc::new(OccluderMap::new(mesh, &self.tree, light, self.res)?);
         let mut recent = self.recent.lock().unwrap_or_else(|e| e.into_inner());
         if recent.maps.len() >= KEPT_MAPS {
-            recent.maps.pop_front();
+            match recent.maps.iter().position(|(k, _)| !set.contains(k)) {
+                Some(at) => {
+                    recent.maps.remove(at);
+                }
+                // Another thread's set filled the room meanwhile: use the map, keep none.
+                None => return Some(map),
+            }
         }
         recent.maps.push_back((key, Arc::clone(&map)));
         Some(map)
@@ -1178,6 +1210,23 @@ mod tests {
             assert!(maps.for_lights(&mesh, &[point(0.01 * k as f32, 1.0)])[0].is_none() || k == 0);
         }
         assert!(maps.kept() <= KEPT_MAPS);
+        // A set of more lights than there is room for keeps maps for some of them, the same
+        // ones from one time to the next, rather than rebuilding them in turn.
+        let many: Vec<PreparedLight> = (0..KEPT_MAPS + 4)
+            .map(|k| point(-0.9 + 0.05 * k as f32, 1.0))
+            .collect();
+        maps.for_lights(&mesh, &many);
+        let second = maps.for_lights(&mesh, &many);
+        let third = maps.for_lights(&mesh, &many);
+        assert_eq!(second.iter().flatten().count(), KEPT_MAPS);
+        for (a, b) in second.iter().zip(&third) {
+            match (a, b) {
+                (Some(a), Some(b)) => assert!(Arc::ptr_eq(a, b)),
+                (None, None) => {}
+                _ => panic!("a light's map came or went between two asks of the same set"),
+            }
+        }
+        assert_eq!(maps.kept(), KEPT_MAPS);
         maps.set_resolution(0);
         assert!(maps.for_lights(&mesh, &[point(0.0, 1.0)]).is_empty());
         assert_eq!(maps.kept(), 0);
