@@ -36,7 +36,7 @@ use glam::Vec3;
 use rayon::prelude::*;
 
 use crate::light::{Light, LightSet, unit_vector};
-use crate::occluder::{OccluderMap, OccluderMaps};
+use crate::occluder::{LightPlace, OccluderMap, OccluderMaps};
 use crate::patch::{Face, PatchLayout, Quad};
 use crate::rays::{MAX_GRID_TRACER_CELLS, RayScene, Tracer};
 use crate::surface::{SamplePoint, SurfaceData};
@@ -83,7 +83,7 @@ impl ShadowScene {
         let mesh = surface.mesh();
         ShadowScene {
             inner: Shadows::Surface {
-                occluders: OccluderMaps::new(&mesh),
+                occluders: OccluderMaps::new(&mesh, SHADOW_END),
                 mesh,
                 surface: surface.clone(),
             },
@@ -498,7 +498,7 @@ pub fn direct_irradiance(
     {
         // Only the samples spread by area make the mean; landing samples serve the near field.
         let count = surface.mean_count(samples.clamp(1, surface.per_patch) as usize);
-        let maps = occluders.for_lights(mesh, &prepared);
+        let maps = occluders.for_lights(mesh, &places(&prepared));
         let shadows = Shadowing { mesh, maps: &maps };
         return (0..layout.len())
             .into_par_iter()
@@ -532,6 +532,17 @@ pub fn surface_irradiance(
     cache: &mut ShadowCache,
 ) -> [f32; 3] {
     Shadowing { mesh, maps: &[] }.mean_irradiance(samples, lights, cache)
+}
+
+/// Where each light's shadow rays run, for its occluder map.
+fn places(lights: &[PreparedLight]) -> Vec<LightPlace> {
+    lights
+        .iter()
+        .map(|l| match l.kind {
+            LightKind::Directional => LightPlace::Beam(l.axis),
+            LightKind::Point | LightKind::Spot => LightPlace::Point(l.position),
+        })
+        .collect()
 }
 
 /// What a surface scene's shadow rays are answered from: the occluder maps of the light set's
@@ -681,7 +692,7 @@ pub fn direct_with_samples(
     if prepared.is_empty() || count == 0 {
         return Some(out);
     }
-    let maps = occluders.for_lights(mesh, &prepared);
+    let maps = occluders.for_lights(mesh, &places(&prepared));
     let shadows = Shadowing { mesh, maps: &maps };
     // Written in place, a row's samples and its mean by one thread: no allocation per row, and
     // the same values in the same order as before (the cache changes what a ray costs, never

@@ -44,7 +44,6 @@ use std::sync::{Arc, Mutex};
 use glam::Vec3;
 use rayon::prelude::*;
 
-use crate::direct::{LightKind, PreparedLight, SHADOW_END};
 use crate::trimesh::{MeshNode, MeshTri, TriMesh};
 
 /// The margin around a cell, in cells, that a covering triangle must also cover.
@@ -106,6 +105,15 @@ impl OccluderTree {
     }
 }
 
+/// What a map is built for: where a light's shadow rays run.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum LightPlace {
+    /// A point or spot light at this position: rays run to it.
+    Point(Vec3),
+    /// A directional light whose light travels along this unit axis: rays run against it.
+    Beam(Vec3),
+}
+
 /// A scene's occluder maps: its tree, the resolution maps are built at, and the maps of the
 /// lights last asked for. A map depends only on the triangles, the light's place (a point or
 /// spot light's position, a directional light's direction) and the resolution, never on its
@@ -115,6 +123,7 @@ impl OccluderTree {
 pub struct OccluderMaps {
     tree: OccluderTree,
     res: u32,
+    shadow_end: f32,
     recent: Mutex<Recent>,
 }
 
@@ -142,11 +151,13 @@ pub const KEPT_MAPS: usize = 16;
 const SEEN_PLACES: usize = 2 * crate::light::MAX_LIGHTS;
 
 impl OccluderMaps {
-    /// The maps of `mesh`, built [`DEFAULT_RESOLUTION`] cells a side.
-    pub fn new(mesh: &TriMesh) -> OccluderMaps {
+    /// The maps of `mesh`, built [`DEFAULT_RESOLUTION`] cells a side, for shadow rays
+    /// traced up to `shadow_end` of a point light's distance (`crate::direct::SHADOW_END`).
+    pub fn new(mesh: &TriMesh, shadow_end: f32) -> OccluderMaps {
         OccluderMaps {
             tree: OccluderTree::new(mesh),
             res: DEFAULT_RESOLUTION,
+            shadow_end,
             recent: Mutex::new(Recent::default()),
         }
     }
@@ -166,7 +177,7 @@ impl OccluderMaps {
         *self.recent.get_mut().unwrap_or_else(|e| e.into_inner()) = Recent::default();
     }
 
-    /// The maps of a light set's prepared lights over `mesh` (the mesh these maps were made
+    /// The maps of a light set's lights (where their rays run) over `mesh` (the mesh these maps were made
     /// for), in their order; none at all at resolution 0. A light gets a map the second time
     /// its place is asked for, and keeps it while it is among the last [`KEPT_MAPS`]: on
     /// `pandora` a map costs about what it spares one light set (README, "Occluder maps"),
@@ -175,7 +186,7 @@ impl OccluderMaps {
     pub fn for_lights(
         &self,
         mesh: &TriMesh,
-        lights: &[PreparedLight],
+        lights: &[LightPlace],
     ) -> Vec<Option<Arc<OccluderMap>>> {
         if self.res == 0 {
             return Vec::new();
@@ -188,9 +199,11 @@ impl OccluderMaps {
             .collect()
     }
 
-    fn key(&self, light: &PreparedLight) -> MapKey {
-        let beam = light.kind == LightKind::Directional;
-        let place = if beam { light.axis } else { light.position };
+    fn key(&self, light: &LightPlace) -> MapKey {
+        let (beam, place) = match *light {
+            LightPlace::Point(p) => (false, p),
+            LightPlace::Beam(axis) => (true, axis),
+        };
         MapKey {
             beam,
             place: place.to_array().map(f32::to_bits),
@@ -205,7 +218,7 @@ impl OccluderMaps {
     fn for_light(
         &self,
         mesh: &TriMesh,
-        light: &PreparedLight,
+        light: &LightPlace,
         key: MapKey,
         set: &[MapKey],
     ) -> Option<Arc<OccluderMap>> {
@@ -234,7 +247,13 @@ impl OccluderMaps {
                 }
             }
         }
-        let map = Arc::new(OccluderMap::new(mesh, &self.tree, light, self.res)?);
+        let map = Arc::new(OccluderMap::new(
+            mesh,
+            &self.tree,
+            light,
+            self.res,
+            self.shadow_end,
+        )?);
         let mut recent = self.recent.lock().unwrap_or_else(|e| e.into_inner());
         if recent.maps.len() >= KEPT_MAPS {
             match recent.maps.iter().position(|(k, _)| !set.contains(k)) {
@@ -305,12 +324,14 @@ struct Plane {
 
 impl OccluderMap {
     /// The map of `light` over `mesh`, `res` cells a side of a cube face (a beam takes as many
-    /// cells in all). `None` where it could answer nothing: an empty mesh, a zero resolution.
+    /// cells in all), for shadow rays traced up to `shadow_end` of a point light's distance.
+    /// `None` where it could answer nothing: an empty mesh, a zero resolution.
     pub fn new(
         mesh: &TriMesh,
         tree: &OccluderTree,
-        light: &PreparedLight,
+        light: &LightPlace,
         res: u32,
+        shadow_end: f32,
     ) -> Option<OccluderMap> {
         let root = tree.nodes.first()?;
         if res == 0 || mesh.is_empty() {
@@ -322,18 +343,18 @@ impl OccluderMap {
             .max_element()
             .max(magnitude)
             .max(f32::MIN_POSITIVE);
-        let projection = match light.kind {
-            LightKind::Point | LightKind::Spot => {
-                if !light.position.is_finite() {
+        let projection = match *light {
+            LightPlace::Point(position) => {
+                if !position.is_finite() {
                     return None;
                 }
                 Projection::Cube {
-                    light: light.position,
+                    light: position,
                     res,
                 }
             }
-            LightKind::Directional => {
-                let w = -light.axis;
+            LightPlace::Beam(axis) => {
+                let w = -axis;
                 let (u, v) = w.any_orthonormal_pair();
                 let corners = box_corners(lo, hi);
                 let (mut u0, mut u1, mut v0, mut v1) = (f32::MAX, f32::MIN, f32::MAX, f32::MIN);
@@ -367,7 +388,7 @@ impl OccluderMap {
         let mut map = OccluderMap {
             projection,
             faces: Vec::new(),
-            reach: NEAR_SHARE * scale * 0.5 / (1.0 - SHADOW_END),
+            reach: NEAR_SHARE * scale * 0.5 / (1.0 - shadow_end),
             slack: SCALE_MARGIN * scale,
         };
         let near = NEAR_SHARE * scale;
@@ -913,9 +934,16 @@ fn box_corners(lo: Vec3, hi: Vec3) -> [Vec3; 8] {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::direct::light_sample;
+    use crate::direct::{LightKind, PreparedLight, SHADOW_END, light_sample};
     use crate::light::Light;
     use crate::trimesh::{extent_of, intersect, offset_origin};
+
+    fn place(light: &PreparedLight) -> LightPlace {
+        match light.kind {
+            LightKind::Directional => LightPlace::Beam(light.axis),
+            LightKind::Point | LightKind::Spot => LightPlace::Point(light.position),
+        }
+    }
 
     /// A small deterministic generator (xorshift), so the scenes are the same on every run.
     struct Rng(u64);
@@ -1094,7 +1122,8 @@ mod tests {
         for res in [16, 64, 128, 256] {
             let (mut blocked, mut proved) = (0usize, 0usize);
             for light in &lights {
-                let map = OccluderMap::new(&mesh, &tree, light, res).expect("a map of a level");
+                let map = OccluderMap::new(&mesh, &tree, &place(light), res, SHADOW_END)
+                    .expect("a map of a level");
                 for &(p, n) in &points {
                     let Some(l) = light_sample(light, p, n) else {
                         continue;
@@ -1140,13 +1169,22 @@ mod tests {
         })
         .unwrap();
         let empty = TriMesh::new([]);
-        assert!(OccluderMap::new(&empty, &OccluderTree::new(&empty), &light, 64).is_none());
+        assert!(
+            OccluderMap::new(
+                &empty,
+                &OccluderTree::new(&empty),
+                &place(&light),
+                64,
+                SHADOW_END
+            )
+            .is_none()
+        );
         let mut t = Vec::new();
         cuboid(&mut t, Vec3::splat(-1.0), Vec3::new(1.0, 0.5, 1.0));
         let mesh = TriMesh::new(t.iter().map(|&t| (t, false)));
         let tree = OccluderTree::new(&mesh);
-        assert!(OccluderMap::new(&mesh, &tree, &light, 0).is_none());
-        let map = OccluderMap::new(&mesh, &tree, &light, 64).unwrap();
+        assert!(OccluderMap::new(&mesh, &tree, &place(&light), 0, SHADOW_END).is_none());
+        let map = OccluderMap::new(&mesh, &tree, &place(&light), 64, SHADOW_END).unwrap();
         let (covered, all) = map.coverage();
         assert!(covered > 0 && covered < all, "{covered} of {all}");
         // Under the box, seen through its top (off the diagonals its faces are cut along):
@@ -1166,7 +1204,7 @@ mod tests {
             name: None,
         })
         .unwrap();
-        let beam = OccluderMap::new(&mesh, &tree, &sun, 64).unwrap();
+        let beam = OccluderMap::new(&mesh, &tree, &place(&sun), 64, SHADOW_END).unwrap();
         assert!(beam.blocker(under, f32::INFINITY).is_some());
         // Beside the box's shadow, outside the grid: traced.
         assert!(
@@ -1198,16 +1236,20 @@ mod tests {
             })
             .unwrap()
         };
-        let mut maps = OccluderMaps::new(&mesh);
-        assert!(maps.for_lights(&mesh, &[point(0.0, 1.0)])[0].is_none());
-        let second = maps.for_lights(&mesh, &[point(0.0, 5.0)]);
-        let third = maps.for_lights(&mesh, &[point(0.0, 2.0)]);
+        let places = |lights: &[PreparedLight]| lights.iter().map(place).collect::<Vec<_>>();
+        let mut maps = OccluderMaps::new(&mesh, SHADOW_END);
+        assert!(maps.for_lights(&mesh, &places(&[point(0.0, 1.0)]))[0].is_none());
+        let second = maps.for_lights(&mesh, &places(&[point(0.0, 5.0)]));
+        let third = maps.for_lights(&mesh, &places(&[point(0.0, 2.0)]));
         let (Some(a), Some(b)) = (&second[0], &third[0]) else {
             panic!("a light asked for twice has a map");
         };
         assert!(Arc::ptr_eq(a, b), "the map is kept, not rebuilt");
         for k in 0..40 {
-            assert!(maps.for_lights(&mesh, &[point(0.01 * k as f32, 1.0)])[0].is_none() || k == 0);
+            assert!(
+                maps.for_lights(&mesh, &places(&[point(0.01 * k as f32, 1.0)]))[0].is_none()
+                    || k == 0
+            );
         }
         assert!(maps.kept() <= KEPT_MAPS);
         // A set of more lights than there is room for keeps maps for some of them, the same
@@ -1215,9 +1257,9 @@ mod tests {
         let many: Vec<PreparedLight> = (0..KEPT_MAPS + 4)
             .map(|k| point(-0.9 + 0.05 * k as f32, 1.0))
             .collect();
-        maps.for_lights(&mesh, &many);
-        let second = maps.for_lights(&mesh, &many);
-        let third = maps.for_lights(&mesh, &many);
+        maps.for_lights(&mesh, &places(&many));
+        let second = maps.for_lights(&mesh, &places(&many));
+        let third = maps.for_lights(&mesh, &places(&many));
         assert_eq!(second.iter().flatten().count(), KEPT_MAPS);
         for (a, b) in second.iter().zip(&third) {
             match (a, b) {
@@ -1228,7 +1270,10 @@ mod tests {
         }
         assert_eq!(maps.kept(), KEPT_MAPS);
         maps.set_resolution(0);
-        assert!(maps.for_lights(&mesh, &[point(0.0, 1.0)]).is_empty());
+        assert!(
+            maps.for_lights(&mesh, &places(&[point(0.0, 1.0)]))
+                .is_empty()
+        );
         assert_eq!(maps.kept(), 0);
     }
 }
