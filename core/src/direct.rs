@@ -263,6 +263,14 @@ pub enum LightKind {
 }
 
 impl PreparedLight {
+    /// Where its shadow rays run: what its occluder map is built for.
+    pub fn place(&self) -> LightPlace {
+        match self.kind {
+            LightKind::Directional => LightPlace::Beam(self.axis),
+            LightKind::Point | LightKind::Spot => LightPlace::Point(self.position),
+        }
+    }
+
     /// `None` for a light that cannot light anything: one that fails validation (so no
     /// non-finite value reaches the sums) or has zero intensity or colour; and for the sky, which
     /// is no punctual light: it reaches a row through the row's baked sky view
@@ -536,13 +544,7 @@ pub fn surface_irradiance(
 
 /// Where each light's shadow rays run, for its occluder map.
 fn places(lights: &[PreparedLight]) -> Vec<LightPlace> {
-    lights
-        .iter()
-        .map(|l| match l.kind {
-            LightKind::Directional => LightPlace::Beam(l.axis),
-            LightKind::Point | LightKind::Spot => LightPlace::Point(l.position),
-        })
-        .collect()
+    lights.iter().map(PreparedLight::place).collect()
 }
 
 /// What a surface scene's shadow rays are answered from: the occluder maps of the light set's

@@ -177,8 +177,8 @@ impl OccluderMaps {
         *self.recent.get_mut().unwrap_or_else(|e| e.into_inner()) = Recent::default();
     }
 
-    /// The maps of a light set's lights (where their rays run) over `mesh` (the mesh these maps were made
-    /// for), in their order; none at all at resolution 0. A light gets a map the second time
+    /// The maps of a light set's lights (where their rays run) over `mesh` (the mesh these
+    /// maps were made for), in their order; none at all at resolution 0. A light gets a map the second time
     /// its place is asked for, and keeps it while it is among the last [`KEPT_MAPS`]: on
     /// `pandora` a map costs about what it spares one light set (README, "Occluder maps"),
     /// so a light that moves every set (a lamp dragged across the room) is traced as
@@ -934,15 +934,12 @@ fn box_corners(lo: Vec3, hi: Vec3) -> [Vec3; 8] {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::direct::{LightKind, PreparedLight, SHADOW_END, light_sample};
+    use crate::direct::{PreparedLight, SHADOW_END, light_sample};
     use crate::light::Light;
     use crate::trimesh::{extent_of, intersect, offset_origin};
 
     fn place(light: &PreparedLight) -> LightPlace {
-        match light.kind {
-            LightKind::Directional => LightPlace::Beam(light.axis),
-            LightKind::Point | LightKind::Spot => LightPlace::Point(light.position),
-        }
+        light.place()
     }
 
     /// A small deterministic generator (xorshift), so the scenes are the same on every run.
