@@ -36,11 +36,11 @@ use glam::Vec3;
 use rayon::prelude::*;
 
 use crate::light::{Light, LightSet, unit_vector};
-use crate::occluder::{LightPlace, OccluderMap, OccluderMaps};
 use crate::patch::{Face, PatchLayout, Quad};
 use crate::rays::{MAX_GRID_TRACER_CELLS, RayScene, Tracer};
 use crate::surface::{SamplePoint, SurfaceData};
 use crate::trimesh::TriMesh;
+use crate::visibility::{DEFAULT_BUDGET, LightPlace, RowBits, VisibilityCache};
 
 /// Samples per patch unless asked otherwise: a 4 × 4 grid.
 pub const DEFAULT_SAMPLES: u32 = 16;
@@ -72,7 +72,7 @@ enum Shadows {
     Surface {
         mesh: TriMesh,
         surface: SurfaceData,
-        occluders: OccluderMaps,
+        visibility: VisibilityCache,
     },
 }
 
@@ -83,35 +83,35 @@ impl ShadowScene {
         let mesh = surface.mesh();
         ShadowScene {
             inner: Shadows::Surface {
-                occluders: OccluderMaps::new(&mesh, SHADOW_END),
+                visibility: VisibilityCache::new(DEFAULT_BUDGET),
                 mesh,
                 surface: surface.clone(),
             },
         }
     }
 
-    /// Sets the resolution of the occluder maps that spare the CPU's shadow rays on a surface
-    /// scene ([`crate::occluder`]: cells a side of a cube face; 0 traces every ray). The values
-    /// are the same bits at any resolution, only their cost changes. No effect on a voxel-face
-    /// scene.
-    pub fn set_occluder_resolution(&mut self, res: u32) {
-        if let Shadows::Surface { occluders, .. } = &mut self.inner {
-            occluders.set_resolution(res);
+    /// Sets how many bytes of shadow-ray answers a surface scene keeps from one light set to
+    /// the next ([`crate::visibility`]; 0 keeps none, so every ray is traced every time) and
+    /// forgets what it kept. The values are the same bits at any budget, only their cost
+    /// changes. No effect on a voxel-face scene.
+    pub fn set_visibility_budget(&mut self, bytes: usize) {
+        if let Shadows::Surface { visibility, .. } = &mut self.inner {
+            visibility.set_budget(bytes);
         }
     }
 
-    /// How many occluder maps the scene keeps now (0 on a voxel-face scene).
-    pub fn occluder_maps_kept(&self) -> usize {
+    /// The bytes of answers the scene may keep (0 on a voxel-face scene).
+    pub fn visibility_budget(&self) -> usize {
         match &self.inner {
-            Shadows::Surface { occluders, .. } => occluders.kept(),
+            Shadows::Surface { visibility, .. } => visibility.budget(),
             Shadows::Voxels { .. } => 0,
         }
     }
 
-    /// The occluder maps' resolution (0 where every ray is traced, as on a voxel-face scene).
-    pub fn occluder_resolution(&self) -> u32 {
+    /// How many light places' answers the scene keeps now (0 on a voxel-face scene).
+    pub fn visibility_kept(&self) -> usize {
         match &self.inner {
-            Shadows::Surface { occluders, .. } => occluders.resolution(),
+            Shadows::Surface { visibility, .. } => visibility.kept(),
             Shadows::Voxels { .. } => 0,
         }
     }
@@ -263,7 +263,7 @@ pub enum LightKind {
 }
 
 impl PreparedLight {
-    /// Where its shadow rays run: what its occluder map is built for.
+    /// Where its shadow rays run: what their answers depend on besides the sample points.
     pub fn place(&self) -> LightPlace {
         match self.kind {
             LightKind::Directional => LightPlace::Beam(self.axis),
@@ -382,6 +382,27 @@ pub fn spot_attenuation(cd: f32, angle_scale: f32, angle_offset: f32) -> f32 {
 /// is behind the surface, out of range or outside its cone (no ray needed then).
 #[inline]
 pub fn light_sample(light: &PreparedLight, p: Vec3, n: Vec3) -> Option<LightSample> {
+    match reach(light, p, n) {
+        Reach::Lit(s) => Some(s),
+        Reach::Away | Reach::Dark => None,
+    }
+}
+
+/// Whether a light reaches a point, and why not: a shadow-ray answer kept for a light's place
+/// ([`crate::visibility`]) may stand for "away", which no other light at that place changes,
+/// but not for "dark", which another range or cone does.
+enum Reach {
+    /// It would, if its shadow ray is open.
+    Lit(LightSample),
+    /// The light is behind the surface or on the point: so is any light at that place.
+    Away,
+    /// Out of the light's range or cone.
+    Dark,
+}
+
+/// [`light_sample`], saying why not.
+#[inline(always)]
+fn reach(light: &PreparedLight, p: Vec3, n: Vec3) -> Reach {
     let (dir, distance, scale) = match light.kind {
         LightKind::Directional => (-light.axis, f32::INFINITY, 1.0),
         LightKind::Point | LightKind::Spot => {
@@ -390,7 +411,7 @@ pub fn light_sample(light: &PreparedLight, p: Vec3, n: Vec3) -> Option<LightSamp
             let d = d2.sqrt();
             if !(d > 0.0 && d.is_finite()) {
                 // The light sits on the point: no direction to take a cosine with.
-                return None;
+                return Reach::Away;
             }
             let dir = to / d;
             let mut scale = range_window(d, light.inv_range) / d2;
@@ -403,10 +424,13 @@ pub fn light_sample(light: &PreparedLight, p: Vec3, n: Vec3) -> Option<LightSamp
     };
     let cos = n.dot(dir);
     // Zero factors end here, before they can meet an infinite product.
-    if !(cos > 0.0 && scale > 0.0) {
-        return None;
+    if cos.is_nan() || cos <= 0.0 {
+        return Reach::Away;
     }
-    Some(LightSample {
+    if scale.is_nan() || scale <= 0.0 {
+        return Reach::Dark;
+    }
+    Reach::Lit(LightSample {
         dir,
         distance,
         irradiance: light.radiant * (cos * scale),
@@ -501,20 +525,33 @@ pub fn direct_irradiance(
     if let Shadows::Surface {
         mesh,
         surface,
-        occluders,
+        visibility,
     } = &scene.inner
     {
         // Only the samples spread by area make the mean; landing samples serve the near field.
         let count = surface.mean_count(samples.clamp(1, surface.per_patch) as usize);
-        let maps = occluders.for_lights(mesh, &places(&prepared));
-        let shadows = Shadowing { mesh, maps: &maps };
-        return (0..layout.len())
-            .into_par_iter()
+        let places = places(&prepared);
+        let mut fresh = visibility.begin(&places, layout.len(), surface.per_patch as usize);
+        let (words, stride) = (fresh.tracked_words(), fresh.stride());
+        let shadows = Shadowing { mesh };
+        let mean = fresh
+            .bits
+            .par_chunks_mut(stride)
+            .enumerate()
             .map_init(
                 || ShadowCache::new(prepared.len()),
-                |cache, i| shadows.mean_irradiance(&surface.samples(i)[..count], &prepared, cache),
+                |cache, (i, chunk)| {
+                    shadows.mean_irradiance(
+                        &surface.samples(i)[..count],
+                        &prepared,
+                        cache,
+                        &mut RowBits::new(words, chunk),
+                    )
+                },
             )
             .collect();
+        visibility.keep(&places, fresh);
+        return mean;
     }
     let side = samples_side(samples);
     (0..layout.len())
@@ -539,63 +576,73 @@ pub fn surface_irradiance(
     lights: &[PreparedLight],
     cache: &mut ShadowCache,
 ) -> [f32; 3] {
-    Shadowing { mesh, maps: &[] }.mean_irradiance(samples, lights, cache)
+    Shadowing { mesh }.mean_irradiance(samples, lights, cache, &mut RowBits::none())
 }
 
-/// Where each light's shadow rays run, for its occluder map.
+/// Where each light's shadow rays run, for the answers kept of them.
 fn places(lights: &[PreparedLight]) -> Vec<LightPlace> {
     lights.iter().map(PreparedLight::place).collect()
 }
 
-/// What a surface scene's shadow rays are answered from: the occluder maps of the light set's
-/// lights where they prove a ray blocked (one per prepared light, in order, or none at all),
-/// else the triangles.
+/// What a surface scene's shadow rays are answered from: the answers a row's [`RowBits`] hold
+/// from an earlier light set at a light's place, else the triangles.
 #[derive(Clone, Copy)]
 struct Shadowing<'a> {
     mesh: &'a TriMesh,
-    maps: &'a [Option<std::sync::Arc<OccluderMap>>],
 }
 
 impl Shadowing<'_> {
-    /// [`surface_irradiance`] with the maps.
+    /// [`surface_irradiance`] over one row's samples, with the row's kept answers.
     fn mean_irradiance(
         &self,
         samples: &[SamplePoint],
         lights: &[PreparedLight],
         cache: &mut ShadowCache,
+        bits: &mut RowBits,
     ) -> [f32; 3] {
         if lights.is_empty() || samples.is_empty() {
             return [0.0; 3];
         }
         let mut sum = Vec3::ZERO;
-        for s in samples {
-            sum += Vec3::from(self.point_irradiance(s, lights, cache));
+        for (k, s) in samples.iter().enumerate() {
+            sum += Vec3::from(self.point_irradiance(s, k, lights, cache, bits));
         }
         mean_of(sum, samples.len())
     }
 
-    /// One sample point's irradiance: its lights summed in light order, kept finite.
+    /// The irradiance of a row's sample `k`, `s`: its lights summed in light order, kept
+    /// finite.
     fn point_irradiance(
         &self,
         s: &SamplePoint,
+        k: usize,
         lights: &[PreparedLight],
         cache: &mut ShadowCache,
+        bits: &mut RowBits,
     ) -> [f32; 3] {
         let (p, n) = (Vec3::from(s.position), Vec3::from(s.normal));
         let mut e = Vec3::ZERO;
-        for (k, (light, recent)) in lights.iter().zip(cache.0.iter_mut()).enumerate() {
-            if let Some(l) = light_sample(light, p, n) {
-                let proved = self
-                    .maps
-                    .get(k)
-                    .and_then(Option::as_ref)
-                    .and_then(|m| m.blocker(p, l.distance));
-                let blocker =
-                    proved.or_else(|| self.mesh.blocker(p, l.dir, l.distance * SHADOW_END, recent));
-                match blocker {
-                    Some(b) => remember(recent, b),
-                    None => e += l.irradiance,
+        for (j, (light, recent)) in lights.iter().zip(cache.0.iter_mut()).enumerate() {
+            match bits.known(j, k) {
+                // Blocked, or facing away from the place: nothing, whatever the light.
+                Some(false) => {}
+                Some(true) => {
+                    if let Some(l) = light_sample(light, p, n) {
+                        e += l.irradiance;
+                    }
                 }
+                None => match reach(light, p, n) {
+                    Reach::Lit(l) => {
+                        let blocker = self.mesh.blocker(p, l.dir, l.distance * SHADOW_END, recent);
+                        match blocker {
+                            Some(b) => remember(recent, b),
+                            None => e += l.irradiance,
+                        }
+                        bits.record(j, k, blocker.is_none());
+                    }
+                    Reach::Away => bits.record(j, k, false),
+                    Reach::Dark => {}
+                },
             }
         }
         e.min(Vec3::splat(f32::MAX)).to_array()
@@ -609,10 +656,11 @@ pub fn sample_irradiance(
     lights: &[PreparedLight],
     cache: &mut ShadowCache,
 ) -> Vec<[f32; 3]> {
-    let shadows = Shadowing { mesh, maps: &[] };
+    let shadows = Shadowing { mesh };
     samples
         .iter()
-        .map(|s| shadows.point_irradiance(s, lights, cache))
+        .enumerate()
+        .map(|(k, s)| shadows.point_irradiance(s, k, lights, cache, &mut RowBits::none()))
         .collect()
 }
 
@@ -666,7 +714,7 @@ pub fn direct_with_samples(
     let Shadows::Surface {
         mesh,
         surface,
-        occluders,
+        visibility,
     } = &scene.inner
     else {
         return None;
@@ -694,25 +742,29 @@ pub fn direct_with_samples(
     if prepared.is_empty() || count == 0 {
         return Some(out);
     }
-    let maps = occluders.for_lights(mesh, &places(&prepared));
-    let shadows = Shadowing { mesh, maps: &maps };
+    let places = places(&prepared);
+    let mut fresh = visibility.begin(&places, n, surface.per_patch as usize);
+    let (words, stride) = (fresh.tracked_words(), fresh.stride());
+    let shadows = Shadowing { mesh };
     // Written in place, a row's samples and its mean by one thread: no allocation per row, and
-    // the same values in the same order as before (the cache changes what a ray costs, never
-    // its answer).
+    // the same values in the same order as before (the cache and the kept answers change what
+    // a ray costs, never its answer).
     out.samples
         .par_chunks_mut(count)
         .zip(out.mean.par_iter_mut())
+        .zip(fresh.bits.par_chunks_mut(stride))
         .enumerate()
         .for_each_init(
             || ShadowCache::new(prepared.len()),
-            |cache, (i, (values, mean))| {
+            |cache, (i, ((values, mean), chunk))| {
+                let mut bits = RowBits::new(words, chunk);
                 let mut sum = Vec3::ZERO;
                 for (k, (v, s)) in values
                     .iter_mut()
                     .zip(&surface.samples(i)[..count])
                     .enumerate()
                 {
-                    *v = shadows.point_irradiance(s, &prepared, cache);
+                    *v = shadows.point_irradiance(s, k, &prepared, cache, &mut bits);
                     if k < averaged {
                         sum += Vec3::from(*v);
                     }
@@ -720,6 +772,7 @@ pub fn direct_with_samples(
                 *mean = mean_of(sum, averaged);
             },
         );
+    visibility.keep(&places, fresh);
     Some(out)
 }
 

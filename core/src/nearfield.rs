@@ -369,10 +369,47 @@ impl NearField {
             Some(sky) => Vec3::from(mean[j]) + Vec3::from(sky.mean[j]),
             None => Vec3::from(mean[j]),
         };
+        // Per sample, whether its row is lit: any light on the row's mean or on one of its
+        // samples. An entry landing on a dark row adds exactly zero (`c · (a · 0 − ρ · 0)`),
+        // and a sum of zeros from +0 is +0, so a row whose entries all land on dark rows is +0
+        // without reading its values: the same bits for a fraction of the reads where one lamp
+        // lights a corner of a level (pandora under the corridor light: most rows).
+        let lit_rows: Vec<bool> = (0..n)
+            .into_par_iter()
+            .map(|j| {
+                row_light(j) != Vec3::ZERO
+                    || (j * k..(j + 1) * k).any(|q| sample_light(q) != Vec3::ZERO)
+            })
+            .collect();
+        // Lit rows before each row: a row whose entries' rows (ascending, as its columns are)
+        // span only dark rows is settled from its first and last column.
+        let mut lit_before = Vec::with_capacity(n + 1);
+        lit_before.push(0u32);
+        for &on in &lit_rows {
+            lit_before.push(lit_before.last().copied().unwrap_or(0) + u32::from(on));
+        }
+        let lit: Vec<bool> = lit_rows
+            .iter()
+            .flat_map(|&on| std::iter::repeat_n(on, k))
+            .collect();
+        let reaches_light = |i: usize| {
+            let cols = &self.cols[self.row_ptr[i] as usize..self.row_ptr[i + 1] as usize];
+            let (Some(&first), Some(&last)) = (cols.first(), cols.last()) else {
+                return false;
+            };
+            let (lo, hi) = (first as usize / k, last as usize / k);
+            lit_before[hi + 1] != lit_before[lo] && cols.iter().any(|&q| lit[q as usize])
+        };
         if let Some(landed) = &self.albedo {
             // Each entry reflects with its own albedo: per sample its light, per row its
-            // element's exitance, once, and the albedo read an entry.
-            let e: Vec<Vec3> = (0..n * k).into_par_iter().map(sample_light).collect();
+            // element's exitance, once, and the albedo read an entry. Without a sky a sample's
+            // light is its value as given, read in place.
+            let with_sky: Option<Vec<Vec3>> =
+                sky.map(|_| (0..n * k).into_par_iter().map(sample_light).collect());
+            let e = |q: usize| match &with_sky {
+                Some(e) => e[q],
+                None => Vec3::from(per_sample[q]),
+            };
             let exitance: Vec<Vec3> = (0..n)
                 .into_par_iter()
                 .map(|j| Vec3::from(albedo.rows[j]) * row_light(j))
@@ -380,6 +417,9 @@ impl NearField {
             return (0..n)
                 .into_par_iter()
                 .map(|i| {
+                    if !reaches_light(i) {
+                        return [0.0; 3];
+                    }
                     let r = self.row_ptr[i] as usize..self.row_ptr[i + 1] as usize;
                     let mut sum = Vec3::ZERO;
                     for ((&q, &c), &a) in self.cols[r.clone()]
@@ -388,7 +428,7 @@ impl NearField {
                         .zip(&landed[r])
                     {
                         let q = q as usize;
-                        sum += c * (Vec3::from(a) * e[q] - exitance[q / k]);
+                        sum += c * (Vec3::from(a) * e(q) - exitance[q / k]);
                     }
                     sum.to_array()
                 })
@@ -408,6 +448,9 @@ impl NearField {
         (0..n)
             .into_par_iter()
             .map(|i| {
+                if !reaches_light(i) {
+                    return [0.0; 3];
+                }
                 let (cols, values) = self.row(i);
                 let mut sum = Vec3::ZERO;
                 for (&q, &c) in cols.iter().zip(values) {

@@ -709,12 +709,13 @@ impl Scene {
         self.near = None;
     }
 
-    /// Trace every CPU shadow ray from now on, without occluder maps
-    /// (`bounce_core::occluder`): the same values at their old cost, which is how `bounce
-    /// bench engines` shows what the maps spare. No effect where direct light runs on the GPU.
+    /// Trace every CPU shadow ray from now on, keeping no answers from one light set to the
+    /// next (`bounce_core::visibility`): the same values at their full cost, which is how
+    /// `bounce bench engines` shows what the kept answers spare. No effect where direct light
+    /// runs on the GPU.
     pub fn trace_every_shadow_ray(&mut self) {
         if let DirectLight::Cpu(shadow, _) = &mut self.direct {
-            shadow.set_occluder_resolution(0);
+            shadow.set_visibility_budget(0);
         }
     }
 

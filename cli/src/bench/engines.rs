@@ -695,9 +695,9 @@ fn direct_rows_all(args: &BenchEnginesArgs, baked: &Baked, sets: &[LightSet]) ->
         for ((suffix, sets), reference) in variants.iter().zip(&references) {
             rows.extend(direct_rows(args, &engine, &scene, sets, reference, suffix)?);
         }
-        // The CPU's shadow rays without occluder maps, on the same light sets in the same run:
-        // what the maps spare where a light stays put, and that they change no value (the
-        // row's error against the reference is 0).
+        // The CPU's shadow rays with no answers kept between light sets, on the same light
+        // sets in the same run: what the kept answers spare where a light stays put, and that
+        // they change no value (the row's error against the reference is 0).
         if engine.direct_engine(&scene) == bounce_engine::EngineKind::Cpu
             && scene.shadow_source() == bounce_core::direct::ShadowSource::Triangles
         {

@@ -67,59 +67,62 @@ fn light_sets(count: usize) -> Vec<LightSet> {
         .collect()
 }
 
-/// The occluder maps that spare the CPU's shadow rays (`bounce_core::occluder`) change no
-/// value: a point, a spot and a sun, each asked for again and again (a map from the second
-/// time on) and moved, give the same bits as tracing every ray, means and samples, and the
-/// maps were built. (That the maps answer most of a walled level's blocked rays, and never an
-/// open one, is `bounce_core::occluder`'s own test.)
+/// The shadow-ray answers kept from one light set to the next (`bounce_core::visibility`)
+/// change no value: point lights, a narrow spot where the first point light stands (whose
+/// answers the point's serve, and which needs only some of them), a wider and brighter spot
+/// there (which needs rays neither traced before) and a sun, each asked for again and again,
+/// give the same bits as tracing every ray, means and samples; and the answers were kept, one
+/// entry a place.
 #[test]
-fn occluder_maps_change_no_value() {
+fn kept_shadow_answers_change_no_value() {
     use bounce_core::direct::{ShadowScene, direct_irradiance, direct_with_samples};
     let baked = baked();
     let rows = baked.transport_layout();
     let samples = baked.surface.as_ref().expect("a surface bake").per_patch;
-    let mapped = ShadowScene::of_baked(baked);
+    let kept = ShadowScene::of_baked(baked);
     let mut traced = ShadowScene::of_baked(baked);
-    traced.set_occluder_resolution(0);
-    assert!(mapped.occluder_resolution() > 0);
+    traced.set_visibility_budget(0);
+    assert!(kept.visibility_budget() > 0);
     let mut sets = light_sets(3);
     let Light::Point { position, .. } = sets[0].lights[0] else {
         unreachable!()
     };
+    let spot = |intensity: f32, outer_cone_angle: f32| Light::Spot {
+        position,
+        direction: [0.2, -1.0, 0.1],
+        color: [1.0; 3],
+        intensity,
+        range: None,
+        inner_cone_angle: 0.1,
+        outer_cone_angle,
+        name: None,
+    };
+    let sun = Light::Directional {
+        direction: [-0.3, -1.0, -0.2],
+        color: [1.0; 3],
+        intensity: 2.0,
+        name: None,
+    };
     sets.push(LightSet {
-        lights: vec![
-            Light::Spot {
-                position,
-                direction: [0.2, -1.0, 0.1],
-                color: [1.0; 3],
-                intensity: 3.0,
-                range: None,
-                inner_cone_angle: 0.2,
-                outer_cone_angle: 0.8,
-                name: None,
-            },
-            Light::Directional {
-                direction: [-0.3, -1.0, -0.2],
-                color: [1.0; 3],
-                intensity: 2.0,
-                name: None,
-            },
-        ],
+        lights: vec![spot(3.0, 0.4), sun.clone()],
     });
-    for set in &sets {
-        let want = direct_with_samples(&traced, rows, set, samples).unwrap();
-        for _ in 0..3 {
+    sets.push(LightSet {
+        lights: vec![sun, spot(5.0, 1.2)],
+    });
+    for _ in 0..3 {
+        for set in &sets {
+            let want = direct_with_samples(&traced, rows, set, samples).unwrap();
             assert_eq!(
-                direct_with_samples(&mapped, rows, set, samples).unwrap(),
+                direct_with_samples(&kept, rows, set, samples).unwrap(),
                 want
             );
-            assert_eq!(direct_irradiance(&mapped, rows, set, samples), want.mean);
+            assert_eq!(direct_irradiance(&kept, rows, set, samples), want.mean);
         }
     }
-    // Three point lights' places and the sun's: the spot stands where the first point light
-    // does, and shares its map (a map is geometry only).
-    assert_eq!(mapped.occluder_maps_kept(), 4);
-    assert_eq!(traced.occluder_maps_kept(), 0);
+    // Three point lights' places and the sun's: the spots stand where the first point light
+    // does, and share its answers (they depend on the place alone).
+    assert_eq!(kept.visibility_kept(), 4);
+    assert_eq!(traced.visibility_kept(), 0);
 }
 
 fn rel_l2(a: &[[f32; 3]], b: &[[f32; 3]]) -> f64 {
