@@ -244,18 +244,37 @@ impl VisibilityCache {
         let (words, row_len) = (fresh.words, fresh.stride());
         let rows = fresh.bits.len() / row_len;
         let keys: Vec<PlaceKey> = places[..fresh.lights].iter().map(|&p| p.into()).collect();
-        let mut entries: Vec<(PlaceKey, Arc<Visibility>)> = Vec::with_capacity(keys.len());
+        let mut merged: Vec<(PlaceKey, Vec<u32>)> = Vec::with_capacity(keys.len());
         for (j, &key) in keys.iter().enumerate() {
-            // Two lights at one place in one set wrote the same answers: keep one.
-            if entries.iter().any(|(k, _)| *k == key) {
-                continue;
+            let slot = j * 2 * words..(j + 1) * 2 * words;
+            match merged.iter_mut().find(|(k, _)| *k == key) {
+                // Two lights at one place in one set (a spot where a point light stands) traced
+                // rays each the other may not have: the same ray has the same answer, so their
+                // bits join.
+                Some((_, bits)) => {
+                    for (row, chunk) in fresh.bits.chunks(row_len).enumerate() {
+                        let at = row * 2 * words;
+                        for (b, &f) in bits[at..at + 2 * words]
+                            .iter_mut()
+                            .zip(&chunk[slot.clone()])
+                        {
+                            *b |= f;
+                        }
+                    }
+                }
+                None => {
+                    let mut bits = Vec::with_capacity(rows * 2 * words);
+                    for chunk in fresh.bits.chunks(row_len) {
+                        bits.extend_from_slice(&chunk[slot.clone()]);
+                    }
+                    merged.push((key, bits));
+                }
             }
-            let mut bits = Vec::with_capacity(rows * 2 * words);
-            for chunk in fresh.bits.chunks(row_len) {
-                bits.extend_from_slice(&chunk[j * 2 * words..(j + 1) * 2 * words]);
-            }
-            entries.push((key, Arc::new(Visibility { words, bits })));
         }
+        let entries: Vec<(PlaceKey, Arc<Visibility>)> = merged
+            .into_iter()
+            .map(|(key, bits)| (key, Arc::new(Visibility { words, bits })))
+            .collect();
         let mut kept = self.lock();
         kept.retain(|(k, _)| !keys.contains(k));
         kept.extend(entries);
@@ -315,6 +334,23 @@ mod tests {
         // Another row count (another file) does not read them.
         let other = cache.begin(&[lamp], rows + 1, per_row);
         assert!(other.bits.iter().all(|&b| b == 0));
+        // Two lights at one place in one set: what each traced is kept.
+        let mut twice = cache.begin(&[lamp, lamp], rows, per_row);
+        let stride = twice.stride();
+        for chunk in twice.bits.chunks_mut(stride) {
+            let mut bits = RowBits::new(words, chunk);
+            bits.record(0, 20, true);
+            bits.record(1, 21, false);
+        }
+        cache.keep(&[lamp, lamp], twice);
+        let mut after = cache.begin(&[lamp], rows, per_row);
+        for (row, chunk) in after.bits.chunks_mut(4).enumerate() {
+            let bits = RowBits::new(words, chunk);
+            assert_eq!(bits.known(0, 20), Some(true));
+            assert_eq!(bits.known(0, 21), Some(false));
+            assert_eq!(bits.known(0, 3 + row), Some(row % 2 == 0));
+        }
+        assert_eq!(cache.kept(), 2);
     }
 
     #[test]
