@@ -369,7 +369,7 @@ impl NearField {
             Some(sky) => Vec3::from(mean[j]) + Vec3::from(sky.mean[j]),
             None => Vec3::from(mean[j]),
         };
-        // Per sample, whether its row is lit: any light on the row's mean or on one of its
+        // Per row, whether it is lit: any light on the row's mean or on one of its
         // samples. An entry landing on a dark row adds exactly zero (`c · (a · 0 − ρ · 0)`),
         // and a sum of zeros from +0 is +0, so a row whose entries all land on dark rows is +0
         // without reading its values: the same bits for a fraction of the reads where one lamp
@@ -388,17 +388,13 @@ impl NearField {
         for &on in &lit_rows {
             lit_before.push(lit_before.last().copied().unwrap_or(0) + u32::from(on));
         }
-        let lit: Vec<bool> = lit_rows
-            .iter()
-            .flat_map(|&on| std::iter::repeat_n(on, k))
-            .collect();
         let reaches_light = |i: usize| {
             let cols = &self.cols[self.row_ptr[i] as usize..self.row_ptr[i + 1] as usize];
             let (Some(&first), Some(&last)) = (cols.first(), cols.last()) else {
                 return false;
             };
             let (lo, hi) = (first as usize / k, last as usize / k);
-            lit_before[hi + 1] != lit_before[lo] && cols.iter().any(|&q| lit[q as usize])
+            lit_before[hi + 1] != lit_before[lo] && cols.iter().any(|&q| lit_rows[q as usize / k])
         };
         if let Some(landed) = &self.albedo {
             // Each entry reflects with its own albedo: per sample its light, per row its

@@ -201,12 +201,12 @@ impl VisibilityCache {
             .budget
             .checked_div(per_place)
             .map_or(0, |fit| places.len().min(fit));
+        let stride = (lights * 2 * words).max(1);
         let mut fresh = Fresh {
             words,
             lights,
-            bits: Vec::new(),
+            bits: vec![0; rows * stride],
         };
-        fresh.bits = vec![0; rows * fresh.stride()];
         if lights == 0 {
             return fresh;
         }
@@ -224,10 +224,9 @@ impl VisibilityCache {
                 })
                 .collect()
         };
-        let row_len = fresh.stride();
         for (j, known) in known.iter().enumerate() {
             let Some(known) = known else { continue };
-            for (row, chunk) in fresh.bits.chunks_mut(row_len).enumerate() {
+            for (row, chunk) in fresh.bits.chunks_mut(stride).enumerate() {
                 chunk[j * 2 * words..(j + 1) * 2 * words].copy_from_slice(known.row(row));
             }
         }
