@@ -15,6 +15,7 @@
 
 pub mod bake;
 pub mod codec;
+pub mod coherence;
 pub mod direct;
 pub mod element;
 pub mod emitter;

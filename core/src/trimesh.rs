@@ -196,6 +196,15 @@ impl TriMesh {
         self.blocker(origin, dir, t_max, &[]).is_some()
     }
 
+    /// Whether triangle `tri` (an index as [`TriMesh::blocker`] gives them) crosses the ray at
+    /// `t` in `(0, t_max)`: `false` for an index that is no triangle.
+    #[inline]
+    pub fn blocks(&self, tri: u32, origin: Vec3, dir: Vec3, t_max: f32) -> bool {
+        self.tris
+            .get(tri as usize)
+            .is_some_and(|t| intersect(t, origin, dir, t_max).is_some())
+    }
+
     /// [`TriMesh::occluded`], saying which triangle blocked the ray (an opaque index for a later
     /// call's `hints`). The `hints` are tried before the tree: shadow rays from neighbouring
     /// points towards one light are mostly blocked by the same few triangles (Haines and

@@ -125,6 +125,61 @@ fn kept_shadow_answers_change_no_value() {
     assert_eq!(traced.visibility_kept(), 0);
 }
 
+/// A light that moves a little each set reads the last set's blockers as hints: the values
+/// are those of every ray traced, bit for bit, whether a hint blocks again, was carried over a
+/// set whose answers were kept, or comes from the other of two moving lights.
+#[test]
+fn the_last_sets_blockers_change_no_value() {
+    use bounce_core::direct::{ShadowScene, direct_irradiance, direct_with_samples};
+    let baked = baked();
+    let rows = baked.transport_layout();
+    let samples = baked.surface.as_ref().expect("a surface bake").per_patch;
+    let hinted = ShadowScene::of_baked(baked);
+    let mut traced = ShadowScene::of_baked(baked);
+    traced.set_visibility_budget(0);
+    let Light::Point { position, .. } = light_sets(1)[0].lights[0] else {
+        unreachable!()
+    };
+    let point = |step: f32| Light::Point {
+        position: [
+            position[0] + 0.07 * step,
+            position[1],
+            position[2] - 0.05 * step,
+        ],
+        color: [1.0; 3],
+        intensity: 2.0,
+        range: None,
+        name: None,
+    };
+    let sun = |step: f32| Light::Directional {
+        direction: [-0.3 + 0.02 * step, -1.0, -0.2],
+        color: [1.0; 3],
+        intensity: 2.0,
+        name: None,
+    };
+    let mut sets: Vec<LightSet> = (0..4)
+        .map(|k| LightSet {
+            lights: vec![point(k as f32), sun(k as f32)],
+        })
+        .collect();
+    // The third set again (its answers kept, its hints carried), then the lights in the other
+    // order and one more point light.
+    sets.push(sets[2].clone());
+    sets.push(LightSet {
+        lights: vec![sun(5.0), point(5.0), point(-3.0)],
+    });
+    for set in &sets {
+        let want = direct_with_samples(&traced, rows, set, samples).unwrap();
+        assert_eq!(
+            direct_with_samples(&hinted, rows, set, samples).unwrap(),
+            want
+        );
+        assert_eq!(direct_irradiance(&hinted, rows, set, samples), want.mean);
+    }
+    assert_eq!(hinted.blockers_kept(), 3, "the last set's three lights");
+    assert_eq!(traced.blockers_kept(), 0);
+}
+
 fn rel_l2(a: &[[f32; 3]], b: &[[f32; 3]]) -> f64 {
     let (mut num, mut den) = (0.0f64, 0.0f64);
     for (x, y) in a.iter().flatten().zip(b.iter().flatten()) {
