@@ -101,10 +101,15 @@ impl BlockerMemory {
         let fits = fits && !unmoved;
         let kept: Vec<LightPlace> = if fits { places.to_vec() } else { Vec::new() };
         let len = rows * stride(kept.len(), per_row);
-        let mut ids = std::mem::take(&mut *self.spare.lock().unwrap_or_else(|e| e.into_inner()));
-        if ids.len() != len {
-            ids = vec![NONE; len];
-        }
+        let ids = {
+            let mut spare = self.spare.lock().unwrap_or_else(|e| e.into_inner());
+            // A set that keeps nothing leaves the spare to the next that does.
+            if spare.len() == len {
+                std::mem::take(&mut *spare)
+            } else {
+                vec![NONE; len]
+            }
+        };
         let previous =
             last.filter(|p| fits && p.rows == rows && p.per_row == per_row && !p.places.is_empty());
         let from = match &previous {
