@@ -17,7 +17,7 @@
 
 use std::sync::{Arc, Mutex};
 
-use crate::visibility::LightPlace;
+use crate::visibility::{LightPlace, PlaceKey};
 
 /// No blocker known: the ray was open, untraced, or never asked.
 pub const NONE: u32 = u32::MAX;
@@ -94,9 +94,11 @@ impl BlockerMemory {
         // and the last set's blockers serve the next as well as this set's would. Nothing is
         // read or written, and the last set's stay.
         let unmoved = last.as_ref().is_some_and(|l| {
-            places
-                .iter()
-                .all(|&at| l.places.iter().any(|&p| same_place(p, at)))
+            places.iter().all(|&at| {
+                l.places
+                    .iter()
+                    .any(|&p| PlaceKey::from(p) == PlaceKey::from(at))
+            })
         });
         let fits = fits && !unmoved;
         let kept: Vec<LightPlace> = if fits { places.to_vec() } else { Vec::new() };
@@ -164,16 +166,6 @@ impl BlockerMemory {
         if let Some(ids) = before.and_then(|b| Arc::try_unwrap(b).ok()).map(|b| b.ids) {
             *self.spare.lock().unwrap_or_else(|e| e.into_inner()) = ids;
         }
-    }
-}
-
-/// Whether two places are the same bits (as [`crate::visibility`] keys them).
-fn same_place(a: LightPlace, b: LightPlace) -> bool {
-    let bits = |v: glam::Vec3| v.to_array().map(f32::to_bits);
-    match (a, b) {
-        (LightPlace::Point(a), LightPlace::Point(b))
-        | (LightPlace::Beam(a), LightPlace::Beam(b)) => bits(a) == bits(b),
-        _ => false,
     }
 }
 

@@ -31,7 +31,7 @@ pub enum LightPlace {
 
 /// A place as exact bits: two places share answers only if every ray is the same ray.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-struct PlaceKey {
+pub(crate) struct PlaceKey {
     beam: bool,
     place: [u32; 3],
 }

@@ -67,6 +67,38 @@ fn light_sets(count: usize) -> Vec<LightSet> {
         .collect()
 }
 
+/// The fixture's shadow scene twice: as loaded (remembering answers and blockers between light
+/// sets) and with nothing remembered (every ray traced).
+fn remembering_and_traced() -> (
+    bounce_core::direct::ShadowScene,
+    bounce_core::direct::ShadowScene,
+) {
+    let remembering = bounce_core::direct::ShadowScene::of_baked(baked());
+    let mut traced = bounce_core::direct::ShadowScene::of_baked(baked());
+    traced.set_visibility_budget(0);
+    (remembering, traced)
+}
+
+/// Each of `sets` in turn: means and samples of `scene` equal those of `traced`, bit for bit.
+fn assert_same_as_every_ray_traced(
+    scene: &bounce_core::direct::ShadowScene,
+    traced: &bounce_core::direct::ShadowScene,
+    sets: &[LightSet],
+) {
+    use bounce_core::direct::{direct_irradiance, direct_with_samples};
+    let baked = baked();
+    let rows = baked.transport_layout();
+    let samples = baked.surface.as_ref().expect("a surface bake").per_patch;
+    for set in sets {
+        let want = direct_with_samples(traced, rows, set, samples).unwrap();
+        assert_eq!(
+            direct_with_samples(scene, rows, set, samples).unwrap(),
+            want
+        );
+        assert_eq!(direct_irradiance(scene, rows, set, samples), want.mean);
+    }
+}
+
 /// The shadow-ray answers kept from one light set to the next (`bounce_core::visibility`)
 /// change no value: point lights, a narrow spot where the first point light stands (whose
 /// answers the point's serve, and which needs only some of them), a wider and brighter spot
@@ -75,13 +107,7 @@ fn light_sets(count: usize) -> Vec<LightSet> {
 /// entry a place.
 #[test]
 fn kept_shadow_answers_change_no_value() {
-    use bounce_core::direct::{ShadowScene, direct_irradiance, direct_with_samples};
-    let baked = baked();
-    let rows = baked.transport_layout();
-    let samples = baked.surface.as_ref().expect("a surface bake").per_patch;
-    let kept = ShadowScene::of_baked(baked);
-    let mut traced = ShadowScene::of_baked(baked);
-    traced.set_visibility_budget(0);
+    let (kept, traced) = remembering_and_traced();
     assert!(kept.visibility_budget() > 0);
     let mut sets = light_sets(3);
     let Light::Point { position, .. } = sets[0].lights[0] else {
@@ -110,14 +136,7 @@ fn kept_shadow_answers_change_no_value() {
         lights: vec![sun, spot(5.0, 1.2)],
     });
     for _ in 0..3 {
-        for set in &sets {
-            let want = direct_with_samples(&traced, rows, set, samples).unwrap();
-            assert_eq!(
-                direct_with_samples(&kept, rows, set, samples).unwrap(),
-                want
-            );
-            assert_eq!(direct_irradiance(&kept, rows, set, samples), want.mean);
-        }
+        assert_same_as_every_ray_traced(&kept, &traced, &sets);
     }
     // Three point lights' places and the sun's: the spots stand where the first point light
     // does, and share its answers (they depend on the place alone).
@@ -130,13 +149,7 @@ fn kept_shadow_answers_change_no_value() {
 /// set whose answers were kept, or comes from the other of two moving lights.
 #[test]
 fn the_last_sets_blockers_change_no_value() {
-    use bounce_core::direct::{ShadowScene, direct_irradiance, direct_with_samples};
-    let baked = baked();
-    let rows = baked.transport_layout();
-    let samples = baked.surface.as_ref().expect("a surface bake").per_patch;
-    let hinted = ShadowScene::of_baked(baked);
-    let mut traced = ShadowScene::of_baked(baked);
-    traced.set_visibility_budget(0);
+    let (hinted, traced) = remembering_and_traced();
     let Light::Point { position, .. } = light_sets(1)[0].lights[0] else {
         unreachable!()
     };
@@ -168,14 +181,7 @@ fn the_last_sets_blockers_change_no_value() {
     sets.push(LightSet {
         lights: vec![sun(5.0), point(5.0), point(-3.0)],
     });
-    for set in &sets {
-        let want = direct_with_samples(&traced, rows, set, samples).unwrap();
-        assert_eq!(
-            direct_with_samples(&hinted, rows, set, samples).unwrap(),
-            want
-        );
-        assert_eq!(direct_irradiance(&hinted, rows, set, samples), want.mean);
-    }
+    assert_same_as_every_ray_traced(&hinted, &traced, &sets);
     assert_eq!(hinted.blockers_kept(), 3, "the last set's three lights");
     assert_eq!(traced.blockers_kept(), 0);
 }
