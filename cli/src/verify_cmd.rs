@@ -64,6 +64,12 @@ pub struct VerifyArgs {
     /// points, one a direction).
     #[arg(long, value_name = "N", default_value_t = 1024)]
     pub probe_spp: u32,
+    /// Leave out the source split: tracing the bake's form-factor rays again with the light
+    /// where each lands (the report's "element-constant source" rows and the CSV's
+    /// `pointwise_*` columns, left empty). It takes about as long as the bake's form factors;
+    /// the rest of the report is the same.
+    #[arg(long)]
+    pub no_source_split: bool,
     /// No progress bars.
     #[arg(long, short)]
     pub quiet: bool,
@@ -199,15 +205,19 @@ pub fn run(args: &VerifyArgs) -> Result<()> {
         }
     };
 
-    let pointwise = pointwise_source(
-        &baked,
-        &scene,
-        &engine,
-        &exact_scene,
-        &lights,
-        without_near.as_deref().unwrap_or(&exact_e),
-        args.quiet,
-    )?;
+    let pointwise = if args.no_source_split {
+        None
+    } else {
+        pointwise_source(
+            &baked,
+            &scene,
+            &engine,
+            &exact_scene,
+            &lights,
+            without_near.as_deref().unwrap_or(&exact_e),
+            args.quiet,
+        )?
+    };
     let report = compare(
         &compressed,
         &exact_e,
