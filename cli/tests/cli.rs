@@ -1365,6 +1365,43 @@ fn verify_and_reference_on_the_cornell_box() {
         get("method_rel_l2")
     );
 
+    // Without the source split: the same report less its rows, its columns left empty.
+    let unsplit_csv = dir.path().join("unsplit.csv");
+    let out = run(bounce()
+        .arg("verify")
+        .arg(&baked)
+        .arg(cornell())
+        .arg("--lights")
+        .arg(&lights)
+        .args([
+            "--spp",
+            "64",
+            "--json",
+            "--quiet",
+            "--no-source-split",
+            "--patches-out",
+        ])
+        .arg(&unsplit_csv));
+    assert!(out.status.success(), "{}", stderr(&out));
+    let unsplit: Value = serde_json::from_slice(&out.stdout).expect("verify --json prints JSON");
+    for key in [
+        "method_rel_l2",
+        "codec_rel_l2",
+        "method_without_near_field_rel_l2",
+    ] {
+        assert_eq!(unsplit[key], report[key], "{key}");
+    }
+    for key in ["source_rel_l2", "method_pointwise_source_rel_l2"] {
+        assert!(unsplit[key].is_null(), "{key}: {}", unsplit[key]);
+    }
+    let text = std::fs::read_to_string(&unsplit_csv).unwrap();
+    let at = column("pointwise_r");
+    for line in text.lines().skip(1) {
+        let cells: Vec<&str> = line.split(',').collect();
+        assert_eq!(cells.len(), header.len(), "{line}");
+        assert!(cells[at..at + 3].iter().all(|c| c.is_empty()), "{line}");
+    }
+
     // The same table for a person.
     let out = run(bounce()
         .arg("verify")
