@@ -562,14 +562,15 @@ pub fn direct_irradiance(
             .zip(ids.par_chunks_mut(hints.stride()))
             .enumerate()
             .map_init(
-                || ShadowCache::new(prepared.len()),
-                |cache, (i, (chunk, row_ids))| {
+                || (ShadowCache::new(prepared.len()), Vec::new()),
+                |(cache, blocked), (i, (chunk, row_ids))| {
                     shadows.mean_irradiance(
                         &surface.samples(i)[..count],
                         &prepared,
                         cache,
                         &mut RowBits::new(words, chunk),
                         &mut hints.row(i, row_ids),
+                        blocked,
                     )
                 },
             )
@@ -607,6 +608,7 @@ pub fn surface_irradiance(
         cache,
         &mut RowBits::none(),
         &mut RowHints::none(),
+        &mut Vec::new(),
     )
 }
 
@@ -631,19 +633,30 @@ impl Shadowing<'_> {
         cache: &mut ShadowCache,
         bits: &mut RowBits,
         hints: &mut RowHints,
+        blocked: &mut Vec<bool>,
     ) -> [f32; 3] {
         if lights.is_empty() || samples.is_empty() {
             return [0.0; 3];
         }
+        let pilots = pilots_apply(samples.len() as u32);
+        if pilots {
+            self.pilot_blocked(samples, lights, cache, bits, hints, blocked);
+        }
         let mut sum = Vec3::ZERO;
         for (k, s) in samples.iter().enumerate() {
-            sum += Vec3::from(self.point_irradiance(s, k, lights, cache, bits, hints));
+            let rule: &[bool] = if pilots && k % PILOT_STRIDE != 0 {
+                blocked
+            } else {
+                &[]
+            };
+            sum += Vec3::from(self.point_irradiance(s, k, lights, cache, bits, hints, rule));
         }
         mean_of(sum, samples.len())
     }
 
     /// The irradiance of a row's sample `k`, `s`: its lights summed in light order, kept
-    /// finite.
+    /// finite. A light `blocked` holds true for (the pilot rule's) adds nothing.
+    #[allow(clippy::too_many_arguments)]
     fn point_irradiance(
         &self,
         s: &SamplePoint,
@@ -652,10 +665,16 @@ impl Shadowing<'_> {
         cache: &mut ShadowCache,
         bits: &mut RowBits,
         hints: &mut RowHints,
+        blocked: &[bool],
     ) -> [f32; 3] {
         let (p, n) = (Vec3::from(s.position), Vec3::from(s.normal));
         let mut e = Vec3::ZERO;
         for (j, (light, recent)) in lights.iter().zip(cache.0.iter_mut()).enumerate() {
+            // Taken as blocked by the row's pilots ([`pilot_blocked`]) even where an answer
+            // is known: the value must not depend on which sets came before.
+            if blocked.get(j) == Some(&true) {
+                continue;
+            }
             match bits.known(j, k) {
                 // Blocked, or facing away from the place: nothing, whatever the light.
                 Some(false) => {}
@@ -683,6 +702,59 @@ impl Shadowing<'_> {
 }
 
 impl Shadowing<'_> {
+    /// Per light, whether the pilot rule ([`pilots_apply`]) takes the row's other samples
+    /// as blocked: some pilot (every [`PILOT_STRIDE`]-th sample, from the first) faces the
+    /// light and none is reached by it. Each pilot's answer is kept as any ray's is, so the
+    /// row's own pass reads it instead of tracing again.
+    fn pilot_blocked(
+        &self,
+        row: &[SamplePoint],
+        lights: &[PreparedLight],
+        cache: &mut ShadowCache,
+        bits: &mut RowBits,
+        hints: &mut RowHints,
+        blocked: &mut Vec<bool>,
+    ) {
+        blocked.clear();
+        for (j, (light, recent)) in lights.iter().zip(cache.0.iter_mut()).enumerate() {
+            let mut faced = false;
+            let mut reached = false;
+            for (k, s) in row.iter().enumerate().step_by(PILOT_STRIDE) {
+                let (p, n) = (Vec3::from(s.position), Vec3::from(s.normal));
+                match reach(light, p, n) {
+                    Reach::Lit(l) => {
+                        faced = true;
+                        let open = match bits.known(j, k) {
+                            Some(open) => open,
+                            None => {
+                                let open = self.trace(
+                                    p,
+                                    l.dir,
+                                    l.distance * SHADOW_END,
+                                    j,
+                                    k,
+                                    recent,
+                                    hints,
+                                );
+                                bits.record(j, k, open);
+                                open
+                            }
+                        };
+                        if open {
+                            // Every other sample is traced; the pilots left are on the
+                            // row's own pass.
+                            reached = true;
+                            break;
+                        }
+                    }
+                    Reach::Away => bits.record(j, k, false),
+                    Reach::Dark => {}
+                }
+            }
+            blocked.push(faced && !reached);
+        }
+    }
+
     /// Whether sample `k`'s ray from `p` towards light `j` is open, traced: the last set's
     /// blocker first (where the light moved a little it blocks again, and saves the walk the
     /// shadow cache would miss), then the cache and the tree. Out of line: it costs a ray
@@ -731,6 +803,7 @@ pub fn sample_irradiance(
                 cache,
                 &mut RowBits::none(),
                 &mut RowHints::none(),
+                &[],
             )
         })
         .collect()
@@ -766,6 +839,23 @@ fn remember(recent: &mut Vec<u32>, b: u32) {
             recent.insert(0, b);
         }
     }
+}
+
+/// Every how many samples of a row a pilot stands: samples `0, 4, 8, …` ([`pilots_apply`]).
+pub const PILOT_STRIDE: usize = 4;
+
+/// Whether direct light over rows of `averaged` samples spread by area follows the pilot rule:
+/// towards each light a row traces its pilots first (every [`PILOT_STRIDE`]-th of those
+/// samples), and where some pilot faces the light and none is reached by it, the row's other
+/// samples (its landing samples too) are taken as blocked without a ray. A row lit anywhere
+/// traces every ray: an open row's other rays find the small shadows its pilots miss. Only
+/// rows of more than 32 samples by area, so the default's 24 trace every ray as before. On
+/// `pandora` at 128 samples (96 by area, so 24 pilots) the rule moved the method error from
+/// 9.56% to 9.72% under a sun and from 7.62% to 7.64% under the corridor light, and cut the
+/// CPU's direct light for a moving light by about a third (README, "The pilot rule"). The
+/// GPU's `shadow_pilots` pass follows the same rule.
+pub fn pilots_apply(averaged: u32) -> bool {
+    averaged > 32
 }
 
 /// The mean of per-sample irradiance summed in sample order, kept finite for the encoders.
@@ -821,6 +911,9 @@ pub fn direct_with_samples(
     let (words, stride) = (fresh.tracked_words(), fresh.stride());
     let (hints, mut ids) = blockers.begin(&places, n, per_row);
     let shadows = Shadowing { mesh };
+    // The pilots are among the samples of the mean, so the mean is what `direct_irradiance`
+    // gives; their answer serves the landing samples too.
+    let pilots = pilots_apply(averaged as u32);
     // Written in place, a row's samples and its mean by one thread: no allocation per row, and
     // the same values in the same order as before (the cache and the kept answers change what
     // a ray costs, never its answer).
@@ -831,17 +924,27 @@ pub fn direct_with_samples(
         .zip(ids.par_chunks_mut(hints.stride()))
         .enumerate()
         .for_each_init(
-            || ShadowCache::new(prepared.len()),
-            |cache, (i, (((values, mean), chunk), row_ids))| {
+            || (ShadowCache::new(prepared.len()), Vec::new()),
+            |(cache, blocked), (i, (((values, mean), chunk), row_ids))| {
                 let mut bits = RowBits::new(words, chunk);
                 let mut hints = hints.row(i, row_ids);
                 let mut sum = Vec3::ZERO;
-                for (k, (v, s)) in values
-                    .iter_mut()
-                    .zip(&surface.samples(i)[..count])
-                    .enumerate()
-                {
-                    *v = shadows.point_irradiance(s, k, &prepared, cache, &mut bits, &mut hints);
+                let row = &surface.samples(i)[..count];
+                if pilots {
+                    shadows.pilot_blocked(
+                        &row[..averaged],
+                        &prepared,
+                        cache,
+                        &mut bits,
+                        &mut hints,
+                        blocked,
+                    );
+                }
+                for (k, (v, s)) in values.iter_mut().zip(row).enumerate() {
+                    let pilot = k < averaged && k % PILOT_STRIDE == 0;
+                    let rule: &[bool] = if pilots && !pilot { blocked } else { &[] };
+                    *v = shadows
+                        .point_irradiance(s, k, &prepared, cache, &mut bits, &mut hints, rule);
                     if k < averaged {
                         sum += Vec3::from(*v);
                     }

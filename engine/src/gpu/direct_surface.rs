@@ -9,7 +9,12 @@
 //!
 //! 1. `shadow`, one thread per (light, patch, sample): one shadow ray from the sample point,
 //!    traced through the BVH (iterative, a fixed stack in private memory, near child first, any
-//!    hit ends it), recorded as one bit, whether the light reaches the sample;
+//!    hit ends it), recorded as one bit, whether the light reaches the sample. Where the rows
+//!    are denser than the default's (`bounce_core::direct::pilots_apply`), `shadow_pilots`
+//!    runs first, one thread per (light, patch, pilot), packed so that no thread idles on a
+//!    sample that is not a pilot; `shadow` then takes the pilots' bits from it and sets no bit
+//!    and traces no ray for the other samples of a patch some pilot of which faces the light
+//!    and none of which is reached, as the CPU does;
 //! 2. `gather`, one thread per (patch, light set): the patch's samples in order and, per sample,
 //!    the set's lights in order, adding the irradiance of every ray whose bit is set into the
 //!    sample's value (kept finite), the samples' values into the patch's sum, then dividing by
@@ -23,7 +28,9 @@
 //! a triangle's edge (or a BVH box's face) may flip, moving its patch by that sample's share, at
 //! most `1/count` of the patch's unshadowed value (`engine/tests/it/gpu_direct_surface.rs` bounds
 //! both: relative `1e-4` per patch, at most 1% of the patches off by up to `1.5/count` of their
-//! unshadowed value).
+//! unshadowed value). Under the pilot rule a flipped pilot can change which of the patch's other
+//! rays are traced, and so move it by more: on lavapipe the bits are the CPU's, and the dense
+//! tests there hold the same bounds.
 //!
 //! Measured on lavapipe (software Vulkan, 2 cores) on a 2,624-patch room with a pillar, 16
 //! samples (`surface_direct_timing` in `engine/tests/it/gpu_direct_surface.rs`): 1 set of 1 light
@@ -50,7 +57,7 @@
 //! its value and the row's mean of them to the row's mean (after the means were copied out for
 //! the host), so the same pass corrects the sky too.
 
-use bounce_core::direct::{PreparedLight, SHADOW_END};
+use bounce_core::direct::{PILOT_STRIDE, PreparedLight, SHADOW_END, pilots_apply};
 use bounce_core::light::LightSet;
 use bounce_core::nearfield::{NearField, Reflect};
 use bounce_core::surface::SurfaceData;
@@ -93,7 +100,9 @@ pub struct SurfaceParams {
     /// Samples a patch's mean is taken over: the first of the `count` used (those spread by
     /// area, `SurfaceData::mean_count`).
     pub averaged: u32,
-    pub pad: [u32; 3],
+    /// 1 when the pilot rule holds (`bounce_core::direct::pilots_apply(averaged)`).
+    pub pilots: u32,
+    pub pad: [u32; 2],
 }
 
 /// One sample point as the kernel reads it (`GpuSample` in `direct_surface.wgsl`):
@@ -183,6 +192,7 @@ pub struct GpuSurfaceDirect {
     device: wgpu::Device,
     queue: wgpu::Queue,
     shadow: wgpu::ComputePipeline,
+    shadow_pilots: wgpu::ComputePipeline,
     gather: wgpu::ComputePipeline,
     nodes: wgpu::Buffer,
     tris: wgpu::Buffer,
@@ -260,6 +270,13 @@ impl GpuSurfaceDirect {
                 "direct_surface shadow",
                 &source,
                 "shadow",
+                &constants,
+            )?,
+            shadow_pilots: pipeline(
+                device,
+                "direct_surface shadow_pilots",
+                &source,
+                "shadow_pilots",
                 &constants,
             )?,
             gather: pipeline(
@@ -490,6 +507,23 @@ impl GpuSurfaceDirect {
             usage: U::STORAGE,
             mapped_at_creation: false,
         });
+        let averaged = self.area_samples.min(count);
+        let pilots = pilots_apply(averaged);
+        let pilots_per_row = u64::from(averaged.div_ceil(PILOT_STRIDE as u32));
+        // Four words per `shadow_pilots` workgroup of 64 pilots; one word, never read, where the
+        // rule does not hold (`shadow` binds it either way).
+        let pilot_bytes = if pilots {
+            (piece * pilots_per_row * u64::from(light_count)).div_ceil(u64::from(SURFACE_WG)) * 16
+        } else {
+            4
+        };
+        check_binding(device, "pilot bits", pilot_bytes.max(4))?;
+        let pilot_bits = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("pilot bits"),
+            size: pilot_bytes.max(4),
+            usage: U::STORAGE,
+            mapped_at_creation: false,
+        });
         let lights_buf = storage_of(device, "prepared lights", &lights)?;
         let offsets_buf = storage(device, "light offsets", bytemuck::cast_slice(&offsets))?;
         let bytes = n * u64::from(sets_n) * 12;
@@ -553,14 +587,37 @@ impl GpuSurfaceDirect {
                 patches: patches as u32,
                 sets: sets_n,
                 nodes: self.node_count,
-                averaged: self.area_samples.min(count),
-                pad: [0; 3],
+                averaged,
+                pilots: u32::from(pilots),
+                pad: [0; 2],
             };
             let params_buf = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
                 label: Some("direct_surface params"),
                 contents: bytemuck::bytes_of(&params),
                 usage: U::UNIFORM,
             });
+            if rays_per_patch > 0 && pilots {
+                let group = bind(
+                    &self.shadow_pilots,
+                    &[
+                        (0, &params_buf),
+                        (1, &self.nodes),
+                        (2, &self.tris),
+                        (3, &self.points),
+                        (4, &lights_buf),
+                        (9, &pilot_bits),
+                    ],
+                );
+                let (gx, gy) = grid(
+                    device,
+                    (patches * pilots_per_row * u64::from(light_count))
+                        .div_ceil(u64::from(SURFACE_WG)),
+                )?;
+                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
+                pass.set_pipeline(&self.shadow_pilots);
+                pass.set_bind_group(0, &group, &[]);
+                pass.dispatch_workgroups(gx, gy, 1);
+            }
             if rays_per_patch > 0 {
                 let group = bind(
                     &self.shadow,
@@ -571,6 +628,7 @@ impl GpuSurfaceDirect {
                         (3, &self.points),
                         (4, &lights_buf),
                         (6, &bits),
+                        (9, &pilot_bits),
                     ],
                 );
                 let (gx, gy) = grid(

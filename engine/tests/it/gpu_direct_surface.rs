@@ -50,13 +50,18 @@ struct Case {
 /// `area` of each patch's `PER_PATCH` samples make its mean (the rest stand in for landing
 /// samples, which only the near field reads).
 fn case_with(scene: &Scene, voxel: f32, area: u32) -> Case {
+    dense_case(scene, voxel, PER_PATCH, area)
+}
+
+/// [`case_with`] with `per_patch` samples a patch.
+fn dense_case(scene: &Scene, voxel: f32, per_patch: u32, area: u32) -> Case {
     let vox = cluster_at(scene, voxel).expect("the scene clusters");
     let pieces = vox.pieces.as_ref().expect("surface pieces");
     let data = SurfaceData {
         triangles: occluder_triangles_of(&scene_mesh(scene)),
-        per_patch: PER_PATCH,
+        per_patch,
         area_samples: area,
-        points: sample_points(pieces, PER_PATCH, 7),
+        points: sample_points(pieces, per_patch, 7),
         albedo: None,
     };
     let open = SurfaceData {
@@ -153,7 +158,7 @@ fn check(
 ) -> Vec<Vec<[f32; 3]>> {
     let gpu = GpuSurfaceDirect::upload(ctx, &case.data).unwrap();
     assert_eq!(gpu.patch_count(), case.layout.len());
-    let count = samples.clamp(1, PER_PATCH);
+    let count = samples.clamp(1, case.data.per_patch);
     let got = gpu.irradiance(sets, samples).unwrap();
     assert_eq!(got.len(), sets.len());
     let mut worst = Agreement::default();
@@ -489,6 +494,222 @@ fn gpu_engine_lights_a_surface_bake_on_the_gpu() {
         eprintln!("engine, surface bake, set {k}: indirect rel L2 GPU vs CPU {err:.2e}");
         assert!(n > 0.0 && err < 2e-3, "set {k}: {err:e}");
     }
+}
+
+/// Three rows of 36 samples in a line along x (row r at z = r, on the floor y = 0). Row 0: a
+/// small square at y = 1 on the ray from each pilot (every fourth sample,
+/// `bounce_core::direct::PILOT_STRIDE`) towards `light` (a point light's position, or `None`:
+/// a sun straight overhead), and nothing on the other samples' rays. Row 1: the same but for
+/// pilot 16, left open. Row 2: no square, its pilots facing down (away from the light) and its
+/// other samples up.
+fn comb(light: Option<Vec3>) -> SurfaceData {
+    use bounce_core::direct::PILOT_STRIDE;
+    use bounce_core::sample::SamplePoint;
+    const PER_ROW: usize = 36;
+    let (mut points, mut triangles) = (Vec::new(), Vec::new());
+    for row in 0..3 {
+        for k in 0..PER_ROW {
+            let p = Vec3::new(0.1 * k as f32, 0.0, row as f32);
+            let pilot = k % PILOT_STRIDE == 0;
+            let down = row == 2 && pilot;
+            points.push(SamplePoint {
+                position: p.to_array(),
+                normal: [0.0, if down { -1.0 } else { 1.0 }, 0.0],
+            });
+            if pilot && row < 2 && !(row == 1 && k == 16) {
+                // Where the ray towards the light crosses y = 1; the next sample's ray crosses
+                // 0.1 · (1 − 1 / height) away, well clear of the square.
+                let c = light.map_or(p + Vec3::Y, |l| p + (l - p) / l.y);
+                let (a, b) = (Vec3::new(0.03, 0.0, 0.0), Vec3::new(0.0, 0.0, 0.03));
+                let [q0, q1, q2, q3] = [c - a - b, c + a - b, c + a + b, c - a + b];
+                triangles.push([q0, q1, q2].map(|q| q.to_array()));
+                triangles.push([q0, q2, q3].map(|q| q.to_array()));
+            }
+        }
+    }
+    SurfaceData {
+        triangles,
+        per_patch: PER_ROW as u32,
+        area_samples: PER_ROW as u32,
+        points,
+        albedo: None,
+    }
+}
+
+/// A layout of `n` rows with nothing in them: what `direct_irradiance` reads of a surface
+/// scene's layout is its length.
+fn rows(n: usize) -> PatchLayout {
+    use bounce_core::patch::{Face, Patch};
+    let patch = Patch {
+        voxel: [0; 3],
+        face: Face::PosY,
+        albedo: [0.5; 3],
+        centroid: [0.0; 3],
+        normal: [0.0, 1.0, 0.0],
+        source_area: 1.0,
+        emission: [0.0; 3],
+    };
+    PatchLayout {
+        origin: [0.0; 3],
+        voxel_size: 1.0,
+        dims: [1; 3],
+        patches: vec![patch; n],
+    }
+}
+
+/// Rows denser than the default's follow the pilot rule (`bounce_core::direct::pilots_apply`)
+/// on the CPU and the GPU alike: a row some pilot of which faces the light and none of which is
+/// reached is dark, though its other samples lie in the open; one open pilot, or pilots that
+/// all face away, and every sample is traced. At 32 samples the rule does not hold and each
+/// sample counts alone.
+#[test]
+fn dense_rows_follow_the_pilot_rule_on_the_cpu_and_the_gpu() {
+    use bounce_core::direct::{PreparedLight, ShadowCache, pilots_apply, surface_irradiance};
+    let Some(ctx) = context() else { return };
+    let data = comb(None);
+    let light = set(vec![Light::Directional {
+        direction: [0.0, -1.0, 0.0],
+        color: [1.0; 3],
+        intensity: 2.0,
+        name: None,
+    }]);
+    let gpu = GpuSurfaceDirect::upload(ctx, &data).unwrap();
+    let mesh = data.mesh();
+    let prepared: Vec<PreparedLight> = light.lights.iter().filter_map(PreparedLight::new).collect();
+    for (samples, want) in [
+        (36u32, [0.0, 2.0 * 28.0 / 36.0, 2.0 * 27.0 / 36.0]),
+        (
+            32,
+            [2.0 * 24.0 / 32.0, 2.0 * 25.0 / 32.0, 2.0 * 24.0 / 32.0],
+        ),
+    ] {
+        assert_eq!(pilots_apply(samples), samples > 32);
+        let on_gpu = gpu
+            .irradiance(std::slice::from_ref(&light), samples)
+            .unwrap();
+        for (row, want) in want.into_iter().enumerate() {
+            let cpu = surface_irradiance(
+                &mesh,
+                &data.samples(row)[..samples as usize],
+                &prepared,
+                &mut ShadowCache::new(prepared.len()),
+            );
+            let close = |v: f32| (v - want).abs() <= 1e-6;
+            assert!(
+                cpu.iter().all(|&v| close(v)),
+                "{samples} samples, row {row}: CPU {cpu:?}, want {want}"
+            );
+            assert_eq!(
+                on_gpu[0][row], cpu,
+                "{samples} samples, row {row}: GPU against CPU"
+            );
+        }
+    }
+}
+
+/// A row the pilot rule takes as blocked stays dark under that light whatever rays other lights
+/// at its place traced: a spot there whose narrow cone lights one sample of row 0 and none of
+/// its pilots traces that sample (it is open, and kept), and the point light asked for again
+/// still finds row 0 dark, as the first time, with the kept answers as with every ray traced.
+#[test]
+fn the_pilot_rule_does_not_depend_on_the_sets_before() {
+    use bounce_core::direct::{PreparedLight, ShadowCache, direct_irradiance, sample_irradiance};
+    let at = Vec3::new(0.1, 5.0, 0.0);
+    let data = comb(Some(at));
+    let rows = rows(3);
+    let kept = ShadowScene::surface(&data);
+    let mut traced = ShadowScene::surface(&data);
+    traced.set_visibility_budget(0);
+    let point = set(vec![Light::Point {
+        position: at.to_array(),
+        color: [1.0; 3],
+        intensity: 25.0,
+        range: None,
+        name: None,
+    }]);
+    let narrow = set(vec![Light::Spot {
+        position: at.to_array(),
+        direction: [0.0, -1.0, 0.0],
+        color: [1.0; 3],
+        intensity: 25.0,
+        range: None,
+        inner_cone_angle: 0.005,
+        outer_cone_angle: 0.01,
+        name: None,
+    }]);
+    let first = direct_irradiance(&kept, &rows, &point, 36);
+    assert_eq!(first[0], [0.0; 3], "row 0's pilots are all blocked");
+    assert!(first[1][0] > 0.0 && first[2][0] > 0.0);
+    let spot = direct_irradiance(&kept, &rows, &narrow, 36);
+    // Sample 1 alone, straight under the spot, over 36 samples.
+    let prepared: Vec<PreparedLight> = narrow
+        .lights
+        .iter()
+        .filter_map(PreparedLight::new)
+        .collect();
+    let each = sample_irradiance(
+        &data.mesh(),
+        data.samples(0),
+        &prepared,
+        &mut ShadowCache::new(1),
+    );
+    let lit: Vec<usize> = (0..36).filter(|&k| each[k][0] > 0.0).collect();
+    assert_eq!(lit, [1], "the narrow spot lights sample 1 alone");
+    assert!(
+        (spot[0][0] - each[1][0] / 36.0).abs() <= 1e-6 * each[1][0],
+        "{:?}",
+        spot[0]
+    );
+    assert_eq!(direct_irradiance(&kept, &rows, &point, 36), first);
+    assert_eq!(direct_irradiance(&traced, &rows, &point, 36), first);
+    assert_eq!(kept.visibility_kept(), 1);
+}
+
+/// A dense bake's rows (48 samples, 36 by area: the pilot rule holds) under the pillar room's
+/// lights: the GPU as the CPU, within the module's tolerance.
+#[test]
+fn pillar_room_at_48_samples_matches_the_cpu() {
+    let Some(ctx) = context() else { return };
+    let case = dense_case(&room(None, Some(([1.4, 2.2], 2.5))), SIZE / 12.0, 48, 36);
+    check(ctx, "pillar, 48 samples", &case, &pillar_sets(), 48);
+}
+
+/// The kept answers and the last set's blockers change no value under the pilot rule either: a
+/// point light, a narrow spot where it stands (whose cone leaves some pilots dark, so its rows
+/// decide apart from the point's), a wide one there and a sun, asked for three times, give the
+/// bits of every ray traced, means and samples.
+#[test]
+fn kept_answers_change_no_value_under_the_pilot_rule() {
+    use bounce_core::direct::direct_with_samples;
+    let case = dense_case(&room(None, Some(([1.4, 2.2], 2.5))), SIZE / 12.0, 48, 36);
+    let mut traced = ShadowScene::surface(&case.data);
+    traced.set_visibility_budget(0);
+    let at = [2.0, 3.2, 1.5];
+    let spot = |outer_cone_angle: f32| Light::Spot {
+        position: at,
+        direction: [0.2, -1.0, 0.1],
+        color: [1.0; 3],
+        intensity: 4.0,
+        range: None,
+        inner_cone_angle: 0.05,
+        outer_cone_angle,
+        name: None,
+    };
+    let sets = [
+        set(vec![point(at, 10.0, None)]),
+        set(vec![spot(0.3)]),
+        set(vec![spot(1.2), sun([-0.3, -1.0, -0.2])]),
+        set(vec![point([2.6, 1.2, 3.1], 6.0, None)]),
+    ];
+    for _ in 0..3 {
+        for s in &sets {
+            let want = direct_with_samples(&traced, &case.layout, s, 48).unwrap();
+            let got = direct_with_samples(&case.shadow, &case.layout, s, 48).unwrap();
+            assert!(want.mean.iter().flatten().any(|v| *v > 0.0));
+            assert_eq!(got, want);
+        }
+    }
+    assert!(case.shadow.visibility_kept() > 0);
 }
 
 /// Median seconds of `f` over `runs` runs (after one warm-up).

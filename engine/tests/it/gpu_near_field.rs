@@ -47,14 +47,19 @@ struct NearCase {
 /// `area` of each row's `PER_PATCH` samples make its mean (the rest stand in for landing
 /// samples: only the near field reads them).
 fn near_case(scene: &Scene, voxel: f32, area: u32) -> NearCase {
+    dense_near_case(scene, voxel, PER_PATCH, area)
+}
+
+/// [`near_case`] with `per_patch` samples a row.
+fn dense_near_case(scene: &Scene, voxel: f32, per_patch: u32, area: u32) -> NearCase {
     let vox = cluster_at(scene, voxel).expect("the scene clusters");
     let pieces = vox.pieces.as_ref().expect("surface pieces");
     let mesh = Arc::new(scene_mesh(scene));
     let data = SurfaceData {
         triangles: occluder_triangles_of(&mesh),
-        per_patch: PER_PATCH,
+        per_patch,
         area_samples: area,
-        points: sample_points(pieces, PER_PATCH, 7),
+        points: sample_points(pieces, per_patch, 7),
         albedo: None,
     };
     let rows = vox.transport_layout();
@@ -62,7 +67,7 @@ fn near_case(scene: &Scene, voxel: f32, area: u32) -> NearCase {
     let tracer = SurfaceScene::new(scene, mesh, rows, pieces);
     let near = near_field_rows(&tracer, &data, 0..n, 256, 11, voxel, &|_| {})
         .expect("the near field traces");
-    near.check(n, n, PER_PATCH).expect("a well-formed matrix");
+    near.check(n, n, per_patch).expect("a well-formed matrix");
     // Different per row and per channel, so a row read in the wrong place shows.
     let albedo = (0..n)
         .map(|j| {
@@ -256,20 +261,21 @@ fn check_field(
         near.nnz() as f64 / n as f64
     );
     let gpu = upload_field(ctx, case, near, albedo);
-    let (means, delta) = gpu.irradiance_near(sets, PER_PATCH).unwrap();
+    let per_patch = case.data.per_patch;
+    let (means, delta) = gpu.irradiance_near(sets, per_patch).unwrap();
     let delta = delta.expect("all samples used: a correction");
     assert_eq!((means.len(), delta.len()), (sets.len(), sets.len()));
     // `gather_samples` sums what `gather` sums.
     assert_eq!(
         means,
-        gpu.irradiance(sets, PER_PATCH).unwrap(),
+        gpu.irradiance(sets, per_patch).unwrap(),
         "{name}: means"
     );
     for (k, s) in sets.iter().enumerate() {
-        let cpu = direct_with_samples(&case.shadow, &case.layout, s, PER_PATCH).unwrap();
-        let open = direct_with_samples(&case.open, &case.layout, s, PER_PATCH).unwrap();
-        assert_eq!(cpu.count, PER_PATCH);
-        let direct = compare(&means[k], &cpu.mean, &open.mean, PER_PATCH);
+        let cpu = direct_with_samples(&case.shadow, &case.layout, s, per_patch).unwrap();
+        let open = direct_with_samples(&case.open, &case.layout, s, per_patch).unwrap();
+        assert_eq!(cpu.count, per_patch);
+        let direct = compare(&means[k], &cpu.mean, &open.mean, per_patch);
         let sky = s
             .sky_sh()
             .and_then(|sky| near.sky_samples_averaging(&sky, case.data.area_samples));
@@ -309,6 +315,16 @@ fn point_light_near_a_wall_corrects_as_the_cpu() {
 fn pillar_room_with_several_sets_corrects_as_the_cpu() {
     let Some(ctx) = context() else { return };
     check(ctx, "pillar", room_with_pillar(), &pillar_sets());
+}
+
+/// Rows of 48 samples, 36 of them by area (so the pilot rule, `bounce_core::direct::pilots_apply`,
+/// decides which rays are traced, landing samples included): the per-sample values the device
+/// keeps for the correction follow it as the CPU's do.
+#[test]
+fn dense_rows_correct_as_the_cpu() {
+    let Some(ctx) = context() else { return };
+    let case = dense_near_case(&room(None, Some(([1.4, 2.2], 2.5))), SIZE / 12.0, 48, 36);
+    check(ctx, "pillar, 48 samples", &case, &pillar_sets());
 }
 
 /// `near` with a sky view per sample: made up, but each one a view 8 rays could give (0 to 7

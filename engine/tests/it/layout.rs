@@ -379,9 +379,9 @@ fn direct_surface_structs_match_wgsl() {
             ("sets", offset_of!(SurfaceParams, sets)),
             ("nodes", offset_of!(SurfaceParams, nodes)),
             ("averaged", offset_of!(SurfaceParams, averaged)),
-            ("pad0", offset_of!(SurfaceParams, pad)),
-            ("pad1", offset_of!(SurfaceParams, pad) + 4),
-            ("pad2", offset_of!(SurfaceParams, pad) + 8),
+            ("pilots", offset_of!(SurfaceParams, pilots)),
+            ("pad1", offset_of!(SurfaceParams, pad)),
+            ("pad2", offset_of!(SurfaceParams, pad) + 4),
         ])
     );
 

@@ -5,6 +5,11 @@
 //
 // Two passes over a piece of the patches (`params.first` onward, `params.patches` of them):
 //
+// - `shadow_pilots` (only where the pilot rule holds, `bounce_core::direct::pilots_apply`):
+//   one thread per (light, patch, pilot) traces the pilots' rays first and records whether each
+//   is reached and whether it faces the light. `shadow` then takes a pilot's answer from it,
+//   and leaves dark without a ray the other samples of a patch some pilot of which faces the
+//   light and none is reached.
 // - `shadow`: one thread per (light of the dispatch, patch, sample) traces that shadow ray
 //   through the BVH and records one bit, whether the light reaches the sample (lit and not
 //   occluded). The rays are the work, so they get the threads, even for a single light set.
@@ -38,7 +43,9 @@ struct SurfaceParams {
     // Samples a patch's mean is taken over: the first `averaged` of the `count` used (those
     // spread by area; landing samples after them serve the near field only).
     averaged: u32,
-    pad0: u32,
+    // 1 when the pilot rule holds (`bounce_core::direct::pilots_apply(averaged)`): `shadow`
+    // then reads `shadow_pilots`' answers.
+    pilots: u32,
     pad1: u32,
     pad2: u32,
 }
@@ -95,8 +102,19 @@ const INV_EPSILON: f32 = 8388608.0;
 // Packed RGB, light set s, patch i at (s * n + i) * 3.
 @group(0) @binding(7) var<storage, read_write> out: array<f32>;
 
+// The pilots' answers (`shadow_pilots`), two words per 32 pilots: whether the light reaches
+// each, then whether each faces it (is lit). Pilot `(l * patches + i) * pilots_per_row() + p` is
+// sample `PILOT_STRIDE · p` of the piece's patch i towards light l. Bound to every `shadow`
+// pass; read only when `params.pilots` is 1.
+@group(0) @binding(9) var<storage, read_write> pilot_bits: array<u32>;
+
+// `bounce_core::direct::PILOT_STRIDE`.
+const PILOT_STRIDE: u32 = 4u;
+
 // Each thread's visibility bit, in place in its word.
 var<workgroup> visible: array<u32, WG>;
+// Each pilot thread's facing bit, in place in its word.
+var<workgroup> facing: array<u32, WG>;
 
 // glam's `Vec3::dot` and `Vec3::cross`, term by term in its order.
 fn dot3(a: vec3<f32>, b: vec3<f32>) -> f32 {
@@ -228,6 +246,78 @@ fn occluded(origin: vec3<f32>, dir: vec3<f32>, t_max: f32) -> bool {
     return false;
 }
 
+// Pilots a patch has towards one light: samples 0, 4, 8, … of the `averaged`.
+fn pilots_per_row() -> u32 {
+    return (params.averaged + PILOT_STRIDE - 1u) / PILOT_STRIDE;
+}
+
+// Whether any of pilots `start..start + len` has bit `which` (0: reached, 1: faces the light).
+fn any_pilot(start: u32, len: u32, which: u32) -> bool {
+    let end = start + len;
+    var b = start;
+    while b < end {
+        let lo = b & 31u;
+        let take = min(32u - lo, end - b);
+        let mask = (0xffffffffu >> (32u - take)) << lo;
+        if (pilot_bits[(b >> 5u) * 2u + which] & mask) != 0u {
+            return true;
+        }
+        b += take;
+    }
+    return false;
+}
+
+// One thread per (light of the dispatch, patch, pilot): the pilot's shadow ray, as `shadow`
+// traces any, and whether the pilot faces the light. A workgroup's 64 pilots leave as four
+// words, with no atomics.
+@compute @workgroup_size(WG)
+fn shadow_pilots(
+    @builtin(workgroup_id) wg: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+    @builtin(local_invocation_index) lid: u32,
+) {
+    let group = wg.y * groups.x + wg.x;
+    let per_row = pilots_per_row();
+    let per_light = params.patches * per_row;
+    let total = per_light * params.lights;
+    if group * WG >= total {
+        return;
+    }
+    let t = group * WG + lid;
+    var bit = 0u;
+    var faces = 0u;
+    if t < total {
+        let l = t / per_light;
+        let r = t - l * per_light;
+        let i = r / per_row;
+        let k = (r - i * per_row) * PILOT_STRIDE;
+        let pt = points[(params.first + i) * params.per_patch + k];
+        let s = light_sample(lights[l], pt.position, pt.normal);
+        if s.lit {
+            faces = 1u << (lid % 32u);
+            if !occluded(pt.position, s.dir, s.distance * SHADOW_END) {
+                bit = 1u << (lid % 32u);
+            }
+        }
+    }
+    visible[lid] = bit;
+    facing[lid] = faces;
+    workgroupBarrier();
+    if lid < 4u {
+        // Words: reached then facing, for pilots 0..32 then 32..64 of the workgroup.
+        let half = lid / 2u;
+        var word = 0u;
+        for (var j = 0u; j < 32u; j++) {
+            if lid % 2u == 0u {
+                word |= visible[half * 32u + j];
+            } else {
+                word |= facing[half * 32u + j];
+            }
+        }
+        pilot_bits[group * 4u + lid] = word;
+    }
+}
+
 @compute @workgroup_size(WG)
 fn shadow(
     @builtin(workgroup_id) wg: vec3<u32>,
@@ -249,10 +339,28 @@ fn shadow(
         let r = t - l * per_light;
         let i = r / params.count;
         let k = r - i * params.count;
-        let pt = points[(params.first + i) * params.per_patch + k];
-        let s = light_sample(lights[l], pt.position, pt.normal);
-        if s.lit && !occluded(pt.position, s.dir, s.distance * SHADOW_END) {
-            bit = 1u << (lid % 32u);
+        var trace = true;
+        if params.pilots == 1u {
+            let per_row = pilots_per_row();
+            let first = (l * params.patches + i) * per_row;
+            if k < params.averaged && k % PILOT_STRIDE == 0u {
+                // A pilot: `shadow_pilots` traced it.
+                trace = false;
+                let p = first + k / PILOT_STRIDE;
+                if ((pilot_bits[(p >> 5u) * 2u] >> (p & 31u)) & 1u) == 1u {
+                    bit = 1u << (lid % 32u);
+                }
+            } else if !any_pilot(first, per_row, 0u) && any_pilot(first, per_row, 1u) {
+                // Some pilot faces the light and none is reached: taken as blocked.
+                trace = false;
+            }
+        }
+        if trace {
+            let pt = points[(params.first + i) * params.per_patch + k];
+            let s = light_sample(lights[l], pt.position, pt.normal);
+            if s.lit && !occluded(pt.position, s.dir, s.distance * SHADOW_END) {
+                bit = 1u << (lid % 32u);
+            }
         }
     }
     visible[lid] = bit;
