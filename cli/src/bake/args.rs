@@ -83,7 +83,10 @@ pub struct BakeArgs {
     #[arg(long, value_name = "surface|voxel-faces", default_value = "surface")]
     pub geometry: Geometry,
     /// Direct-light sample points stored per patch (surface geometry): where the server
-    /// evaluates each light, with shadow rays against the triangles.
+    /// evaluates each light, with shadow rays against the triangles. More resolve the shadow
+    /// edges inside a patch: on `pandora` 128 took a sun's error from 11.6% to 9.7% for about
+    /// twice the CPU's direct light per set (with more than 32 by area, a patch traces every
+    /// fourth first and leaves the rest dark where none of those is reached).
     #[arg(long, value_name = "N", default_value_t = DEFAULT_SURFACE_SAMPLES)]
     pub direct_samples: u32,
     /// How many of those --direct-samples to place where near-field rays land (where surfaces
