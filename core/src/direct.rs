@@ -655,7 +655,7 @@ impl Shadowing<'_> {
     }
 
     /// The irradiance of a row's sample `k`, `s`: its lights summed in light order, kept
-    /// finite. A light `blocked` holds true for (the pilot rule's) adds nothing.
+    /// finite. A light for which `blocked` holds true (the pilot rule's verdict) adds nothing.
     #[allow(clippy::too_many_arguments)]
     fn point_irradiance(
         &self,
