@@ -169,6 +169,19 @@ fn storage_of<T: Pod>(
     }
 }
 
+/// One compute pass of `pipeline` over `grid` (`(x, y)` workgroups) with `group` bound.
+fn dispatch(
+    encoder: &mut wgpu::CommandEncoder,
+    pipeline: &wgpu::ComputePipeline,
+    group: &wgpu::BindGroup,
+    (gx, gy): (u32, u32),
+) {
+    let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
+    pass.set_pipeline(pipeline);
+    pass.set_bind_group(0, group, &[]);
+    pass.dispatch_workgroups(gx, gy, 1);
+}
+
 /// A dispatch grid of `groups` workgroups along x, folded into y past the per-dimension limit.
 fn grid(device: &wgpu::Device, groups: u64) -> Result<(u32, u32), GpuError> {
     let max = device.limits().max_compute_workgroups_per_dimension.max(1);
@@ -613,10 +626,7 @@ impl GpuSurfaceDirect {
                     (patches * pilots_per_row * u64::from(light_count))
                         .div_ceil(u64::from(SURFACE_WG)),
                 )?;
-                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
-                pass.set_pipeline(&self.shadow_pilots);
-                pass.set_bind_group(0, &group, &[]);
-                pass.dispatch_workgroups(gx, gy, 1);
+                dispatch(&mut encoder, &self.shadow_pilots, &group, (gx, gy));
             }
             if rays_per_patch > 0 {
                 let group = bind(
@@ -635,10 +645,7 @@ impl GpuSurfaceDirect {
                     device,
                     (patches * rays_per_patch).div_ceil(u64::from(SURFACE_WG)),
                 )?;
-                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
-                pass.set_pipeline(&self.shadow);
-                pass.set_bind_group(0, &group, &[]);
-                pass.dispatch_workgroups(gx, gy, 1);
+                dispatch(&mut encoder, &self.shadow, &group, (gx, gy));
             }
             let mut entries = vec![
                 (0, &params_buf),
@@ -656,12 +663,7 @@ impl GpuSurfaceDirect {
                 device,
                 (patches * u64::from(sets_n)).div_ceil(u64::from(SURFACE_WG)),
             )?;
-            {
-                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
-                pass.set_pipeline(gather);
-                pass.set_bind_group(0, &group, &[]);
-                pass.dispatch_workgroups(gx, gy, 1);
-            }
+            dispatch(&mut encoder, gather, &group, (gx, gy));
             first += patches;
         }
         encoder.copy_buffer_to_buffer(&out, 0, &readback, 0, bytes);
@@ -695,10 +697,7 @@ impl GpuSurfaceDirect {
                     ],
                 );
                 let (gx, gy) = grid(device, (n * u64::from(sets_n)).div_ceil(u64::from(NEAR_WG)))?;
-                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
-                pass.set_pipeline(&sky.pass);
-                pass.set_bind_group(0, &group, &[]);
-                pass.dispatch_workgroups(gx, gy, 1);
+                dispatch(&mut encoder, &sky.pass, &group, (gx, gy));
             }
             let group = bind(
                 &near.pass,
@@ -715,12 +714,7 @@ impl GpuSurfaceDirect {
                 ],
             );
             let (gx, gy) = grid(device, (n * u64::from(sets_n)).div_ceil(u64::from(NEAR_WG)))?;
-            {
-                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
-                pass.set_pipeline(&near.pass);
-                pass.set_bind_group(0, &group, &[]);
-                pass.dispatch_workgroups(gx, gy, 1);
-            }
+            dispatch(&mut encoder, &near.pass, &group, (gx, gy));
             encoder.copy_buffer_to_buffer(&delta, 0, &readback, 0, bytes);
             delta_readback = Some(readback);
         }

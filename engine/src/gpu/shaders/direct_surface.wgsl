@@ -267,6 +267,21 @@ fn any_pilot(start: u32, len: u32, which: u32) -> bool {
     return false;
 }
 
+// Light l's shadow ray from sample k of the piece's patch i: 0 when the sample does not face
+// the light (or lies outside its range or cone), 1 when it does and the ray is blocked, 3 when
+// the light reaches it (bit 0: faces it, bit 1: reached).
+fn sample_ray(l: u32, i: u32, k: u32) -> u32 {
+    let pt = points[(params.first + i) * params.per_patch + k];
+    let s = light_sample(lights[l], pt.position, pt.normal);
+    if !s.lit {
+        return 0u;
+    }
+    if occluded(pt.position, s.dir, s.distance * SHADOW_END) {
+        return 1u;
+    }
+    return 3u;
+}
+
 // One thread per (light of the dispatch, patch, pilot): the pilot's shadow ray, as `shadow`
 // traces any, and whether the pilot faces the light. A workgroup's 64 pilots leave as four
 // words, with no atomics.
@@ -290,15 +305,9 @@ fn shadow_pilots(
         let l = t / per_light;
         let r = t - l * per_light;
         let i = r / per_row;
-        let k = (r - i * per_row) * PILOT_STRIDE;
-        let pt = points[(params.first + i) * params.per_patch + k];
-        let s = light_sample(lights[l], pt.position, pt.normal);
-        if s.lit {
-            faces = 1u << (lid % 32u);
-            if !occluded(pt.position, s.dir, s.distance * SHADOW_END) {
-                bit = 1u << (lid % 32u);
-            }
-        }
+        let ray = sample_ray(l, i, (r - i * per_row) * PILOT_STRIDE);
+        faces = (ray & 1u) << (lid % 32u);
+        bit = (ray >> 1u) << (lid % 32u);
     }
     visible[lid] = bit;
     facing[lid] = faces;
@@ -356,11 +365,7 @@ fn shadow(
             }
         }
         if trace {
-            let pt = points[(params.first + i) * params.per_patch + k];
-            let s = light_sample(lights[l], pt.position, pt.normal);
-            if s.lit && !occluded(pt.position, s.dir, s.distance * SHADOW_END) {
-                bit = 1u << (lid % 32u);
-            }
+            bit = (sample_ray(l, i, k) >> 1u) << (lid % 32u);
         }
     }
     visible[lid] = bit;
