@@ -451,6 +451,7 @@ fn every_command_has_help() {
         vec!["bench", "rays", "--help"],
         vec!["bench", "codecs", "--help"],
         vec!["bench", "engines", "--help"],
+        vec!["bench", "direct", "--help"],
         vec!["bench", "serve", "--help"],
         vec!["serve", "--help"],
         vec!["reference", "--help"],
@@ -1598,6 +1599,129 @@ fn bench_engines_measures_the_file_and_synthetic_sizes() {
             .filter(|r| r[col("codec")].starts_with("direct light"));
         assert_eq!(direct.count() > 0, synthetic.is_none(), "{text}");
     }
+}
+
+/// `bench direct` times each file under each motion that changes the light set, takes the
+/// voxel-face file as the baseline wherever it stands on the command line, and refuses what it
+/// cannot measure before timing anything.
+#[test]
+fn bench_direct_times_every_file_under_every_motion() {
+    let dir = tempfile::tempdir().unwrap();
+    let (surface, voxels) = (dir.path().join("s.bounce"), dir.path().join("v.bounce"));
+    for (file, geometry) in [(&surface, "surface"), (&voxels, "voxel-faces")] {
+        common::ok(
+            bounce()
+                .args([
+                    "bake",
+                    "--patches",
+                    "200",
+                    "--rays",
+                    "256",
+                    "--geometry",
+                    geometry,
+                ])
+                .args(["--codec", "dense-f32", "--quiet", "-o"])
+                .arg(file)
+                .arg(cornell()),
+        );
+    }
+    let lights = dir.path().join("l.json");
+    std::fs::write(
+        &lights,
+        r#"{"lights":[{"type":"point","position":[0,1.5,0],"intensity":5},
+                      {"type":"directional","direction":[0.3,-1,0.2],"intensity":2}]}"#,
+    )
+    .unwrap();
+    let csv = dir.path().join("d.csv");
+    let out = common::ok(
+        bounce()
+            .args(["bench", "direct"])
+            .arg(&surface)
+            .arg(&voxels)
+            .arg("--lights")
+            .arg(&lights)
+            .args(["--sets", "3", "--rounds", "2", "--csv"])
+            .arg(&csv),
+    );
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let printed = String::from_utf8_lossy(&out.stdout).to_string();
+    assert_eq!(
+        text.lines().next(),
+        printed
+            .lines()
+            .next()
+            .map(|h| h.split_whitespace().collect::<Vec<_>>().join(","))
+            .as_deref(),
+        "the CSV has the table's header"
+    );
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let col = |name: &str| header.iter().position(|h| *h == name).unwrap();
+    let rows: Vec<Vec<String>> = lines
+        .map(|l| l.split(',').map(str::to_string).collect())
+        .collect();
+    assert_eq!(rows.len(), 2 * 4, "two files, four motions:\n{text}");
+    for motion in ["move", "turn", "still", "dim"] {
+        let of = |geometry: &str| {
+            rows.iter()
+                .find(|r| r[col("motion")] == motion && r[col("geometry")] == geometry)
+                .unwrap_or_else(|| panic!("{motion} {geometry}:\n{text}"))
+        };
+        let (s, v) = (of("surface"), of("voxel-faces"));
+        assert_eq!(v[col("total_x_baseline")], "1.00", "{text}");
+        assert_eq!(v[col("later_x_baseline")], "1.00", "{text}");
+        for r in [s, v] {
+            for c in ["first_ms", "later_ms_per_set", "total_ms"] {
+                let t: f64 = r[col(c)].parse().unwrap();
+                assert!(t > 0.0 && t.is_finite(), "{c}: {text}");
+            }
+            assert_eq!(r[col("sets")], "3");
+        }
+        assert_eq!(
+            s[col("samples")],
+            "32",
+            "every sample a surface bake stores"
+        );
+    }
+    // A sky alone: moving, turning and dimming change nothing, and are left out with a note.
+    let sky = dir.path().join("sky.json");
+    std::fs::write(&sky, r#"{"lights":[{"type":"sky","color":[1,1,1]}]}"#).unwrap();
+    let out = common::ok(
+        bounce()
+            .args(["bench", "direct"])
+            .arg(&surface)
+            .arg("--lights")
+            .arg(&sky)
+            .args(["--sets", "2", "--rounds", "1"]),
+    );
+    assert!(stderr(&out).contains("move: left out"), "{}", stderr(&out));
+    let table = String::from_utf8_lossy(&out.stdout).to_string();
+    assert_eq!(
+        table.lines().count(),
+        2,
+        "a header and the still row:\n{table}"
+    );
+    common::refused(
+        bounce()
+            .args(["bench", "direct"])
+            .arg(&surface)
+            .arg("--lights")
+            .arg(&sky)
+            .args(["--motions", "move,turn"]),
+        "no motion changes the light set",
+    );
+    common::refused(
+        bounce()
+            .args(["bench", "direct", "--sets", "1"])
+            .arg(&surface),
+        "--sets must be at least 2",
+    );
+    common::refused(
+        bounce()
+            .args(["bench", "direct"])
+            .arg(dir.path().join("none.bounce")),
+        "none.bounce",
+    );
 }
 
 /// `bench tradeoff` measures both geometries against one reference per patch count, and the

@@ -72,6 +72,11 @@ impl BlockerMemory {
         }
     }
 
+    /// The bytes of blockers kept at most.
+    pub fn budget(&self) -> usize {
+        self.budget
+    }
+
     pub fn set_budget(&mut self, bytes: usize) {
         self.budget = bytes;
         *self.last.get_mut().unwrap_or_else(|e| e.into_inner()) = None;

@@ -110,6 +110,21 @@ impl ShadowScene {
         }
     }
 
+    /// Forgets the shadow-ray answers and blockers kept from earlier light sets, keeping their
+    /// budgets: the next set costs what a first one does (`bounce bench direct` times a light's
+    /// first set after this). The values are the same bits either way.
+    pub fn forget_kept(&mut self) {
+        if let Shadows::Surface {
+            visibility,
+            blockers,
+            ..
+        } = &mut self.inner
+        {
+            visibility.set_budget(visibility.budget());
+            blockers.set_budget(blockers.budget());
+        }
+    }
+
     /// The bytes of answers the scene may keep (0 on a voxel-face scene).
     pub fn visibility_budget(&self) -> usize {
         match &self.inner {

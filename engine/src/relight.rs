@@ -719,6 +719,16 @@ impl Scene {
         }
     }
 
+    /// Forget the CPU shadow-ray answers and blockers kept from earlier light sets, so that the
+    /// next set costs what a scene's first does (`bounce bench direct` starts each light's
+    /// motion from here). The values do not change. No effect where direct light runs on the
+    /// GPU, which keeps no answers between sets.
+    pub fn forget_shadow_answers(&mut self) {
+        if let DirectLight::Cpu(shadow, _) = &mut self.direct {
+            shadow.forget_kept();
+        }
+    }
+
     /// Whether the later bounces carry the near field's correction: the product takes
     /// `B0 + ρ ⊙ ΔE` ([`carried_source`]) rather than `B0`. True for a scene with a near field
     /// and a transport of more than one bounce.

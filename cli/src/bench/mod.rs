@@ -2,11 +2,12 @@
 //! measured in one run. Each bake runs in a child process so its peak memory is its own.
 //!
 //! One file a benchmark, all on the tables of [`table`]: [`bake`] (stages, memory, size per patch
-//! count), [`rays`] (the form-factor tracers), [`codecs`], [`engines`], [`serve`] (the service
-//! under load) and [`tradeoff`] (run time against error, with [`plot`]).
+//! count), [`rays`] (the form-factor tracers), [`codecs`], [`engines`], [`direct`] (direct light under
+//! moving lights), [`serve`] (the service under load) and [`tradeoff`] (run time against error, with [`plot`]).
 
 mod bake;
 mod codecs;
+mod direct;
 mod engines;
 mod plot;
 mod rays;
@@ -41,6 +42,10 @@ pub enum BenchWhat {
     /// changes at a fixed rate on one or more sessions; change-to-frame latency per viewer,
     /// frames per second, order checked on every frame.
     Serve(serve::BenchServeArgs),
+    /// Direct light per light set while the lights move, turn, stay put or dim, for several
+    /// baked files of one scene side by side (voxel faces as the baseline): the first set from a
+    /// scene that keeps nothing, and the later ones.
+    Direct(direct::BenchDirectArgs),
     /// Run time against error across patch counts, ray counts and codecs, every error measured
     /// against the path-traced reference on the original triangles: a table, CSV and a plot.
     Tradeoff(tradeoff::BenchTradeoffArgs),
@@ -54,5 +59,6 @@ pub fn run(args: &BenchArgs) -> Result<()> {
         BenchWhat::Engines(a) => engines::run(a),
         BenchWhat::Serve(a) => serve::run(a),
         BenchWhat::Tradeoff(a) => tradeoff::run(a),
+        BenchWhat::Direct(a) => direct::run(a),
     }
 }
