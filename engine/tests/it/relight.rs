@@ -149,7 +149,7 @@ fn kept_shadow_answers_change_no_value() {
 /// set whose answers were kept, or comes from the other of two moving lights.
 #[test]
 fn the_last_sets_blockers_change_no_value() {
-    let (hinted, traced) = remembering_and_traced();
+    let (mut hinted, traced) = remembering_and_traced();
     let Light::Point { position, .. } = light_sets(1)[0].lights[0] else {
         unreachable!()
     };
@@ -184,6 +184,15 @@ fn the_last_sets_blockers_change_no_value() {
     assert_same_as_every_ray_traced(&hinted, &traced, &sets);
     assert_eq!(hinted.blockers_kept(), 3, "the last set's three lights");
     assert_eq!(traced.blockers_kept(), 0);
+    // Forgotten (what `bounce bench direct` does before each motion): nothing kept, the budget
+    // as it was, and the sets from the start give the same bits again.
+    let budget = hinted.visibility_budget();
+    assert!(hinted.visibility_kept() > 0);
+    hinted.forget_kept();
+    assert_eq!((hinted.visibility_kept(), hinted.blockers_kept()), (0, 0));
+    assert_eq!(hinted.visibility_budget(), budget);
+    assert_same_as_every_ray_traced(&hinted, &traced, &sets);
+    assert_eq!(hinted.blockers_kept(), 3, "kept again after forgetting");
 }
 
 fn rel_l2(a: &[[f32; 3]], b: &[[f32; 3]]) -> f64 {
