@@ -33,8 +33,8 @@ pub struct BenchDirectArgs {
     pub lights: Option<PathBuf>,
     /// Motions, comma separated: `move` (point and spot lights step along +X), `turn`
     /// (directional and spot lights turn about +Y), `still` (the same set again) and `dim`
-    /// (every light 10% dimmer a set). A motion that changes nothing in the light set is left
-    /// out with a note.
+    /// (point, spot and directional lights 10% dimmer a set; skies and emissive surfaces stay).
+    /// A motion that changes nothing in the light set is left out with a note.
     #[arg(long, value_delimiter = ',', default_value = "move,turn,still,dim")]
     pub motions: Vec<Motion>,
     /// Light sets a motion runs, one relight each (the first from a scene that keeps nothing).
