@@ -159,7 +159,7 @@ pub fn run(args: &BenchDirectArgs) -> Result<()> {
     for path in &args.baked {
         let baked = Baked::read(path).with_context(|| format!("reading {}", path.display()))?;
         if base.is_none() {
-            base = Some(match &args.lights {
+            let set = match &args.lights {
                 Some(p) => crate::lights_file::read(p)?,
                 None if baked.meta.lights.is_empty() => bail!(
                     "{} has no lights of its own: give a light configuration with --lights L.json",
@@ -168,7 +168,11 @@ pub fn run(args: &BenchDirectArgs) -> Result<()> {
                 None => LightSet {
                     lights: baked.meta.lights.clone(),
                 },
-            });
+            };
+            // Refused before the other files load (on `pandora`, seconds each).
+            set.validate()
+                .map_err(|e| anyhow::anyhow!("the light set: {e}"))?;
+            base = Some(set);
         }
         let scene = engine
             .load(&baked)
@@ -184,8 +188,6 @@ pub fn run(args: &BenchDirectArgs) -> Result<()> {
     let Some(base) = base else {
         bail!("no baked file given");
     };
-    base.validate()
-        .map_err(|e| anyhow::anyhow!("the light set: {e}"))?;
     let baseline = files
         .iter()
         .position(|f| f.geometry == Geometry::VoxelFaces)
