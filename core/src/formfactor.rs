@@ -80,6 +80,12 @@ pub trait RowTracer: Sync {
     /// Whether any of `rays` probe rays (other samples than the row's) from `row` reaches a
     /// patch.
     fn sees_another(&self, row: usize, rays: u32, seed: u64) -> bool;
+    /// Whether `row`'s surface lies where no viewer sees it: at least three quarters of the
+    /// same probe rays meet the back of a single-sided surface, as they do from inside a closed
+    /// solid. Voxel faces have no back faces: never.
+    fn hidden(&self, _row: usize, _rays: u32, _seed: u64) -> bool {
+        false
+    }
 }
 
 impl RowTracer for RayScene {
@@ -215,6 +221,16 @@ pub fn isolated_patches(scene: &dyn RowTracer, rays: u32, seed: u64) -> Vec<bool
     (0..scene.patch_count())
         .into_par_iter()
         .map(|i| !scene.sees_another(i, rays, seed))
+        .collect()
+}
+
+/// Of the `isolated` patches ([`isolated_patches`]), which are hidden ([`RowTracer::hidden`]):
+/// surface no viewer sees, rather than surface in the open that sees nothing.
+pub fn hidden_patches(scene: &dyn RowTracer, isolated: &[bool], rays: u32, seed: u64) -> Vec<bool> {
+    isolated
+        .par_iter()
+        .enumerate()
+        .map(|(i, &isolated)| isolated && scene.hidden(i, rays, seed))
         .collect()
 }
 

@@ -521,6 +521,22 @@ impl RowTracer for SurfaceScene {
             self.sees_a_row(origin, dir)
         })
     }
+
+    fn hidden(&self, row: usize, rays: u32, seed: u64) -> bool {
+        if self.pieces.of(row).is_empty() || rays == 0 {
+            return false;
+        }
+        let s = row_seed(seed, row);
+        let back = (0..rays)
+            .filter(|&k| {
+                let (origin, _, dir) = self.ray(row, k, PROBE_DIMENSION_SET, s);
+                self.mesh
+                    .closest(origin, dir, f32::INFINITY)
+                    .is_some_and(|hit| !self.sides[hit.triangle as usize][usize::from(!hit.front)])
+            })
+            .count();
+        4 * back >= 3 * rays as usize
+    }
 }
 
 /// Where a form-factor ray lands ([`SurfaceScene::landing`]).

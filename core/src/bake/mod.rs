@@ -285,17 +285,23 @@ fn simplify_with(
     mesh: Option<&Arc<TriMesh>>,
 ) -> Result<voxel::Voxelization, BakeError> {
     let drop_isolated = |mut v: voxel::Voxelization| {
-        let isolated = match (&v.pieces, mesh) {
+        let (isolated, hidden) = match (&v.pieces, mesh) {
             (Some(pieces), Some(mesh)) => {
                 let probe = SurfaceScene::new(scene, mesh.clone(), v.transport_layout(), pieces);
-                formfactor::isolated_patches(&probe, PROBE_RAYS, options.seed)
+                let isolated = formfactor::isolated_patches(&probe, PROBE_RAYS, options.seed);
+                let hidden =
+                    formfactor::hidden_patches(&probe, &isolated, PROBE_RAYS, options.seed);
+                (isolated, hidden)
             }
             _ => {
                 let probe = RayScene::voxels(&v.layout, &v.occupied, &v.occluders, options.tracer);
-                formfactor::isolated_patches(&probe, PROBE_RAYS, options.seed)
+                (
+                    formfactor::isolated_patches(&probe, PROBE_RAYS, options.seed),
+                    Vec::new(),
+                )
             }
         };
-        v.drop_patches(&isolated);
+        v.drop_patches(&isolated, &hidden);
         v
     };
     let mut vox =

@@ -5,7 +5,7 @@
 use std::sync::Arc;
 
 use bounce_core::direct::{ShadowScene, direct_irradiance};
-use bounce_core::formfactor::{RowTracer, form_factors, isolated_patches, stats};
+use bounce_core::formfactor::{RowTracer, form_factors, hidden_patches, isolated_patches, stats};
 use bounce_core::light::{Light, LightSet};
 use bounce_core::patch::Face;
 use bounce_core::scene::{Scene, Triangle};
@@ -711,4 +711,119 @@ fn landing_samples_follow_the_area_samples_and_gather_where_surfaces_meet() {
         differ > 0,
         "the landing samples' light differs from the means somewhere"
     );
+}
+
+/// A floor facing up and, standing on it, a tall closed box of single-sided faces facing out:
+/// the floor inside the box is surface no viewer sees. Its middle is open to the short
+/// openness probe (the walls and roof are more than its reach away), so it is clustered into
+/// elements, which see nothing but the back of the box's faces.
+fn box_on_floor() -> Scene {
+    let v = Vec3::new;
+    let mut t = Vec::new();
+    rect(
+        &mut t,
+        [v(0., 0., 0.), v(4., 0., 0.), v(4., 0., 4.), v(0., 0., 4.)],
+        Vec3::Y,
+        false,
+    );
+    let (lo, hi, top) = (1.1f32, 2.9f32, 3.0f32);
+    let faces = [
+        (
+            [v(lo, 0., lo), v(lo, top, lo), v(lo, top, hi), v(lo, 0., hi)],
+            Vec3::NEG_X,
+        ),
+        (
+            [v(hi, 0., lo), v(hi, 0., hi), v(hi, top, hi), v(hi, top, lo)],
+            Vec3::X,
+        ),
+        (
+            [v(lo, 0., lo), v(hi, 0., lo), v(hi, top, lo), v(lo, top, lo)],
+            Vec3::NEG_Z,
+        ),
+        (
+            [v(lo, 0., hi), v(lo, top, hi), v(hi, top, hi), v(hi, 0., hi)],
+            Vec3::Z,
+        ),
+        (
+            [
+                v(lo, top, lo),
+                v(hi, top, lo),
+                v(hi, top, hi),
+                v(lo, top, hi),
+            ],
+            Vec3::Y,
+        ),
+    ];
+    for (corners, normal) in faces {
+        rect(&mut t, corners, normal, false);
+    }
+    scene(t)
+}
+
+#[test]
+fn hidden_surface_leaves_its_patch_and_surface_in_the_open_stays() {
+    let scene = box_on_floor();
+    let mut vox = cluster_at(&scene, 0.25).unwrap();
+    let rays = surface_scene(&scene, &vox);
+    let isolated = isolated_patches(&rays, 64, 1);
+    let hidden = hidden_patches(&rays, &isolated, 64, 1);
+    let pieces = vox.pieces.as_ref().unwrap();
+    // Where each element's pieces lie: all on the floor strictly inside the box, or anywhere
+    // outside it (the floor beyond, the box's own faces).
+    let inside = |i: usize| {
+        pieces.of(i).iter().all(|t| {
+            t.corners.iter().all(|c| {
+                c.y.abs() < 1e-4 && (1.1..=2.9).contains(&c.x) && (1.1..=2.9).contains(&c.z)
+            })
+        })
+    };
+    let n = vox.transport_layout().len();
+    let inner: Vec<usize> = (0..n).filter(|&i| inside(i)).collect();
+    assert!(inner.len() >= 8, "{} elements inside the box", inner.len());
+    for &i in &inner {
+        assert!(isolated[i] && hidden[i], "inner element {i} is not hidden");
+    }
+    let open_hidden = (0..n).filter(|&i| !inside(i) && hidden[i]).count();
+    assert_eq!(open_hidden, 0, "surface a viewer sees was taken as hidden");
+    assert!(
+        (0..n).any(|i| !inside(i) && !isolated[i]),
+        "the floor outside sees the box"
+    );
+
+    // A patch keeps the area of its kept elements and of those dropped in the open (unlit
+    // surface of its own), and loses that of its hidden ones.
+    let e = vox.elements.as_ref().unwrap();
+    let mut kept = vec![false; vox.layout.len()];
+    let mut want = vec![0.0f64; vox.layout.len()];
+    let mut lost = vec![0.0f64; vox.layout.len()];
+    for (i, (&p, rec)) in e.patch.iter().zip(&e.layout.patches).enumerate() {
+        let a = f64::from(rec.source_area);
+        kept[p as usize] |= !isolated[i];
+        if hidden[i] {
+            lost[p as usize] += a;
+        } else {
+            want[p as usize] += a;
+        }
+    }
+    let straddling = (0..want.len())
+        .filter(|&p| kept[p] && lost[p] > 0.0)
+        .count();
+    assert!(
+        straddling > 0,
+        "no patch holds both surface in view and hidden floor"
+    );
+    let want: Vec<f64> = (0..want.len())
+        .filter(|&p| kept[p])
+        .map(|p| want[p])
+        .collect();
+    vox.drop_patches(&isolated, &hidden);
+    assert_eq!(vox.layout.len(), want.len());
+    for (p, (patch, want)) in vox.layout.patches.iter().zip(&want).enumerate() {
+        assert!(
+            (f64::from(patch.source_area) / want - 1.0).abs() < 1e-5,
+            "patch {p}: area {} against {want}",
+            patch.source_area
+        );
+    }
+    vox.elements.as_ref().unwrap().check(&vox.layout).unwrap();
 }

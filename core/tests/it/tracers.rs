@@ -14,7 +14,7 @@ fn compare(scene_path: &Path, patches: u32, rays: u32) {
     let mut vox = voxelize(&scene, Resolution::TargetPatches(patches)).unwrap();
     let probe = RayScene::voxels(&vox.layout, &vox.occupied, &vox.occluders, Tracer::Grid);
     let isolated = isolated_patches(&probe, 64, 1);
-    vox.drop_patches(&isolated);
+    vox.drop_patches(&isolated, &[]);
 
     let grid = RayScene::voxels(&vox.layout, &vox.occupied, &vox.occluders, Tracer::Grid);
     let bvh = RayScene::voxels(&vox.layout, &vox.occupied, &vox.occluders, Tracer::Bvh);
