@@ -530,9 +530,7 @@ impl RowTracer for SurfaceScene {
         let back = (0..rays)
             .filter(|&k| {
                 let (origin, _, dir) = self.ray(row, k, PROBE_DIMENSION_SET, s);
-                self.mesh
-                    .closest(origin, dir, f32::INFINITY)
-                    .is_some_and(|hit| !self.sides[hit.triangle as usize][usize::from(!hit.front)])
+                self.fate(origin, dir) == RayFate::BackFace
             })
             .count();
         4 * back >= 3 * rays as usize
