@@ -41,6 +41,7 @@ pub mod sky;
 pub mod space;
 pub mod sunsky;
 pub mod surface;
+pub mod tail;
 pub mod transport;
 pub mod trimesh;
 pub mod visibility;

@@ -62,6 +62,38 @@ impl<'de> Deserialize<'de> for Bounces {
     }
 }
 
+/// How a bake of all bounces sums them (`crate::transport::Tail`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum AllBounces {
+    /// The first three by Horner, the rest on clusters of rows (`crate::tail`).
+    Clustered,
+    /// One LU factorisation of `I − D_ρ F`: exact, `n³` work.
+    Exact,
+}
+
+impl std::fmt::Display for AllBounces {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            AllBounces::Clustered => "clustered",
+            AllBounces::Exact => "exact",
+        })
+    }
+}
+
+impl std::str::FromStr for AllBounces {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s.to_ascii_lowercase().as_str() {
+            "clustered" => Ok(AllBounces::Clustered),
+            "exact" => Ok(AllBounces::Exact),
+            _ => Err(format!(
+                "all bounces are summed \"clustered\" or \"exact\", got '{s}'"
+            )),
+        }
+    }
+}
+
 /// The knobs a bake was run with.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct BakeSettings {
@@ -73,6 +105,10 @@ pub struct BakeSettings {
     pub rays_per_patch: u32,
     pub seed: u64,
     pub bounces: Bounces,
+    /// How `bounces` "all" was summed; absent for a number of bounces, and in files from before
+    /// the clustered tail, which were all exact.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub all_bounces: Option<AllBounces>,
     /// The ray tracer that estimated the form factors (`grid` falls back to `bvh` on huge grids).
     pub tracer: crate::rays::Tracer,
     /// The codec asked for: a codec name, or `auto` (the smallest within `max_error`).

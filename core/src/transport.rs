@@ -24,6 +24,17 @@ use thiserror::Error;
 
 use crate::matrix::DenseMatrix;
 use crate::meta::Bounces;
+use crate::tail::{self, Clusters};
+
+/// How [`Bounces::All`] is summed.
+#[derive(Debug, Clone, Copy)]
+pub enum Tail<'a> {
+    /// `T_∞` from one LU factorisation of `I − D_ρ F` in f64: exact, `n³` work and `3 n²` f64s.
+    Exact,
+    /// [`tail::EXACT_BOUNCES`] bounces by Horner, the rest on these clusters of rows
+    /// (`crate::tail`).
+    Clustered(&'a Clusters),
+}
 
 /// Rows per block of work; part of the arithmetic's definition (see the module doc). Each block
 /// re-packs `G` inside faer, so larger blocks amortise that: 256 rows measured about 20% faster
@@ -47,6 +58,10 @@ pub enum TransportError {
     RowRange { start: usize, end: usize, n: usize },
     #[error("the radiosity system is singular: some closed part of the scene reflects all light")]
     Singular,
+    #[error("{clusters} cluster numbers for {areas} rows")]
+    ClusterCount { clusters: usize, areas: usize },
+    #[error("cluster {cluster} has no rows")]
+    EmptyCluster { cluster: usize },
 }
 
 /// The largest change of `E_ind` (relative L2, over the bake's probe light sets) that carrying
@@ -239,6 +254,7 @@ pub fn transport(
     f: &DenseMatrix,
     albedo: &[[f32; 3]],
     bounces: Bounces,
+    tail: Tail<'_>,
     channels: usize,
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<DenseMatrix, TransportError> {
@@ -254,6 +270,7 @@ pub fn transport(
             albedo,
             (c, channels),
             bounces,
+            tail,
             0..n,
             progress,
         )?);
@@ -268,6 +285,7 @@ pub fn transport_rows(
     albedo: &[[f32; 3]],
     channel: (usize, usize),
     bounces: Bounces,
+    tail: Tail<'_>,
     rows: Range<usize>,
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<Vec<f32>, TransportError> {
@@ -287,7 +305,10 @@ pub fn transport_rows(
             Ok(f.data[rows.start * n..rows.end * n].to_vec())
         }
         Bounces::K(k) => Ok(horner_rows(f, &rho, k, rows, progress)),
-        Bounces::All => infinite_rows(f, &rho, rows, progress),
+        Bounces::All => match tail {
+            Tail::Exact => infinite_rows(f, &rho, rows, progress),
+            Tail::Clustered(clusters) => clustered_rows(f, &rho, clusters, rows, progress),
+        },
     }
 }
 
@@ -380,24 +401,45 @@ fn dense_horner_rows(
     let g = scaled_rows(f, rho, |v| v);
     let g = MatRef::from_row_major_slice(&g, n, n);
     by_blocks(n, rows, progress, |r, out| {
-        let f_r = &f.data[r.start * n..r.end * n];
-        let m = r.len();
-        // k ≥ 2 here, so the loop runs and leaves T_k in `out`.
-        let mut x = f_r.to_vec();
-        for _ in 1..k {
-            // out = F_R + X G
-            out.copy_from_slice(f_r);
-            faer::linalg::matmul::matmul(
-                MatMut::from_row_major_slice_mut(out, m, n),
-                Accum::Add,
-                MatRef::from_row_major_slice(&x, m, n),
-                g,
-                1.0f32,
-                Par::Seq,
-            );
+        dense_block(f, g, k, r, out);
+    })
+}
+
+/// Rows `r` of `T_k` (`k ≥ 2`) into `out` by dense Horner steps; returns the same rows of
+/// `T_{k−1}`.
+fn dense_block(
+    f: &DenseMatrix,
+    g: MatRef<'_, f32>,
+    k: u32,
+    r: Range<usize>,
+    out: &mut [f32],
+) -> Vec<f32> {
+    let n = f.n;
+    dense_steps(&f.data[r.start * n..r.end * n], g, k, out)
+}
+
+/// `X_k` for `X_1 = S`, `X_{m+1} = S + X_m G` (`k ≥ 2`), `S` being rows `start` (`rows × n`),
+/// into `out`; returns `X_{k−1}`. With `S` rows of `F` these are rows of `T_k` and `T_{k−1}`.
+fn dense_steps(start: &[f32], g: MatRef<'_, f32>, k: u32, out: &mut [f32]) -> Vec<f32> {
+    let n = g.ncols();
+    let m = start.len() / n.max(1);
+    let mut x = start.to_vec();
+    for step in 1..k {
+        if step > 1 {
             x.copy_from_slice(out);
         }
-    })
+        // out = S + X G
+        out.copy_from_slice(start);
+        faer::linalg::matmul::matmul(
+            MatMut::from_row_major_slice_mut(out, m, n),
+            Accum::Add,
+            MatRef::from_row_major_slice(&x, m, n),
+            g,
+            1.0f32,
+            Par::Seq,
+        );
+    }
+    x
 }
 
 /// `G = D_ρ F` by rows, its nonzeros only: `(row offsets, columns, values)`.
@@ -439,31 +481,121 @@ fn sparse_horner_rows(
     progress: &(dyn Fn(u64) + Sync),
 ) -> Vec<f32> {
     let n = f.n;
-    let (ptr, cols, vals) = sparse_rows(f, rho);
+    let g = sparse_rows(f, rho);
     let mut out = vec![0.0f32; rows.len() * n];
     out.par_chunks_mut(n.max(1)).enumerate().for_each_init(
         || (vec![0.0f32; n], Vec::<usize>::with_capacity(n)),
         |(x, nonzero), (r, out_row)| {
             let f_row = &f.data[(rows.start + r) * n..(rows.start + r + 1) * n];
-            x.copy_from_slice(f_row);
-            // k ≥ 2 here, so the loop runs and leaves T_k in `out_row`.
-            for _ in 1..k {
-                nonzero.clear();
-                nonzero.extend((0..n).filter(|&c| x[c] != 0.0));
-                out_row.copy_from_slice(f_row);
-                for &c in nonzero.iter() {
-                    let xc = x[c];
-                    let (cs, vs) = (&cols[ptr[c]..ptr[c + 1]], &vals[ptr[c]..ptr[c + 1]]);
-                    for (&j, &v) in cs.iter().zip(vs) {
-                        out_row[j as usize] += xc * v;
-                    }
-                }
-                x.copy_from_slice(out_row);
-            }
+            sparse_row(f_row, k, &g, x, nonzero, out_row);
             progress(1);
         },
     );
     out
+}
+
+/// One row of `T_k` (`k ≥ 2`) into `out_row` by sparse Horner steps over `G`'s nonzeros
+/// (`(row offsets, columns, values)`, [`sparse_rows`]); leaves the row of `T_{k−1}` in `x`.
+fn sparse_row(
+    f_row: &[f32],
+    k: u32,
+    (ptr, cols, vals): &(Vec<usize>, Vec<u32>, Vec<f32>),
+    x: &mut [f32],
+    nonzero: &mut Vec<usize>,
+    out_row: &mut [f32],
+) {
+    let n = f_row.len();
+    x.copy_from_slice(f_row);
+    for step in 1..k {
+        if step > 1 {
+            x.copy_from_slice(out_row);
+        }
+        nonzero.clear();
+        nonzero.extend((0..n).filter(|&c| x[c] != 0.0));
+        out_row.copy_from_slice(f_row);
+        for &c in nonzero.iter() {
+            let xc = x[c];
+            let (cs, vs) = (&cols[ptr[c]..ptr[c + 1]], &vals[ptr[c]..ptr[c + 1]]);
+            for (&j, &v) in cs.iter().zip(vs) {
+                out_row[j as usize] += xc * v;
+            }
+        }
+    }
+}
+
+/// `G = D_ρ F` as the Horner steps read it: by nonzeros for a sparse `F`, dense otherwise.
+enum Steps {
+    Sparse((Vec<usize>, Vec<u32>, Vec<f32>)),
+    Dense(Vec<f32>),
+}
+
+impl Steps {
+    fn new(f: &DenseMatrix, rho: &[f32]) -> Self {
+        if density(f) <= SPARSE_MAX_DENSITY {
+            Steps::Sparse(sparse_rows(f, rho))
+        } else {
+            Steps::Dense(scaled_rows(f, rho, |v| v))
+        }
+    }
+
+    /// [`dense_steps`] (or the same steps row by row over the nonzeros) on rows `start`, with
+    /// the arithmetic of a `k`-bounce transport's rows.
+    fn run(&self, start: &[f32], n: usize, k: u32, out: &mut [f32]) -> Vec<f32> {
+        match self {
+            Steps::Dense(g) => dense_steps(start, MatRef::from_row_major_slice(g, n, n), k, out),
+            Steps::Sparse(g) => {
+                let mut prev = vec![0.0f32; out.len()];
+                let mut nonzero = Vec::with_capacity(n);
+                for ((s, o), p) in start
+                    .chunks(n)
+                    .zip(out.chunks_mut(n))
+                    .zip(prev.chunks_mut(n))
+                {
+                    sparse_row(s, k, g, p, &mut nonzero, o);
+                }
+                prev
+            }
+        }
+    }
+}
+
+/// All bounces with the tail on clusters (`crate::tail`): rows of `T_K` and `T_{K−1}` by the
+/// Horner steps a `K`-bounce bake takes, then the tail on each block.
+fn clustered_rows(
+    f: &DenseMatrix,
+    rho: &[f32],
+    clusters: &Clusters,
+    rows: Range<usize>,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<Vec<f32>, TransportError> {
+    let n = f.n;
+    if clusters.rows() != n {
+        return Err(TransportError::ClusterCount {
+            clusters: clusters.rows(),
+            areas: n,
+        });
+    }
+    let k = tail::EXACT_BOUNCES;
+    let steps = Steps::new(f, rho);
+    // The clusters' mean rows of F through the same steps: R T_K and R T_{K−1}.
+    let rf = tail::cluster_rows(f, clusters);
+    let m = clusters.len();
+    let mut rt = vec![0.0f32; m * n];
+    let prev: Vec<Vec<f32>> = rf
+        .par_chunks(ROW_BLOCK * n.max(1))
+        .zip(rt.par_chunks_mut(ROW_BLOCK * n.max(1)))
+        .map(|(s, o)| steps.run(s, n, k, o))
+        .collect();
+    let coarse = tail::coarse_transport(&rt, &prev.concat(), rho, clusters)?;
+    drop((rf, rt, prev));
+    let out = by_blocks(n, rows, progress, |r, out| {
+        let prev = steps.run(&f.data[r.start * n..r.end * n], n, k, out);
+        tail::add_tail(out, &prev, rho, clusters, &coarse);
+    });
+    if out.iter().any(|v| !v.is_finite()) {
+        return Err(TransportError::Singular);
+    }
+    Ok(out)
 }
 
 fn infinite_rows(
@@ -559,7 +691,7 @@ mod tests {
         for (n, k) in [(5, 2), (17, 3), (70, 5), (130, 4)] {
             let f = random_ff(n, n as u64);
             let albedo = random_albedo(n, 7);
-            let t = transport(&f, &albedo, Bounces::K(k), 3, &no_progress).unwrap();
+            let t = transport(&f, &albedo, Bounces::K(k), Tail::Exact, 3, &no_progress).unwrap();
             assert_eq!(t.channels, 3);
             for c in 0..3 {
                 let rho = channel_albedo(&albedo, c, 3);
@@ -631,9 +763,9 @@ mod tests {
         let n = 90;
         let f = random_ff(n, 3);
         let albedo = random_albedo(n, 11);
-        let t_inf = transport(&f, &albedo, Bounces::All, 3, &no_progress).unwrap();
+        let t_inf = transport(&f, &albedo, Bounces::All, Tail::Exact, 3, &no_progress).unwrap();
         // ρ ≤ 0.9 and row sums ≤ 1: the tail after 200 bounces is below 0.9^200 ≈ 7e-10.
-        let t_many = transport(&f, &albedo, Bounces::K(200), 3, &no_progress).unwrap();
+        let t_many = transport(&f, &albedo, Bounces::K(200), Tail::Exact, 3, &no_progress).unwrap();
         for (a, b) in t_inf.data.iter().zip(&t_many.data) {
             assert!((a - b).abs() <= 1e-5 * b.abs() + 1e-7, "{a} vs {b}");
         }
@@ -643,7 +775,7 @@ mod tests {
     fn one_bounce_is_the_form_factors_in_one_channel() {
         let f = random_ff(20, 5);
         let albedo = random_albedo(20, 1);
-        let t = transport(&f, &albedo, Bounces::K(1), 1, &no_progress).unwrap();
+        let t = transport(&f, &albedo, Bounces::K(1), Tail::Exact, 1, &no_progress).unwrap();
         assert_eq!(t, f);
         let probes = probe_vectors(20, 4);
         let one = choose_channels(&f, &albedo, Bounces::K(1), &probes, 0.0).unwrap();
@@ -652,8 +784,8 @@ mod tests {
         let g = choose_channels(&f, &grey, Bounces::K(3), &probes, 0.0).unwrap();
         assert_eq!((g.channels, g.grey_rel_l2), (1, 0.0));
         // A grey scene's one channel bounces on the albedo itself, not on a rounded mean.
-        let red = transport(&f, &grey, Bounces::K(3), 3, &no_progress).unwrap();
-        let mono = transport(&f, &grey, Bounces::K(3), 1, &no_progress).unwrap();
+        let red = transport(&f, &grey, Bounces::K(3), Tail::Exact, 3, &no_progress).unwrap();
+        let mono = transport(&f, &grey, Bounces::K(3), Tail::Exact, 1, &no_progress).unwrap();
         assert_eq!(mono.channel(0), red.channel(0));
     }
 
@@ -717,11 +849,11 @@ mod tests {
                 assert_eq!(unmeasured.channels, 3);
                 // The measured change is the one the two transports really make.
                 let rgb = apply(
-                    &transport(&f, &albedo, bounces, 3, &no_progress).unwrap(),
+                    &transport(&f, &albedo, bounces, Tail::Exact, 3, &no_progress).unwrap(),
                     &probes,
                 );
                 let one = apply(
-                    &transport(&f, &albedo, bounces, 1, &no_progress).unwrap(),
+                    &transport(&f, &albedo, bounces, Tail::Exact, 1, &no_progress).unwrap(),
                     &probes,
                 );
                 let real = rel(&rgb, &one);
@@ -757,12 +889,27 @@ mod tests {
         let n = 2 * b + b / 3; // three row blocks, the last one partial
         let f = random_ff(n, 9);
         let albedo = random_albedo(n, 2);
-        for bounces in [Bounces::K(3), Bounces::All] {
-            let full = transport_rows(&f, &albedo, (1, 3), bounces, 0..n, &no_progress).unwrap();
+        // Clusters of three consecutive rows, areas varying.
+        let area: Vec<f32> = (0..n).map(|i| 1.0 + (i % 5) as f32).collect();
+        let clusters = Clusters::new((0..n as u32).map(|i| i / 3).collect(), &area).unwrap();
+        for (bounces, tail) in [
+            (Bounces::K(3), Tail::Exact),
+            (Bounces::All, Tail::Exact),
+            (Bounces::All, Tail::Clustered(&clusters)),
+        ] {
+            let full =
+                transport_rows(&f, &albedo, (1, 3), bounces, tail, 0..n, &no_progress).unwrap();
             for range in [0..n, 10..20, b - 5..2 * b + 7, n - 1..n, 0..0] {
-                let part =
-                    transport_rows(&f, &albedo, (1, 3), bounces, range.clone(), &no_progress)
-                        .unwrap();
+                let part = transport_rows(
+                    &f,
+                    &albedo,
+                    (1, 3),
+                    bounces,
+                    tail,
+                    range.clone(),
+                    &no_progress,
+                )
+                .unwrap();
                 assert_eq!(
                     part,
                     full[range.start * n..range.end * n],
@@ -775,7 +922,7 @@ mod tests {
                     .build()
                     .unwrap();
                 let t = pool.install(|| {
-                    transport_rows(&f, &albedo, (1, 3), bounces, 0..n, &no_progress).unwrap()
+                    transport_rows(&f, &albedo, (1, 3), bounces, tail, 0..n, &no_progress).unwrap()
                 });
                 assert_eq!(t, full, "{bounces} with {threads} threads");
             }
@@ -787,18 +934,26 @@ mod tests {
         let f = random_ff(4, 1);
         let albedo = random_albedo(3, 1);
         assert!(matches!(
-            transport(&f, &albedo, Bounces::K(2), 3, &no_progress),
+            transport(&f, &albedo, Bounces::K(2), Tail::Exact, 3, &no_progress),
             Err(TransportError::AlbedoCount { .. })
         ));
         let mut albedo = random_albedo(4, 1);
         albedo[2][1] = f32::NAN;
         assert!(matches!(
-            transport(&f, &albedo, Bounces::All, 3, &no_progress),
+            transport(&f, &albedo, Bounces::All, Tail::Exact, 3, &no_progress),
             Err(TransportError::AlbedoNotFinite { patch: 2 })
         ));
         let albedo = random_albedo(4, 1);
         assert!(matches!(
-            transport_rows(&f, &albedo, (0, 3), Bounces::K(2), 2..9, &no_progress),
+            transport_rows(
+                &f,
+                &albedo,
+                (0, 3),
+                Bounces::K(2),
+                Tail::Exact,
+                2..9,
+                &no_progress
+            ),
             Err(TransportError::RowRange { .. })
         ));
     }

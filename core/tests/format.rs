@@ -96,6 +96,7 @@ fn sample_meta() -> BakeMeta {
             rays_per_patch: 256,
             seed: 7,
             bounces: Bounces::All,
+            all_bounces: Some(bounce_core::meta::AllBounces::Clustered),
             tracer: bounce_core::rays::Tracer::Grid,
             codec: "bc1".to_string(),
             sparse_share: Some(0.04),

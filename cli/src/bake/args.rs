@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use anyhow::{Result, bail};
 use bounce_core::bake::{BakeOptions, CodecRequest};
 use bounce_core::formfactor::MAX_RAYS;
-use bounce_core::meta::Bounces;
+use bounce_core::meta::{AllBounces, Bounces};
 use bounce_core::nearfield::{DEFAULT_NEAR_RADIUS, MAX_NEAR_RADIUS};
 use bounce_core::probe::ProbeOptions;
 use bounce_core::rays::Tracer;
@@ -70,9 +70,17 @@ pub struct BakeArgs {
     /// Rays cast from each patch to estimate its form factors.
     #[arg(long, value_name = "R", default_value_t = 2048)]
     pub rays: u32,
-    /// Light bounces the transport carries: a number of at least 1, or "all".
+    /// Light bounces the transport carries: a number of at least 1, or "all" (what a path
+    /// tracer or a camera sees). Three leave out the rest: 12% of the Cornell box's indirect
+    /// light and 8% of `pandora`'s (under a corridor light), more in brighter rooms.
     #[arg(long, value_name = "K|all", default_value = "3")]
     pub bounces: Bounces,
+    /// How --bounces all sums them: `clustered` (the first three exactly, the rest on clusters
+    /// of 2×2×2 voxels or coarser, one per face direction; seconds) or `exact` (one LU
+    /// factorisation of the whole system in f64: its time and memory grow as rows³ and rows²,
+    /// minutes and gigabytes at 10,000 rows).
+    #[arg(long, value_name = "clustered|exact", default_value = "clustered")]
+    pub all_bounces: AllBounces,
     /// Seed of the ray sequences; the same seed gives the same file on any thread count.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
@@ -214,6 +222,7 @@ impl BakeArgs {
             rays: self.rays,
             seed: self.seed,
             bounces: self.bounces,
+            all_bounces: self.all_bounces,
             keep_form_factors: self.keep_form_factors,
             tracer: self.tracer,
             codec: codec_request(&self.codec, self.max_error),

@@ -19,7 +19,7 @@ use crate::formfactor::{self, FormFactorError, FormFactorStats, RayScene, RowTra
 use crate::import::{self, ImportError};
 use crate::matrix::{DENSE_F32, DenseMatrix, EncodedMatrix};
 pub use crate::meta::SourceInfo;
-use crate::meta::{BakeMeta, BakeSettings, BakeStats, Bounces, StageTiming};
+use crate::meta::{AllBounces, BakeMeta, BakeSettings, BakeStats, Bounces, StageTiming};
 use crate::nearfield::NearField;
 use crate::patch::PatchLayout;
 use crate::probe;
@@ -27,6 +27,7 @@ use crate::rays::Tracer;
 use crate::scene::Scene;
 use crate::sky::SkyVisibility;
 use crate::surface::{self, SurfaceData, SurfaceScene};
+use crate::tail::Clusters;
 use crate::transport::{self, TransportError};
 use crate::trimesh::TriMesh;
 use crate::voxel::{self, Geometry, Resolution, VoxelError};
@@ -42,6 +43,8 @@ pub struct BakeOptions {
     pub rays: u32,
     pub seed: u64,
     pub bounces: Bounces,
+    /// How [`Bounces::All`] is summed.
+    pub all_bounces: AllBounces,
     /// Also store the single-bounce form factors (for baselines and re-deriving `T` later).
     pub keep_form_factors: bool,
     pub tracer: Tracer,
@@ -104,6 +107,7 @@ impl Default for BakeOptions {
             rays: 2048,
             seed: 1,
             bounces: Bounces::K(3),
+            all_bounces: AllBounces::Clustered,
             keep_form_factors: false,
             tracer: Tracer::Grid,
             codec: CodecRequest::Named(DENSE_F32.to_string()),
@@ -534,6 +538,25 @@ pub(crate) fn choose_channels(
     )?)
 }
 
+/// The clusters an all-bounce transport's tail is summed on, when the bake sums it so
+/// ([`crate::tail`]).
+pub(crate) fn tail_clusters(
+    rows: &PatchLayout,
+    f: &DenseMatrix,
+    options: &BakeOptions,
+) -> Option<Clusters> {
+    (options.bounces == Bounces::All && options.all_bounces == AllBounces::Clustered)
+        .then(|| Clusters::of_layout(rows, f))
+}
+
+/// How the transport sums all bounces, given [`tail_clusters`]'s answer.
+pub(crate) fn tail_of(clusters: &Option<Clusters>) -> transport::Tail<'_> {
+    match clusters {
+        Some(c) => transport::Tail::Clustered(c),
+        None => transport::Tail::Exact,
+    }
+}
+
 /// Store `t` with the requested codec, as the encode stage of `timer`; also its `E_ind` error.
 pub(crate) fn encode_timed(
     t: &DenseMatrix,
@@ -557,6 +580,7 @@ pub(crate) fn settings(options: &BakeOptions, tracer: Tracer) -> BakeSettings {
         rays_per_patch: options.rays,
         seed: options.seed,
         bounces: options.bounces,
+        all_bounces: (options.bounces == Bounces::All).then_some(options.all_bounces),
         tracer,
         codec: match &options.codec {
             CodecRequest::Named(name) => name.clone(),
@@ -601,6 +625,7 @@ pub fn options_of(settings: &BakeSettings, keep_form_factors: bool) -> BakeOptio
         rays: settings.rays_per_patch,
         seed: settings.seed,
         bounces: settings.bounces,
+        all_bounces: settings.all_bounces.unwrap_or(AllBounces::Exact),
         keep_form_factors,
         tracer: settings.tracer,
         codec: match (settings.codec.as_str(), settings.max_error) {
@@ -724,8 +749,16 @@ fn bake_with(
     let albedo: Vec<[f32; 3]> = rows.patches.iter().map(|p| p.albedo).collect();
     let colour = choose_channels(&f, rows, options)?;
     let channels = colour.channels;
+    let clusters = tail_clusters(rows, &f, options);
     let t = timer.run(Stage::Transport, (n * channels) as u64, || {
-        transport::transport(&f, &albedo, options.bounces, channels, &advance)
+        transport::transport(
+            &f,
+            &albedo,
+            options.bounces,
+            tail_of(&clusters),
+            channels,
+            &advance,
+        )
     })?;
 
     let (transport, codec_err) = encode_timed(&t, rows, options, &mut timer)?;

@@ -279,6 +279,7 @@ pub fn transport_shard(
         .collect();
     let colour = bake::choose_channels(&f, first.transport_layout(), &options)?;
     let channels = colour.channels;
+    let clusters = bake::tail_clusters(first.transport_layout(), &f, &options);
     let t_rows = timer.run(Stage::Transport, (rows.len() * channels) as u64, || {
         let mut out = Vec::with_capacity(rows.len() * n * channels);
         for c in 0..channels {
@@ -287,6 +288,7 @@ pub fn transport_shard(
                 &albedo,
                 (c, channels),
                 options.bounces,
+                bake::tail_of(&clusters),
                 rows.clone(),
                 &|k| progress.advance(k),
             )?);
@@ -390,10 +392,16 @@ pub fn merge(inputs: &[PathBuf], progress: &dyn Progress) -> Result<Baked, Shard
             let albedo: Vec<[f32; 3]> = rows.patches.iter().map(|p| p.albedo).collect();
             let colour = bake::choose_channels(&f, rows, &options)?;
             let channels = colour.channels;
+            let clusters = bake::tail_clusters(rows, &f, &options);
             let t = timer.run(Stage::Transport, (n * channels) as u64, || {
-                transport::transport(&f, &albedo, options.bounces, channels, &|k| {
-                    progress.advance(k)
-                })
+                transport::transport(
+                    &f,
+                    &albedo,
+                    options.bounces,
+                    bake::tail_of(&clusters),
+                    channels,
+                    &|k| progress.advance(k),
+                )
             });
             let t = t.map_err(BakeError::from)?;
             let rays = members

@@ -5,7 +5,8 @@
 use bounce_core::formfactor::{RayScene, form_factors, stats};
 use bounce_core::meta::Bounces;
 use bounce_core::scene::{Scene, Triangle};
-use bounce_core::transport::{choose_channels, transport};
+use bounce_core::tail::Clusters;
+use bounce_core::transport::{Tail, choose_channels, transport};
 use bounce_core::voxel::{Resolution, voxelize};
 use glam::Vec3;
 
@@ -71,23 +72,38 @@ fn white_furnace_k_bounces_and_all() {
         let direct = 1.0f32; // uniform direct irradiance on every patch
         let b0: Vec<f32> = albedo.iter().map(|a| a[0] * direct).collect();
         let r = rho as f64;
-        for (bounces, want) in [
-            (Bounces::K(1), r),
-            (Bounces::K(2), r * (1.0 - r.powi(2)) / (1.0 - r)),
-            (Bounces::K(4), r * (1.0 - r.powi(4)) / (1.0 - r)),
-            (Bounces::All, r / (1.0 - r)),
+        let clusters = Clusters::of_layout(layout, &f);
+        assert!(
+            clusters.len() < n,
+            "{} clusters of {n} rows",
+            clusters.len()
+        );
+        for (bounces, tail, want) in [
+            (Bounces::K(1), Tail::Exact, r),
+            (
+                Bounces::K(2),
+                Tail::Exact,
+                r * (1.0 - r.powi(2)) / (1.0 - r),
+            ),
+            (
+                Bounces::K(4),
+                Tail::Exact,
+                r * (1.0 - r.powi(4)) / (1.0 - r),
+            ),
+            (Bounces::All, Tail::Exact, r / (1.0 - r)),
+            (Bounces::All, Tail::Clustered(&clusters), r / (1.0 - r)),
         ] {
             let channels = choose_channels(&f, &albedo, bounces, &[], 0.0)
                 .unwrap()
                 .channels;
-            let t = transport(&f, &albedo, bounces, channels, &no_progress).unwrap();
+            let t = transport(&f, &albedo, bounces, tail, channels, &no_progress).unwrap();
             assert_eq!(t.channels, 1, "grey albedo needs one channel");
             for i in 0..n {
                 let e: f64 = (0..n).map(|j| t.get(0, i, j) as f64 * b0[j] as f64).sum();
                 let rel = (e - want).abs() / want;
                 assert!(
                     rel < 0.01,
-                    "ρ={rho} {bounces}: patch {i} gets {e}, want {want}"
+                    "ρ={rho} {bounces} {tail:?}: patch {i} gets {e}, want {want}"
                 );
             }
         }

@@ -13,7 +13,7 @@ use bounce_core::light::{Light, LightSet};
 use bounce_core::matrix::DenseMatrix;
 use bounce_core::meta::Bounces;
 use bounce_core::scene::{Scene, Triangle};
-use bounce_core::transport::{MAX_ALBEDO, choose_channels, transport};
+use bounce_core::transport::{MAX_ALBEDO, Tail, choose_channels, transport};
 use bounce_core::voxel::{Resolution, voxelize};
 use glam::Vec3;
 use serde_json::json;
@@ -80,7 +80,7 @@ fn furnace_at_albedo_0999_is_finite_and_matches_the_closed_forms() {
         let channels = choose_channels(&f, &albedo, bounces, &[], 0.0)
             .unwrap()
             .channels;
-        let t = transport(&f, &albedo, bounces, channels, &no_progress).unwrap();
+        let t = transport(&f, &albedo, bounces, Tail::Exact, channels, &no_progress).unwrap();
         assert!(
             t.data.iter().all(|v| v.is_finite() && *v >= 0.0),
             "{bounces}: a negative or non-finite entry"
