@@ -1,15 +1,17 @@
 //! All bounces without an `n³` solve: the first [`EXACT_BOUNCES`] by Horner, the rest on
-//! clusters of rows (docs/design.md §1, "All bounces").
+//! clusters of rows (docs/design.md §1).
 //!
 //! `T_∞ = T_K + Δ_K D_ρ T_∞`, where `Δ_K = F G^{K-1}` is Horner's last increment
 //! (`T_K − T_{K−1}`) and `G = D_ρ F`. The tail `Δ_K D_ρ T_∞` is light that has bounced `K` times
-//! already: it varies slowly over the receivers it came from, so `T_∞` there is taken as one row
-//! per cluster of rows, `T_∞ ≈ P T_c`, with `T_c = R T_∞` its rows' area-weighted mean (`R`
-//! averages a cluster's rows, `P` copies a cluster's row to its members). `T_c` comes from the
-//! same identity one level down, `T_∞ = F + F D_ρ T_∞`, averaged: `(I − G_c) T_c = R F` with
-//! `G_c = R F D_ρ P`, an `m × m` system for `m` clusters. Where a receiver sees a cluster from
+//! already, so `T_∞` there is taken as one row per cluster of rows, `T_∞ ≈ P T_c`, with
+//! `T_c = R T_∞` its rows' area-weighted mean (`R` averages a cluster's rows, `P` copies a
+//! cluster's row to its members). `T_c` comes from the same identity averaged,
+//! `T_c = R T_K + (R Δ_K D_ρ P) T_c`, an `m × m` system for `m` clusters whose right side is the
+//! same Horner steps run on the clusters' mean rows of `F`. Where a receiver sees a cluster from
 //! afar, its form factors to the cluster's rows go as their areas and the mean is exact; what is
-//! approximated is how near clusters exchange light after the third bounce.
+//! approximated is how near clusters exchange light after the third bounce. Rows that see
+//! different surfaces (the two sides of a wall) never share a cluster: their mean would pour one
+//! room's light into the other.
 //!
 //! The cost is the exact bounces, an `m × m` factorisation and `n × m × n` multiply-adds, where
 //! the exact solve costs `n³` in f64: on `pandora` (11,810 rows, 3 channels) the LU took 240 s.
