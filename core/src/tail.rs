@@ -26,7 +26,16 @@ use rayon::prelude::*;
 
 use crate::matrix::DenseMatrix;
 use crate::patch::PatchLayout;
-use crate::transport::TransportError;
+use thiserror::Error;
+
+/// Clusters that do not fit their rows.
+#[derive(Debug, Error, PartialEq, Eq)]
+pub enum ClusterError {
+    #[error("{clusters} cluster numbers for {rows} rows")]
+    Count { clusters: usize, rows: usize },
+    #[error("cluster {cluster} has no rows")]
+    Empty { cluster: usize },
+}
 
 /// Bounces summed exactly before the clustered tail. Three keep the first three bounces, the
 /// light that varies most over a scene, bit for bit those of a `--bounces 3` bake.
@@ -50,11 +59,11 @@ pub struct Clusters {
 impl Clusters {
     /// Rows `of[i]` in cluster `of[i]` (numbered from 0, every number up to the largest used),
     /// weighted by `area`.
-    pub fn new(of: Vec<u32>, area: &[f32]) -> Result<Self, TransportError> {
+    pub fn new(of: Vec<u32>, area: &[f32]) -> Result<Self, ClusterError> {
         if of.len() != area.len() {
-            return Err(TransportError::ClusterCount {
+            return Err(ClusterError::Count {
                 clusters: of.len(),
-                areas: area.len(),
+                rows: area.len(),
             });
         }
         let count = of.iter().map(|&c| c as usize + 1).max().unwrap_or(0);
@@ -70,7 +79,7 @@ impl Clusters {
             members[c as usize] += 1;
         }
         if let Some(empty) = members.iter().position(|&m| m == 0) {
-            return Err(TransportError::EmptyCluster { cluster: empty });
+            return Err(ClusterError::Empty { cluster: empty });
         }
         let weight = of
             .iter()
@@ -153,6 +162,11 @@ impl Clusters {
     /// The number of rows clustered.
     pub fn rows(&self) -> usize {
         self.of.len()
+    }
+
+    /// Each row's cluster.
+    pub fn of(&self) -> &[u32] {
+        &self.of
     }
 }
 
@@ -284,13 +298,13 @@ fn split_by_view(rows: &PatchLayout, (sparse, sums): &Views, view: f32, shift: u
 
 /// The coarse all-bounce transport `T_c ≈ R T_∞` (`m × n`, row-major) of one channel, from
 /// the clusters' mean rows of `T_K` (`rt`, `R T_K`) and of `T_{K−1}` (`rt_prev`):
-/// `T_c = R T_K + (R Δ_K D_ρ P) T_c`, an `m × m` system in f64.
+/// `T_c = R T_K + (R Δ_K D_ρ P) T_c`, an `m × m` system in f64; `None` when it is singular.
 pub(crate) fn coarse_transport(
     rt: &[f32],
     rt_prev: &[f32],
     rho: &[f32],
     clusters: &Clusters,
-) -> Result<Vec<f32>, TransportError> {
+) -> Option<Vec<f32>> {
     let (n, m) = (rho.len(), clusters.count);
     // I − R Δ_K D_ρ P.
     let mut a = Mat::<f64>::identity(m, m);
@@ -312,12 +326,12 @@ pub(crate) fn coarse_transport(
         for j in 0..n {
             let v = x[(ca, j)];
             if !v.is_finite() {
-                return Err(TransportError::Singular);
+                return None;
             }
             out[ca * n + j] = v as f32;
         }
     }
-    Ok(out)
+    Some(out)
 }
 
 /// Adds the clustered tail to a block of rows: `out` holds `T_K`'s rows and `prev` `T_{K−1}`'s
@@ -354,166 +368,4 @@ pub(crate) fn add_tail(
         1.0f32,
         Par::Seq,
     );
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::meta::Bounces;
-    use crate::patch::{Face, Patch};
-    use crate::transport::{Tail, transport};
-
-    fn lcg(seed: &mut u64) -> f32 {
-        *seed = seed
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        (*seed >> 40) as f32 / (1u64 << 24) as f32
-    }
-
-    /// Form factors of two rooms that never see each other: rows and columns `0..half` and
-    /// `half..n`, each row summing to 0.9.
-    fn two_rooms(n: usize, seed: u64) -> DenseMatrix {
-        let (half, mut s) = (n / 2, seed);
-        let mut data = vec![0.0f32; n * n];
-        for i in 0..n {
-            let room = if i < half { 0..half } else { half..n };
-            let row = &mut data[i * n..(i + 1) * n];
-            for j in room {
-                if j != i {
-                    row[j] = 0.2 + lcg(&mut s);
-                }
-            }
-            let sum: f32 = row.iter().sum();
-            row.iter_mut().for_each(|v| *v *= 0.9 / sum);
-        }
-        DenseMatrix {
-            n,
-            channels: 1,
-            data,
-        }
-    }
-
-    /// Every row in the voxels of one 2×2×2 block, facing +X.
-    fn one_block(n: usize) -> PatchLayout {
-        PatchLayout {
-            origin: [0.0; 3],
-            voxel_size: 1.0,
-            dims: [2, 2, 2],
-            patches: (0..n)
-                .map(|i| Patch {
-                    voxel: [(i % 2) as u32, (i / 2 % 2) as u32, (i / 4 % 2) as u32],
-                    face: Face::PosX,
-                    albedo: [0.6, 0.7, 0.8],
-                    centroid: [0.0; 3],
-                    normal: [1.0, 0.0, 0.0],
-                    source_area: 0.5 + (i % 3) as f32 * 0.25,
-                    emission: [0.0; 3],
-                })
-                .collect(),
-        }
-    }
-
-    #[test]
-    fn every_row_its_own_cluster_is_the_exact_solve() {
-        let n = 40;
-        let f = two_rooms(n, 3);
-        let albedo = one_block(n)
-            .patches
-            .iter()
-            .map(|p| p.albedo)
-            .collect::<Vec<_>>();
-        let exact = transport(&f, &albedo, Bounces::All, Tail::Exact, 3, &|_| {}).unwrap();
-        let own = Clusters::singletons(n);
-        let t = transport(&f, &albedo, Bounces::All, Tail::Clustered(&own), 3, &|_| {}).unwrap();
-        for (a, b) in t.data.iter().zip(&exact.data) {
-            assert!((a - b).abs() <= 1e-5 * b.abs() + 1e-7, "{a} vs {b}");
-        }
-    }
-
-    #[test]
-    fn rows_that_see_different_rooms_share_no_cluster_and_no_light() {
-        let n = 48;
-        let (f, layout) = (two_rooms(n, 7), one_block(n));
-        let albedo: Vec<[f32; 3]> = layout.patches.iter().map(|p| p.albedo).collect();
-        let clusters = Clusters::of_layout(&layout, &f);
-        assert_eq!(clusters.rows(), n);
-        let half = n / 2;
-        for i in 0..half {
-            for j in half..n {
-                assert_ne!(clusters.of[i], clusters.of[j], "rows {i} and {j}");
-            }
-        }
-        let exact = transport(&f, &albedo, Bounces::All, Tail::Exact, 3, &|_| {}).unwrap();
-        let t = transport(
-            &f,
-            &albedo,
-            Bounces::All,
-            Tail::Clustered(&clusters),
-            3,
-            &|_| {},
-        );
-        let t = t.unwrap();
-        // Not a ray crosses between the rooms, and no light does.
-        for c in 0..3 {
-            let ch = t.channel(c);
-            for i in 0..n {
-                for j in 0..n {
-                    if (i < half) != (j < half) {
-                        assert_eq!(ch[i * n + j], 0.0, "channel {c}, {i} from {j}");
-                    }
-                }
-            }
-        }
-        let rel = |t: &DenseMatrix| {
-            let num: f64 = t
-                .data
-                .iter()
-                .zip(&exact.data)
-                .map(|(a, b)| f64::from(a - b).powi(2))
-                .sum();
-            let den: f64 = exact.data.iter().map(|b| f64::from(*b).powi(2)).sum();
-            (num / den).sqrt()
-        };
-        let err = rel(&t);
-        assert!(err < 0.01, "clustered tail {err} from the exact solve");
-        // The whole block as one cluster pours each room's light into the other.
-        let block = Clusters::new(vec![0; n], &vec![1.0; n]).unwrap();
-        let leaky = transport(
-            &f,
-            &albedo,
-            Bounces::All,
-            Tail::Clustered(&block),
-            3,
-            &|_| {},
-        );
-        let leaky = leaky.unwrap();
-        assert!(leaky.data[n - 1] > 0.0, "{}", leaky.data[n - 1]);
-        assert!(rel(&leaky) > err, "{} against {err}", rel(&leaky));
-    }
-
-    #[test]
-    fn clusters_are_checked() {
-        assert!(matches!(
-            Clusters::new(vec![0, 2], &[1.0, 1.0]),
-            Err(TransportError::EmptyCluster { cluster: 1 })
-        ));
-        assert!(matches!(
-            Clusters::new(vec![0], &[1.0, 1.0]),
-            Err(TransportError::ClusterCount { .. })
-        ));
-        let f = two_rooms(6, 1);
-        let wrong = Clusters::singletons(5);
-        let albedo = vec![[0.5f32; 3]; 6];
-        assert!(
-            transport(
-                &f,
-                &albedo,
-                Bounces::All,
-                Tail::Clustered(&wrong),
-                1,
-                &|_| {}
-            )
-            .is_err()
-        );
-    }
 }

@@ -58,10 +58,8 @@ pub enum TransportError {
     RowRange { start: usize, end: usize, n: usize },
     #[error("the radiosity system is singular: some closed part of the scene reflects all light")]
     Singular,
-    #[error("{clusters} cluster numbers for {areas} rows")]
-    ClusterCount { clusters: usize, areas: usize },
-    #[error("cluster {cluster} has no rows")]
-    EmptyCluster { cluster: usize },
+    #[error(transparent)]
+    Clusters(#[from] tail::ClusterError),
 }
 
 /// The largest change of `E_ind` (relative L2, over the bake's probe light sets) that carrying
@@ -570,10 +568,11 @@ fn clustered_rows(
 ) -> Result<Vec<f32>, TransportError> {
     let n = f.n;
     if clusters.rows() != n {
-        return Err(TransportError::ClusterCount {
+        return Err(tail::ClusterError::Count {
             clusters: clusters.rows(),
-            areas: n,
-        });
+            rows: n,
+        }
+        .into());
     }
     let k = tail::EXACT_BOUNCES;
     let steps = Steps::new(f, rho);
@@ -586,7 +585,8 @@ fn clustered_rows(
         .zip(rt.par_chunks_mut(ROW_BLOCK * n.max(1)))
         .map(|(s, o)| steps.run(s, n, k, o))
         .collect();
-    let coarse = tail::coarse_transport(&rt, &prev.concat(), rho, clusters)?;
+    let coarse = tail::coarse_transport(&rt, &prev.concat(), rho, clusters)
+        .ok_or(TransportError::Singular)?;
     drop((rf, rt, prev));
     let out = by_blocks(n, rows, progress, |r, out| {
         let prev = steps.run(&f.data[r.start * n..r.end * n], n, k, out);
@@ -956,5 +956,169 @@ mod tests {
             ),
             Err(TransportError::RowRange { .. })
         ));
+    }
+}
+
+#[cfg(test)]
+mod tail_tests {
+    use super::{Tail, transport};
+    use crate::matrix::DenseMatrix;
+    use crate::meta::Bounces;
+    use crate::patch::PatchLayout;
+    use crate::patch::{Face, Patch};
+    use crate::tail::{ClusterError, Clusters};
+
+    fn lcg(seed: &mut u64) -> f32 {
+        *seed = seed
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (*seed >> 40) as f32 / (1u64 << 24) as f32
+    }
+
+    /// Form factors of two rooms that never see each other: rows and columns `0..half` and
+    /// `half..n`, each row summing to 0.9.
+    fn two_rooms(n: usize, seed: u64) -> DenseMatrix {
+        let (half, mut s) = (n / 2, seed);
+        let mut data = vec![0.0f32; n * n];
+        for i in 0..n {
+            let room = if i < half { 0..half } else { half..n };
+            let row = &mut data[i * n..(i + 1) * n];
+            for j in room {
+                if j != i {
+                    row[j] = 0.2 + lcg(&mut s);
+                }
+            }
+            let sum: f32 = row.iter().sum();
+            row.iter_mut().for_each(|v| *v *= 0.9 / sum);
+        }
+        DenseMatrix {
+            n,
+            channels: 1,
+            data,
+        }
+    }
+
+    /// Every row in the voxels of one 2×2×2 block, facing +X.
+    fn one_block(n: usize) -> PatchLayout {
+        PatchLayout {
+            origin: [0.0; 3],
+            voxel_size: 1.0,
+            dims: [2, 2, 2],
+            patches: (0..n)
+                .map(|i| Patch {
+                    voxel: [(i % 2) as u32, (i / 2 % 2) as u32, (i / 4 % 2) as u32],
+                    face: Face::PosX,
+                    albedo: [0.6, 0.7, 0.8],
+                    centroid: [0.0; 3],
+                    normal: [1.0, 0.0, 0.0],
+                    source_area: 0.5 + (i % 3) as f32 * 0.25,
+                    emission: [0.0; 3],
+                })
+                .collect(),
+        }
+    }
+
+    #[test]
+    fn every_row_its_own_cluster_is_the_exact_solve() {
+        let n = 40;
+        let f = two_rooms(n, 3);
+        let albedo = one_block(n)
+            .patches
+            .iter()
+            .map(|p| p.albedo)
+            .collect::<Vec<_>>();
+        let exact = transport(&f, &albedo, Bounces::All, Tail::Exact, 3, &|_| {}).unwrap();
+        let own = Clusters::singletons(n);
+        let t = transport(&f, &albedo, Bounces::All, Tail::Clustered(&own), 3, &|_| {}).unwrap();
+        for (a, b) in t.data.iter().zip(&exact.data) {
+            assert!((a - b).abs() <= 1e-5 * b.abs() + 1e-7, "{a} vs {b}");
+        }
+    }
+
+    #[test]
+    fn rows_that_see_different_rooms_share_no_cluster_and_no_light() {
+        let n = 48;
+        let (f, layout) = (two_rooms(n, 7), one_block(n));
+        let albedo: Vec<[f32; 3]> = layout.patches.iter().map(|p| p.albedo).collect();
+        let clusters = Clusters::of_layout(&layout, &f);
+        assert_eq!(clusters.rows(), n);
+        let half = n / 2;
+        for i in 0..half {
+            for j in half..n {
+                assert_ne!(clusters.of()[i], clusters.of()[j], "rows {i} and {j}");
+            }
+        }
+        let exact = transport(&f, &albedo, Bounces::All, Tail::Exact, 3, &|_| {}).unwrap();
+        let t = transport(
+            &f,
+            &albedo,
+            Bounces::All,
+            Tail::Clustered(&clusters),
+            3,
+            &|_| {},
+        );
+        let t = t.unwrap();
+        // Not a ray crosses between the rooms, and no light does.
+        for c in 0..3 {
+            let ch = t.channel(c);
+            for i in 0..n {
+                for j in 0..n {
+                    if (i < half) != (j < half) {
+                        assert_eq!(ch[i * n + j], 0.0, "channel {c}, {i} from {j}");
+                    }
+                }
+            }
+        }
+        let rel = |t: &DenseMatrix| {
+            let num: f64 = t
+                .data
+                .iter()
+                .zip(&exact.data)
+                .map(|(a, b)| f64::from(a - b).powi(2))
+                .sum();
+            let den: f64 = exact.data.iter().map(|b| f64::from(*b).powi(2)).sum();
+            (num / den).sqrt()
+        };
+        let err = rel(&t);
+        assert!(err < 0.01, "clustered tail {err} from the exact solve");
+        // The whole block as one cluster pours each room's light into the other.
+        let block = Clusters::new(vec![0; n], &vec![1.0; n]).unwrap();
+        let leaky = transport(
+            &f,
+            &albedo,
+            Bounces::All,
+            Tail::Clustered(&block),
+            3,
+            &|_| {},
+        );
+        let leaky = leaky.unwrap();
+        assert!(leaky.data[n - 1] > 0.0, "{}", leaky.data[n - 1]);
+        assert!(rel(&leaky) > err, "{} against {err}", rel(&leaky));
+    }
+
+    #[test]
+    fn clusters_are_checked() {
+        assert!(matches!(
+            Clusters::new(vec![0, 2], &[1.0, 1.0]),
+            Err(ClusterError::Empty { cluster: 1 })
+        ));
+        assert!(matches!(
+            Clusters::new(vec![0], &[1.0, 1.0]),
+            Err(ClusterError::Count { .. })
+        ));
+        let f = two_rooms(6, 1);
+        let wrong = Clusters::singletons(5);
+        let albedo = vec![[0.5f32; 3]; 6];
+        assert!(
+            transport(
+                &f,
+                &albedo,
+                Bounces::All,
+                Tail::Clustered(&wrong),
+                1,
+                &|_| {}
+            )
+            .is_err()
+        );
     }
 }
