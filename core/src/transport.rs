@@ -637,7 +637,7 @@ fn infinite_rows(
 mod tests {
     use super::*;
 
-    fn lcg(seed: &mut u64) -> f32 {
+    pub(super) fn lcg(seed: &mut u64) -> f32 {
         *seed = seed
             .wrapping_mul(6364136223846793005)
             .wrapping_add(1442695040888963407);
@@ -961,19 +961,13 @@ mod tests {
 
 #[cfg(test)]
 mod tail_tests {
+    use super::tests::lcg;
     use super::{Tail, transport};
     use crate::matrix::DenseMatrix;
     use crate::meta::Bounces;
     use crate::patch::PatchLayout;
     use crate::patch::{Face, Patch};
     use crate::tail::{ClusterError, Clusters};
-
-    fn lcg(seed: &mut u64) -> f32 {
-        *seed = seed
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        (*seed >> 40) as f32 / (1u64 << 24) as f32
-    }
 
     /// Form factors of two rooms that never see each other: rows and columns `0..half` and
     /// `half..n`, each row summing to 0.9.
