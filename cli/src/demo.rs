@@ -45,7 +45,7 @@ impl Default for DemoBake {
     fn default() -> Self {
         DemoBake {
             patches: DEMO_PATCHES,
-            bounces: Bounces::K(3),
+            bounces: Bounces::All,
             codec: crate::bake::codec_request(
                 crate::bake::DEFAULT_CODEC,
                 crate::bake::DEFAULT_MAX_ERROR,
@@ -79,8 +79,8 @@ pub struct DemoArgs {
     /// Target patch count.
     #[arg(long, default_value_t = DEMO_PATCHES)]
     pub patches: u32,
-    /// Light bounces: a number or "all".
-    #[arg(long, default_value = "3")]
+    /// Light bounces: a number or "all" (every bounce, as a camera sees them).
+    #[arg(long, default_value = "all")]
     pub bounces: Bounces,
     /// How the transport is stored: auto (the smallest within --max-error), or a codec by name
     /// (dense-f32, dense-f16, bc1, bc4, log8, bc1-resid), as for `bounce bake`.

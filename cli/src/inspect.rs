@@ -4,6 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 use bounce_core::format::{Baked, read_summary};
+use bounce_core::meta::{AllBounces, BakeSettings, Bounces};
 use clap::Args;
 use serde_json::json;
 
@@ -125,6 +126,15 @@ pub fn run(args: &InspectArgs) -> Result<()> {
             "import_report": m.import_report,
             "lights": m.lights,
         });
+        // Beside `bounces` (one more key inside `json!` passes its recursion limit): how an
+        // all-bounce file summed them, null for a number of bounces.
+        let mut doc = doc;
+        if let Some(o) = doc.as_object_mut() {
+            o.insert(
+                "all_bounces".into(),
+                json!(all_bounces(&m.settings).map(|a| a.to_string())),
+            );
+        }
         println!("{}", serde_json::to_string_pretty(&doc)?);
         return Ok(());
     }
@@ -167,8 +177,11 @@ pub fn run(args: &InspectArgs) -> Result<()> {
         (_, Some(v)) => format!("--voxel-size {v}"),
         _ => String::from("-"),
     };
+    let sum = all_bounces(&m.settings)
+        .map(|a| format!(" --all-bounces {a}"))
+        .unwrap_or_default();
     println!(
-        "  settings      {requested}, --rays {}, --bounces {}, --seed {}",
+        "  settings      {requested}, --rays {}, --bounces {}{sum}, --seed {}",
         m.settings.rays_per_patch, m.settings.bounces, m.settings.seed
     );
     println!(
@@ -299,4 +312,10 @@ pub fn run(args: &InspectArgs) -> Result<()> {
     println!("  bake time     {total:.2} s: {}", stage_list(&m.timings));
     print_import_report(&m.import_report, m.lights.len());
     Ok(())
+}
+
+/// How a file's all-bounce transport was summed: a file from before the clustered tail records
+/// none and was solved exactly.
+fn all_bounces(settings: &BakeSettings) -> Option<AllBounces> {
+    (settings.bounces == Bounces::All).then(|| settings.all_bounces.unwrap_or(AllBounces::Exact))
 }

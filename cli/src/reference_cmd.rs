@@ -47,7 +47,7 @@ pub struct ReferenceArgs {
     #[arg(long, value_name = "N", default_value_t = 1024)]
     pub spp: u32,
     /// Light bounces carried, as `bounce bake --bounces`: a number of at least 1, or "all"
-    /// [default: the baked file's, else 3].
+    /// [default: the baked file's, else all].
     #[arg(long, value_name = "K|all")]
     pub bounces: Option<Bounces>,
     /// Seed: the same seed, points and --spp give the same values on any thread count.
@@ -97,7 +97,7 @@ pub fn run(args: &ReferenceArgs) -> Result<()> {
     let bounces = args
         .bounces
         .or(baked.as_ref().map(|b| b.meta.settings.bounces))
-        .unwrap_or(Bounces::K(3));
+        .unwrap_or(Bounces::All);
     let options = Options {
         spp: args.spp,
         bounces,

@@ -63,7 +63,14 @@ fn bake_then_inspect_the_cornell_box() {
         "a quarter of them where near-field rays land (version 13)"
     );
     assert_eq!(j["settings"]["landing_samples"], 8);
-    assert_eq!(j["bounces"], 3);
+    assert_eq!(
+        j["bounces"], "all",
+        "every bounce by default, as a camera sees them"
+    );
+    assert_eq!(
+        j["all_bounces"], "clustered",
+        "the tail on clusters by default"
+    );
     assert_eq!(j["channels"], 3, "the Cornell box has coloured walls");
     assert_eq!(j["codec"], "dense-f32");
     let n = j["patches"].as_u64().unwrap();

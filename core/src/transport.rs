@@ -137,6 +137,9 @@ pub fn choose_channels(
         Bounces::All => 256,
     };
     let fm = MatRef::from_row_major_slice(&f.data, n, n);
+    // A level's F is sparse: its nonzeros alone, or the up to 256 steps of all bounces cost
+    // `n² · width` each (on `pandora` about 20 s of a bake, for a decision).
+    let sparse = (density(f) <= SPARSE_MAX_DENSITY).then(|| sparse_rows(f, &vec![1.0; n]));
     let mut w = Mat::<f64>::zeros(n, width);
     let mut prev_norm = f64::INFINITY;
     for step in 0..steps {
@@ -148,7 +151,10 @@ pub fn choose_channels(
                     albedo_of(i, col) * w[(i, col)]
                 }
         });
-        w = mat_f64_product(fm, x.as_ref());
+        w = match &sparse {
+            Some(csr) => sparse_f64_product(csr, x.as_ref()),
+            None => mat_f64_product(fm, x.as_ref()),
+        };
         if bounces == Bounces::All {
             let norm = w.norm_l2();
             if (norm - prev_norm).abs() <= 1e-6 * norm {
@@ -199,6 +205,33 @@ fn mat_f64_product(f: MatRef<'_, f32>, x: MatRef<'_, f64>) -> Mat<f64> {
     Mat::<f64>::from_fn(n, width, |i, col| {
         blocks[i / ROW_BLOCK][(i % ROW_BLOCK, col)]
     })
+}
+
+/// `F X` for `F` by its nonzeros ([`sparse_rows`] with unit albedo) and an f64 `X`, each row
+/// summed in column order: the same bits on any thread count.
+fn sparse_f64_product((ptr, cols, vals): &Csr, x: MatRef<'_, f64>) -> Mat<f64> {
+    let (n, width) = (x.nrows(), x.ncols());
+    let xr: Vec<f64> = (0..n)
+        .flat_map(|j| (0..width).map(move |c| x[(j, c)]))
+        .collect();
+    let out: Vec<f64> = (0..n)
+        .into_par_iter()
+        .flat_map_iter(|i| {
+            let mut acc = vec![0.0f64; width];
+            for (&j, &v) in cols[ptr[i]..ptr[i + 1]]
+                .iter()
+                .zip(&vals[ptr[i]..ptr[i + 1]])
+            {
+                let v = f64::from(v);
+                let xj = &xr[j as usize * width..(j as usize + 1) * width];
+                for (a, &b) in acc.iter_mut().zip(xj) {
+                    *a += v * b;
+                }
+            }
+            acc
+        })
+        .collect();
+    Mat::<f64>::from_fn(n, width, |i, c| out[i * width + c])
 }
 
 /// The albedo one grey channel bounces on: the mean of the three, and exactly the value itself
@@ -440,8 +473,11 @@ fn dense_steps(start: &[f32], g: MatRef<'_, f32>, k: u32, out: &mut [f32]) -> Ve
     x
 }
 
-/// `G = D_ρ F` by rows, its nonzeros only: `(row offsets, columns, values)`.
-fn sparse_rows(f: &DenseMatrix, rho: &[f32]) -> (Vec<usize>, Vec<u32>, Vec<f32>) {
+/// A matrix by rows, its nonzeros only: `(row offsets, columns, values)`.
+type Csr = (Vec<usize>, Vec<u32>, Vec<f32>);
+
+/// `G = D_ρ F` by rows, its nonzeros only.
+fn sparse_rows(f: &DenseMatrix, rho: &[f32]) -> Csr {
     let n = f.n;
     let per_row: Vec<Vec<(u32, f32)>> = f
         .data
@@ -497,7 +533,7 @@ fn sparse_horner_rows(
 fn sparse_row(
     f_row: &[f32],
     k: u32,
-    (ptr, cols, vals): &(Vec<usize>, Vec<u32>, Vec<f32>),
+    (ptr, cols, vals): &Csr,
     x: &mut [f32],
     nonzero: &mut Vec<usize>,
     out_row: &mut [f32],
@@ -523,7 +559,7 @@ fn sparse_row(
 
 /// `G = D_ρ F` as the Horner steps read it: by nonzeros for a sparse `F`, dense otherwise.
 enum Steps {
-    Sparse((Vec<usize>, Vec<u32>, Vec<f32>)),
+    Sparse(Csr),
     Dense(Vec<f32>),
 }
 
@@ -727,6 +763,39 @@ mod tests {
             }
         }
         f
+    }
+
+    #[test]
+    fn the_channel_measure_takes_a_sparse_f_by_its_nonzeros() {
+        let n = 300;
+        let f = sparse_ff(n, 6, 29);
+        assert!(density(&f) <= SPARSE_MAX_DENSITY, "{}", density(&f));
+        let mut s = 5u64;
+        let x = Mat::<f64>::from_fn(n, 12, |_, _| f64::from(lcg(&mut s)));
+        let dense = mat_f64_product(MatRef::from_row_major_slice(&f.data, n, n), x.as_ref());
+        let csr = sparse_rows(&f, &vec![1.0; n]);
+        let sparse = sparse_f64_product(&csr, x.as_ref());
+        for i in 0..n {
+            for c in 0..12 {
+                let (a, b) = (sparse[(i, c)], dense[(i, c)]);
+                assert!(
+                    (a - b).abs() <= 1e-12 * b.abs().max(1.0),
+                    "({i}, {c}): {a} vs {b}"
+                );
+            }
+        }
+        let one = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .unwrap()
+            .install(|| sparse_f64_product(&csr, x.as_ref()));
+        assert_eq!(one, sparse, "the same bits on one thread");
+        // And the choice it serves: all bounces of a coloured scene, on the sparse path.
+        let albedo = random_albedo(n, 31);
+        let probes = probe_vectors(n, 2);
+        let choice = choose_channels(&f, &albedo, Bounces::All, &probes, 0.0).unwrap();
+        assert_eq!(choice.channels, 3);
+        assert!(choice.grey_rel_l2 > 0.0 && choice.grey_rel_l2.is_finite());
     }
 
     #[test]

@@ -77,7 +77,7 @@ impl Default for Options {
     fn default() -> Self {
         Options {
             spp: 1024,
-            bounces: Bounces::K(3),
+            bounces: Bounces::All,
             seed: 1,
         }
     }

@@ -70,10 +70,10 @@ pub struct BakeArgs {
     /// Rays cast from each patch to estimate its form factors.
     #[arg(long, value_name = "R", default_value_t = 2048)]
     pub rays: u32,
-    /// Light bounces the transport carries: a number of at least 1, or "all" (what a path
-    /// tracer or a camera sees). Three leave out the rest: 12% of the Cornell box's indirect
-    /// light and 8% of `pandora`'s (under a corridor light), more in brighter rooms.
-    #[arg(long, value_name = "K|all", default_value = "3")]
+    /// Light bounces the transport carries: "all" (what a path tracer or a camera sees) or a
+    /// number of at least 1. Three leave out the rest: 12% of the Cornell box's indirect light
+    /// and 8% of `pandora`'s (under a corridor light), more in brighter rooms.
+    #[arg(long, value_name = "K|all", default_value = "all")]
     pub bounces: Bounces,
     /// How --bounces all sums them: `clustered` (the first three exactly, the rest on clusters
     /// of 2×2×2 voxels or coarser, one per face direction; seconds) or `exact` (one LU

@@ -20,7 +20,8 @@ pub struct BenchBakeArgs {
     pub patches: Vec<u32>,
     #[arg(long, default_value_t = 2048)]
     pub rays: u32,
-    #[arg(long, default_value = "3")]
+    /// Light bounces each bake carries (`bounce bake --bounces`): "all" or a number.
+    #[arg(long, default_value = "all")]
     pub bounces: Bounces,
     /// The codec each bake stores (`bounce bake --codec`). The exact dense-f32 by default, so
     /// the table times the pipeline itself; `auto` adds the encode-every-codec search that a

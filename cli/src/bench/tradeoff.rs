@@ -56,7 +56,8 @@ pub struct BenchTradeoffArgs {
     /// uses them all).
     #[arg(long, value_delimiter = ',', default_value = "32")]
     pub direct_samples: Vec<u32>,
-    #[arg(long, default_value = "3")]
+    /// Light bounces each bake carries (`bounce bake --bounces`): "all" or a number.
+    #[arg(long, default_value = "all")]
     pub bounces: Bounces,
     /// Reference sample paths per patch.
     #[arg(long, default_value_t = 2048)]

@@ -106,7 +106,7 @@ impl Default for BakeOptions {
             resolution: Resolution::TargetPatches(2000),
             rays: 2048,
             seed: 1,
-            bounces: Bounces::K(3),
+            bounces: Bounces::All,
             all_bounces: AllBounces::Clustered,
             keep_form_factors: false,
             tracer: Tracer::Grid,
@@ -139,6 +139,9 @@ pub enum Stage {
     Samples,
     /// Irradiance probes: placed, then gathered at (counted in probes).
     Probes,
+    /// Whether one grey channel carries the transport (measured on the probe light sets), and
+    /// the clusters an all-bounce tail is summed on.
+    Channels,
     Transport,
     Encode,
     /// A sharded bake's step reading (and checking) the shards it continues from.
@@ -155,6 +158,7 @@ impl Stage {
             Stage::NearField => "near field",
             Stage::Samples => "samples",
             Stage::Probes => "probes",
+            Stage::Channels => "channels",
             Stage::Transport => "transport",
             Stage::Encode => "encode",
             Stage::ReadShards => "read shards",
@@ -549,6 +553,22 @@ pub(crate) fn tail_clusters(
         .then(|| Clusters::of_layout(rows, f))
 }
 
+/// What the transport of `f` on `rows` is computed with, as the channels stage of `timer`: its
+/// channel count ([`choose_channels`]) and the tail's clusters ([`tail_clusters`]).
+pub(crate) fn plan_transport(
+    f: &DenseMatrix,
+    rows: &PatchLayout,
+    options: &BakeOptions,
+    timer: &mut Timer<'_>,
+) -> Result<(transport::ChannelChoice, Option<Clusters>), BakeError> {
+    timer.run(Stage::Channels, 0, || {
+        Ok((
+            choose_channels(f, rows, options)?,
+            tail_clusters(rows, f, options),
+        ))
+    })
+}
+
 /// How the transport sums all bounces, given [`tail_clusters`]'s answer.
 pub(crate) fn tail_of(clusters: &Option<Clusters>) -> transport::Tail<'_> {
     match clusters {
@@ -747,9 +767,8 @@ fn bake_with(
     let ff = check_form_factors(&f, rows, options.geometry)?;
 
     let albedo: Vec<[f32; 3]> = rows.patches.iter().map(|p| p.albedo).collect();
-    let colour = choose_channels(&f, rows, options)?;
+    let (colour, clusters) = plan_transport(&f, rows, options, &mut timer)?;
     let channels = colour.channels;
-    let clusters = tail_clusters(rows, &f, options);
     let t = timer.run(Stage::Transport, (n * channels) as u64, || {
         transport::transport(
             &f,

@@ -277,9 +277,9 @@ pub fn transport_shard(
         .iter()
         .map(|p| p.albedo)
         .collect();
-    let colour = bake::choose_channels(&f, first.transport_layout(), &options)?;
+    let (colour, clusters) =
+        bake::plan_transport(&f, first.transport_layout(), &options, &mut timer)?;
     let channels = colour.channels;
-    let clusters = bake::tail_clusters(first.transport_layout(), &f, &options);
     let t_rows = timer.run(Stage::Transport, (rows.len() * channels) as u64, || {
         let mut out = Vec::with_capacity(rows.len() * n * channels);
         for c in 0..channels {
@@ -390,9 +390,8 @@ pub fn merge(inputs: &[PathBuf], progress: &dyn Progress) -> Result<Baked, Shard
             let rows = first.transport_layout();
             let stats = bake::check_form_factors(&f, rows, first.meta.settings.geometry)?;
             let albedo: Vec<[f32; 3]> = rows.patches.iter().map(|p| p.albedo).collect();
-            let colour = bake::choose_channels(&f, rows, &options)?;
+            let (colour, clusters) = bake::plan_transport(&f, rows, &options, &mut timer)?;
             let channels = colour.channels;
-            let clusters = bake::tail_clusters(rows, &f, &options);
             let t = timer.run(Stage::Transport, (n * channels) as u64, || {
                 transport::transport(
                     &f,
