@@ -125,13 +125,22 @@ impl Clusters {
             return Clusters::singletons(rows.len());
         }
         let views = views(f);
+        // Past the shift whose one block holds the whole grid, blocks do not change: trying
+        // them again cost `pandora` 10 s of its bake.
+        let widest = rows.patches.iter().flat_map(|p| p.voxel).max().unwrap_or(0);
+        let last = (1..=MAX_SHIFT)
+            .find(|&s| widest >> s == 0)
+            .unwrap_or(MAX_SHIFT);
         // The strictest view that fits, then the smallest blocks; the last view merges a
-        // block's rows whatever they see, so some shift always fits.
+        // block's rows whatever they see, and is taken at the largest blocks whatever it makes.
         for view in VIEWS {
-            for shift in 1..=MAX_SHIFT {
-                let of = split_by_view(rows, &views, view, shift);
-                let count = of.iter().map(|&c| c as usize + 1).max().unwrap_or(0);
-                if count <= MAX_CLUSTERS || (view == 0.0 && shift == MAX_SHIFT) {
+            for shift in 1..=last {
+                let limit = if view == 0.0 && shift == last {
+                    usize::MAX
+                } else {
+                    MAX_CLUSTERS
+                };
+                if let Some(of) = split_by_view(rows, &views, view, shift, limit) {
                     // Numbers and areas come from the layout itself, so they agree.
                     return Clusters::new(of, &area)
                         .unwrap_or_else(|_| Clusters::singletons(rows.len()));
@@ -230,8 +239,16 @@ fn views(f: &DenseMatrix) -> Views {
 }
 
 /// Cluster numbers for the rows of `rows`: by block of `2^shift` voxels and face, then by view
-/// within each (see [`Clusters::of_layout`]), numbered in order of each cluster's first row.
-fn split_by_view(rows: &PatchLayout, (sparse, sums): &Views, view: f32, shift: u32) -> Vec<u32> {
+/// within each (see [`Clusters::of_layout`]), numbered in order of each cluster's first row;
+/// `None` as soon as they pass `limit` clusters (the strict views pass it by thousands, each
+/// further row compared with every cluster so far).
+fn split_by_view(
+    rows: &PatchLayout,
+    (sparse, sums): &Views,
+    view: f32,
+    shift: u32,
+    limit: usize,
+) -> Option<Vec<u32>> {
     let n = rows.len();
     let mut groups: Vec<Vec<usize>> = Vec::new();
     let mut ids = std::collections::HashMap::new();
@@ -259,29 +276,37 @@ fn split_by_view(rows: &PatchLayout, (sparse, sums): &Views, view: f32, shift: u
         sum
     };
     // Per group, each row's sub-cluster: the first whose first row it sees alike, else a new one.
+    // Every new cluster counts towards the limit, whatever group makes it, so the answer (over
+    // or not) is the same on any thread count.
+    let made = std::sync::atomic::AtomicUsize::new(0);
     let local: Vec<Vec<usize>> = groups
         .par_iter()
         .map(|members| {
             let mut firsts: Vec<usize> = Vec::new();
-            members
-                .iter()
-                .map(|&i| {
-                    let found = firsts.iter().position(|&r| {
-                        let least = sums[i].min(sums[r]);
-                        if least <= 0.0 {
-                            // A row that sees nothing goes only with another that sees nothing.
-                            return sums[i].max(sums[r]) <= 0.0;
+            let mut local = Vec::with_capacity(members.len());
+            for &i in members {
+                let found = firsts.iter().position(|&r| {
+                    let least = sums[i].min(sums[r]);
+                    if least <= 0.0 {
+                        // A row that sees nothing goes only with another that sees nothing.
+                        return sums[i].max(sums[r]) <= 0.0;
+                    }
+                    common(&sparse[i], &sparse[r]) >= view * least
+                });
+                local.push(match found {
+                    Some(sub) => sub,
+                    None => {
+                        if made.fetch_add(1, std::sync::atomic::Ordering::Relaxed) >= limit {
+                            return None;
                         }
-                        common(&sparse[i], &sparse[r]) >= view * least
-                    });
-                    found.unwrap_or_else(|| {
                         firsts.push(i);
                         firsts.len() - 1
-                    })
-                })
-                .collect()
+                    }
+                });
+            }
+            Some(local)
         })
-        .collect();
+        .collect::<Option<_>>()?;
     let mut of = vec![0u32; n];
     let mut next = 0u32;
     let mut number = std::collections::HashMap::new();
@@ -293,7 +318,7 @@ fn split_by_view(rows: &PatchLayout, (sparse, sums): &Views, view: f32, shift: u
             });
         }
     }
-    of
+    Some(of)
 }
 
 /// The coarse all-bounce transport `T_c ≈ R T_∞` (`m × n`, row-major) of one channel, from
