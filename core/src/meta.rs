@@ -189,6 +189,11 @@ pub struct BakeStats {
     /// `transport::GREY_TOLERANCE`. 0 where colour cannot matter, and in older files.
     #[serde(default)]
     pub grey_rel_l2: f64,
+    /// Where three channels share one grey tail (all bounces, clustered): how much that changes
+    /// `E_ind` against each colour's own tail, as `grey_rel_l2` is measured. `None` where each
+    /// channel has its own tail, and in older files.
+    #[serde(default)]
+    pub grey_tail_rel_l2: Option<f64>,
     pub matrix_bytes: u64,
     /// `E_ind` relative L2 error of the stored matrix against the exact one, over the probe light
     /// sets of `codec::error::probe_light_sets` (0 for `dense-f32`).

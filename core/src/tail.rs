@@ -373,18 +373,7 @@ pub(crate) fn add_tail(
         return;
     }
     let rows = out.len() / n;
-    let mut w = vec![0.0f64; rows * m];
-    for r in 0..rows {
-        let (o, p) = (&out[r * n..(r + 1) * n], &prev[r * n..(r + 1) * n]);
-        let wr = &mut w[r * m..(r + 1) * m];
-        for j in 0..n {
-            let d = o[j] - p[j];
-            if d != 0.0 {
-                wr[clusters.of[j] as usize] += f64::from(d) * f64::from(rho[j]);
-            }
-        }
-    }
-    let w: Vec<f32> = w.into_iter().map(|v| v as f32).collect();
+    let w = tail_weights(out, prev, rho, clusters);
     faer::linalg::matmul::matmul(
         MatMut::from_row_major_slice_mut(out, rows, n),
         Accum::Add,
@@ -393,4 +382,50 @@ pub(crate) fn add_tail(
         1.0f32,
         Par::Seq,
     );
+}
+
+/// The tail alone of a block of rows whose `T_K` is `tk` and `T_{K−1}` is `prev`:
+/// `(Δ_K D_ρ P) T_c` (`rows × n`).
+pub(crate) fn tail_block(
+    tk: &[f32],
+    prev: &[f32],
+    rho: &[f32],
+    clusters: &Clusters,
+    coarse: &[f32],
+) -> Vec<f32> {
+    let (n, m) = (rho.len(), clusters.count);
+    let mut out = vec![0.0f32; tk.len()];
+    if n == 0 || m == 0 {
+        return out;
+    }
+    let rows = tk.len() / n;
+    let w = tail_weights(tk, prev, rho, clusters);
+    faer::linalg::matmul::matmul(
+        MatMut::from_row_major_slice_mut(&mut out, rows, n),
+        Accum::Replace,
+        MatRef::from_row_major_slice(&w, rows, m),
+        MatRef::from_row_major_slice(coarse, m, n),
+        1.0f32,
+        Par::Seq,
+    );
+    out
+}
+
+/// `Δ_K D_ρ P` for a block of rows (`rows × m`): `T_K − T_{K−1}` times the albedo, summed over
+/// each cluster's columns.
+fn tail_weights(tk: &[f32], prev: &[f32], rho: &[f32], clusters: &Clusters) -> Vec<f32> {
+    let (n, m) = (rho.len(), clusters.count);
+    let rows = tk.len() / n;
+    let mut w = vec![0.0f64; rows * m];
+    for r in 0..rows {
+        let (o, p) = (&tk[r * n..(r + 1) * n], &prev[r * n..(r + 1) * n]);
+        let wr = &mut w[r * m..(r + 1) * m];
+        for j in 0..n {
+            let d = o[j] - p[j];
+            if d != 0.0 {
+                wr[clusters.of[j] as usize] += f64::from(d) * f64::from(rho[j]);
+            }
+        }
+    }
+    w.into_iter().map(|v| v as f32).collect()
 }

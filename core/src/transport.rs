@@ -34,6 +34,10 @@ pub enum Tail<'a> {
     /// [`tail::EXACT_BOUNCES`] bounces by Horner, the rest on these clusters of rows
     /// (`crate::tail`).
     Clustered(&'a Clusters),
+    /// As `Clustered`, but the tail is bounced once on each patch's mean albedo and added to
+    /// every channel's exact bounces: a third of the tail's cost, where colour after the third
+    /// bounce changes `E_ind` little ([`ChannelChoice::grey_tail_rel_l2`]).
+    ClusteredGrey(&'a Clusters),
 }
 
 /// Rows per block of work; part of the arithmetic's definition (see the module doc). Each block
@@ -76,6 +80,10 @@ pub struct ChannelChoice {
     /// How much one grey channel changes `E_ind` against three (relative L2 over the probe
     /// light sets): 0 where colour cannot matter (one bounce, or every albedo grey).
     pub grey_rel_l2: f64,
+    /// For all bounces in three channels: how much bouncing only the light past the first
+    /// [`tail::EXACT_BOUNCES`] on the mean albedo changes `E_ind` ([`Tail::ClusteredGrey`]);
+    /// `None` where it was not measured.
+    pub grey_tail_rel_l2: Option<f64>,
 }
 
 /// One channel when colour cannot change the transport (a single bounce, or every albedo
@@ -102,6 +110,7 @@ pub fn choose_channels(
         return Ok(ChannelChoice {
             channels: 1,
             grey_rel_l2: 0.0,
+            grey_tail_rel_l2: None,
         });
     }
     let count = probes.len() / n;
@@ -110,6 +119,7 @@ pub fn choose_channels(
         return Ok(ChannelChoice {
             channels: 3,
             grey_rel_l2: 0.0,
+            grey_tail_rel_l2: None,
         });
     }
     // Columns: for each probe set, its three colours bounced on their own albedo, then the same
@@ -142,6 +152,8 @@ pub fn choose_channels(
     let sparse = (density(f) <= SPARSE_MAX_DENSITY).then(|| sparse_rows(f, &vec![1.0; n]));
     let mut w = Mat::<f64>::zeros(n, width);
     let mut prev_norm = f64::INFINITY;
+    // `T_K b` in both albedos, for the grey tail's measure.
+    let mut exact_part: Option<Mat<f64>> = None;
     for step in 0..steps {
         let x = Mat::<f64>::from_fn(n, width, |i, col| {
             b0[(i, col)]
@@ -155,6 +167,9 @@ pub fn choose_channels(
             Some(csr) => sparse_f64_product(csr, x.as_ref()),
             None => mat_f64_product(fm, x.as_ref()),
         };
+        if bounces == Bounces::All && step + 1 == tail::EXACT_BOUNCES as usize {
+            exact_part = Some(w.clone());
+        }
         if bounces == Bounces::All {
             let norm = w.norm_l2();
             if (norm - prev_norm).abs() <= 1e-6 * norm {
@@ -175,9 +190,24 @@ pub fn choose_channels(
         }
     }
     let grey_rel_l2 = if den > 0.0 { (num / den).sqrt() } else { 0.0 };
+    // The grey tail: each colour's first bounces, and past them the grey light's rest.
+    let grey_tail_rel_l2 = exact_part.map(|w_k| {
+        let mut num = 0.0f64;
+        for set in 0..count {
+            for c in 0..3 {
+                let (rgb, one) = (set * 6 + c, set * 6 + 3 + c);
+                for i in 0..n {
+                    let mixed = w_k[(i, rgb)] + (w[(i, one)] - w_k[(i, one)]);
+                    num += (w[(i, rgb)] - mixed) * (w[(i, rgb)] - mixed);
+                }
+            }
+        }
+        if den > 0.0 { (num / den).sqrt() } else { 0.0 }
+    });
     Ok(ChannelChoice {
         channels: if grey_rel_l2 <= max_grey_error { 1 } else { 3 },
         grey_rel_l2,
+        grey_tail_rel_l2,
     })
 }
 
@@ -289,24 +319,58 @@ pub fn transport(
     channels: usize,
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<DenseMatrix, TransportError> {
-    let n = f.n;
-    let mut out = DenseMatrix {
-        n,
+    Ok(DenseMatrix {
+        n: f.n,
         channels,
-        data: Vec::with_capacity(n * n * channels),
-    };
+        data: transport_channel_rows(f, albedo, channels, bounces, tail, 0..f.n, progress)?,
+    })
+}
+
+/// Rows `rows` of every channel of a transport of `channels` channels, channel by channel
+/// (`channels × rows.len() × n`): [`transport_rows`] of each, but a grey tail
+/// ([`Tail::ClusteredGrey`]) is computed once for the three.
+pub fn transport_channel_rows(
+    f: &DenseMatrix,
+    albedo: &[[f32; 3]],
+    channels: usize,
+    bounces: Bounces,
+    tail: Tail<'_>,
+    rows: Range<usize>,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<Vec<f32>, TransportError> {
+    if let (Bounces::All, Tail::ClusteredGrey(clusters), 3) = (bounces, tail, channels) {
+        check_rows(f, albedo, &rows)?;
+        return grey_tail_rows(f, albedo, 0..3, clusters, rows, progress);
+    }
+    let mut out = Vec::with_capacity(rows.len() * f.n * channels);
     for c in 0..channels {
-        out.data.extend(transport_rows(
+        out.extend(transport_rows(
             f,
             albedo,
             (c, channels),
             bounces,
             tail,
-            0..n,
+            rows.clone(),
             progress,
         )?);
     }
     Ok(out)
+}
+
+fn check_rows(
+    f: &DenseMatrix,
+    albedo: &[[f32; 3]],
+    rows: &Range<usize>,
+) -> Result<(), TransportError> {
+    check_inputs(f, albedo)?;
+    if rows.start > rows.end || rows.end > f.n {
+        return Err(TransportError::RowRange {
+            start: rows.start,
+            end: rows.end,
+            n: f.n,
+        });
+    }
+    Ok(())
 }
 
 /// Rows `rows` of channel `channel.0` of a transport of `channel.1` channels, row-major
@@ -321,14 +385,7 @@ pub fn transport_rows(
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<Vec<f32>, TransportError> {
     let n = f.n;
-    check_inputs(f, albedo)?;
-    if rows.start > rows.end || rows.end > n {
-        return Err(TransportError::RowRange {
-            start: rows.start,
-            end: rows.end,
-            n,
-        });
-    }
+    check_rows(f, albedo, &rows)?;
     let rho = channel_albedo(albedo, channel.0, channel.1);
     match bounces {
         Bounces::K(1) => {
@@ -339,6 +396,12 @@ pub fn transport_rows(
         Bounces::All => match tail {
             Tail::Exact => infinite_rows(f, &rho, rows, progress),
             Tail::Clustered(clusters) => clustered_rows(f, &rho, clusters, rows, progress),
+            Tail::ClusteredGrey(clusters) if channel.1 == 3 => {
+                let c = channel.0.min(2);
+                grey_tail_rows(f, albedo, c..c + 1, clusters, rows, progress)
+            }
+            // One channel is grey already.
+            Tail::ClusteredGrey(clusters) => clustered_rows(f, &rho, clusters, rows, progress),
         },
     }
 }
@@ -593,6 +656,97 @@ impl Steps {
     }
 }
 
+/// `T_c`, the clustered all-bounce transport of albedo `rho` (`crate::tail`): the clusters' mean
+/// rows of `F` through the same Horner steps give `R T_K` and `R T_{K−1}`.
+fn coarse_of(
+    f: &DenseMatrix,
+    rho: &[f32],
+    clusters: &Clusters,
+    steps: &Steps,
+) -> Result<Vec<f32>, TransportError> {
+    let n = f.n;
+    if clusters.rows() != n {
+        return Err(tail::ClusterError::Count {
+            clusters: clusters.rows(),
+            rows: n,
+        }
+        .into());
+    }
+    let rf = tail::cluster_rows(f, clusters);
+    let m = clusters.len();
+    let mut rt = vec![0.0f32; m * n];
+    let prev: Vec<Vec<f32>> = rf
+        .par_chunks(ROW_BLOCK * n.max(1))
+        .zip(rt.par_chunks_mut(ROW_BLOCK * n.max(1)))
+        .map(|(s, o)| steps.run(s, n, tail::EXACT_BOUNCES, o))
+        .collect();
+    tail::coarse_transport(&rt, &prev.concat(), rho, clusters).ok_or(TransportError::Singular)
+}
+
+/// Channels `chans` (of three) with the grey tail ([`Tail::ClusteredGrey`]), channel by
+/// channel: per row block, the grey light's tail once (`(Δ_K D_ρ̄ P) T̄_c`, from the grey
+/// Horner steps), added to each channel's own `T_K`. A row's bits depend only on `F`, the
+/// albedos and the clusters, so one channel asked alone is that channel of the three.
+fn grey_tail_rows(
+    f: &DenseMatrix,
+    albedo: &[[f32; 3]],
+    chans: Range<usize>,
+    clusters: &Clusters,
+    rows: Range<usize>,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<Vec<f32>, TransportError> {
+    let n = f.n;
+    let k = tail::EXACT_BOUNCES;
+    let grey = channel_albedo(albedo, 0, 1);
+    let grey_steps = Steps::new(f, &grey);
+    let coarse = coarse_of(f, &grey, clusters, &grey_steps)?;
+    let colour: Vec<Steps> = chans
+        .clone()
+        .map(|c| Steps::new(f, &channel_albedo(albedo, c, 3)))
+        .collect();
+    let (first, last) = (rows.start / ROW_BLOCK, rows.end.div_ceil(ROW_BLOCK));
+    let blocks: Vec<Vec<Vec<f32>>> = (first..last)
+        .into_par_iter()
+        .map(|b| {
+            let r = b * ROW_BLOCK..((b + 1) * ROW_BLOCK).min(n);
+            let start = &f.data[r.start * n..r.end * n];
+            let mut grey_k = vec![0.0f32; r.len() * n];
+            let grey_prev = grey_steps.run(start, n, k, &mut grey_k);
+            let tail = tail::tail_block(&grey_k, &grey_prev, &grey, clusters, &coarse);
+            drop((grey_k, grey_prev));
+            let (lo, hi) = (
+                (rows.start.max(r.start) - r.start) * n,
+                (rows.end.min(r.end) - r.start) * n,
+            );
+            let out = colour
+                .iter()
+                .map(|steps| {
+                    let mut out = vec![0.0f32; r.len() * n];
+                    steps.run(start, n, k, &mut out);
+                    for (o, t) in out.iter_mut().zip(&tail) {
+                        *o += t;
+                    }
+                    out.truncate(hi);
+                    out.drain(..lo);
+                    out
+                })
+                .collect();
+            progress(((hi - lo) / n.max(1) * colour.len()) as u64);
+            out
+        })
+        .collect();
+    let mut out = Vec::with_capacity(rows.len() * n * colour.len());
+    for c in 0..colour.len() {
+        for b in &blocks {
+            out.extend_from_slice(&b[c]);
+        }
+    }
+    if out.iter().any(|v| !v.is_finite()) {
+        return Err(TransportError::Singular);
+    }
+    Ok(out)
+}
+
 /// All bounces with the tail on clusters (`crate::tail`): rows of `T_K` and `T_{K−1}` by the
 /// Horner steps a `K`-bounce bake takes, then the tail on each block.
 fn clustered_rows(
@@ -603,27 +757,9 @@ fn clustered_rows(
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<Vec<f32>, TransportError> {
     let n = f.n;
-    if clusters.rows() != n {
-        return Err(tail::ClusterError::Count {
-            clusters: clusters.rows(),
-            rows: n,
-        }
-        .into());
-    }
     let k = tail::EXACT_BOUNCES;
     let steps = Steps::new(f, rho);
-    // The clusters' mean rows of F through the same steps: R T_K and R T_{K−1}.
-    let rf = tail::cluster_rows(f, clusters);
-    let m = clusters.len();
-    let mut rt = vec![0.0f32; m * n];
-    let prev: Vec<Vec<f32>> = rf
-        .par_chunks(ROW_BLOCK * n.max(1))
-        .zip(rt.par_chunks_mut(ROW_BLOCK * n.max(1)))
-        .map(|(s, o)| steps.run(s, n, k, o))
-        .collect();
-    let coarse = tail::coarse_transport(&rt, &prev.concat(), rho, clusters)
-        .ok_or(TransportError::Singular)?;
-    drop((rf, rt, prev));
+    let coarse = coarse_of(f, rho, clusters, &steps)?;
     let out = by_blocks(n, rows, progress, |r, out| {
         let prev = steps.run(&f.data[r.start * n..r.end * n], n, k, out);
         tail::add_tail(out, &prev, rho, clusters, &coarse);
@@ -763,6 +899,70 @@ mod tests {
             }
         }
         f
+    }
+
+    #[test]
+    fn a_grey_tail_is_each_colours_first_bounces_and_the_grey_rest_as_measured() {
+        let n = 120;
+        for f in [random_ff(n, 41), sparse_ff(n, 6, 47)] {
+            let albedo = random_albedo(n, 43);
+            // One cluster a row: the clustered tail is the exact one the measure assumes.
+            let own = Clusters::singletons(n);
+            let all = |tail, channels| {
+                transport(&f, &albedo, Bounces::All, tail, channels, &no_progress).unwrap()
+            };
+            let three = |channels| {
+                transport(
+                    &f,
+                    &albedo,
+                    Bounces::K(3),
+                    Tail::Exact,
+                    channels,
+                    &no_progress,
+                )
+                .unwrap()
+            };
+            let colour = all(Tail::Clustered(&own), 3);
+            let mixed = all(Tail::ClusteredGrey(&own), 3);
+            let (t3, grey_all, grey_t3) = (three(3), all(Tail::Clustered(&own), 1), three(1));
+            for c in 0..3 {
+                for (idx, &got) in mixed.channel(c).iter().enumerate() {
+                    let want = t3.channel(c)[idx] + grey_all.data[idx] - grey_t3.data[idx];
+                    assert!(
+                        (got - want).abs() <= 1e-5 * want.abs() + 1e-6,
+                        "channel {c} entry {idx}: {got} vs {want}"
+                    );
+                }
+                // A channel asked alone is that channel of the three.
+                let alone = transport_rows(
+                    &f,
+                    &albedo,
+                    (c, 3),
+                    Bounces::All,
+                    Tail::ClusteredGrey(&own),
+                    0..n,
+                    &no_progress,
+                )
+                .unwrap();
+                assert_eq!(alone, mixed.channel(c), "channel {c}");
+            }
+            // The choice's measure is what the grey tail changes.
+            let probes = probe_vectors(n, 4);
+            let choice = choose_channels(&f, &albedo, Bounces::All, &probes, 0.0).unwrap();
+            let measured = choice.grey_tail_rel_l2.unwrap();
+            let (a, b) = (apply(&colour, &probes), apply(&mixed, &probes));
+            let num: f64 = a.iter().zip(&b).map(|(x, y)| (x - y) * (x - y)).sum();
+            let den: f64 = a.iter().map(|x| x * x).sum();
+            let actual = (num / den).sqrt();
+            assert!(
+                (actual - measured).abs() <= 0.02 * actual && actual > 1e-4,
+                "measured {measured}, the transports differ by {actual}"
+            );
+            assert!(measured < choice.grey_rel_l2, "{choice:?}");
+            // A number of bounces has no tail to measure.
+            let k = choose_channels(&f, &albedo, Bounces::K(3), &probes, 0.0).unwrap();
+            assert_eq!(k.grey_tail_rel_l2, None);
+        }
     }
 
     #[test]
@@ -965,6 +1165,7 @@ mod tests {
             (Bounces::K(3), Tail::Exact),
             (Bounces::All, Tail::Exact),
             (Bounces::All, Tail::Clustered(&clusters)),
+            (Bounces::All, Tail::ClusteredGrey(&clusters)),
         ] {
             let full =
                 transport_rows(&f, &albedo, (1, 3), bounces, tail, 0..n, &no_progress).unwrap();
@@ -994,6 +1195,29 @@ mod tests {
                     transport_rows(&f, &albedo, (1, 3), bounces, tail, 0..n, &no_progress).unwrap()
                 });
                 assert_eq!(t, full, "{bounces} with {threads} threads");
+            }
+            // Every channel at once, as a shard asks: each channel's rows of that range.
+            let each: Vec<Vec<f32>> = (0..3)
+                .map(|c| {
+                    transport_rows(&f, &albedo, (c, 3), bounces, tail, 0..n, &no_progress).unwrap()
+                })
+                .collect();
+            for range in [0..n, b - 5..2 * b + 7, 0..0] {
+                let at_once = transport_channel_rows(
+                    &f,
+                    &albedo,
+                    3,
+                    bounces,
+                    tail,
+                    range.clone(),
+                    &no_progress,
+                )
+                .unwrap();
+                let want: Vec<f32> = each
+                    .iter()
+                    .flat_map(|t| t[range.start * n..range.end * n].iter().copied())
+                    .collect();
+                assert_eq!(at_once, want, "{bounces} {range:?}, three channels at once");
             }
         }
     }

@@ -129,6 +129,7 @@ fn sample_meta() -> BakeMeta {
             isolated_patches: 0,
             channels: 3,
             grey_rel_l2: 0.05,
+            grey_tail_rel_l2: Some(0.01),
             matrix_bytes: 300,
             codec_eind_rel_l2: 1.5e-3,
             surface_area: 12.5,

@@ -66,8 +66,18 @@ pub fn print_summary(baked: &Baked, out: &Path, file_bytes: u64, total_s: f64) {
         share(s.rays.occluder),
         share(s.rays.back_face)
     );
+    let tail = s
+        .grey_tail_rel_l2
+        .map(|e| {
+            format!(
+                "; one grey tail past bounce {} for the three (it changes E_ind by {:.2}%)",
+                bounce_core::tail::EXACT_BOUNCES,
+                e * 100.0
+            )
+        })
+        .unwrap_or_default();
     println!(
-        "  transport     {} bounce(s), {}, codec {}, {}",
+        "  transport     {} bounce(s), {}{tail}, codec {}, {}",
         m.settings.bounces,
         channels_line(s.channels, s.grey_rel_l2, m.settings.max_grey_error),
         baked.transport.codec,

@@ -553,28 +553,55 @@ pub(crate) fn tail_clusters(
         .then(|| Clusters::of_layout(rows, f))
 }
 
+/// What a bake computes its transport with ([`plan_transport`]).
+pub(crate) struct TransportPlan {
+    pub colour: transport::ChannelChoice,
+    /// The clusters an all-bounce tail is summed on ([`tail_clusters`]).
+    pub clusters: Option<Clusters>,
+    /// Three channels whose clustered tail is bounced once on the mean albedo: it changes
+    /// `E_ind` by at most `--max-grey-error` ([`transport::Tail::ClusteredGrey`]).
+    pub grey_tail: bool,
+}
+
+impl TransportPlan {
+    /// How the transport sums all bounces.
+    pub fn tail(&self) -> transport::Tail<'_> {
+        match (&self.clusters, self.grey_tail) {
+            (Some(c), true) => transport::Tail::ClusteredGrey(c),
+            (Some(c), false) => transport::Tail::Clustered(c),
+            (None, _) => transport::Tail::Exact,
+        }
+    }
+
+    /// What the file records of a grey tail: how much it changes `E_ind`, where it was taken.
+    pub fn grey_tail_rel_l2(&self) -> Option<f64> {
+        self.colour.grey_tail_rel_l2.filter(|_| self.grey_tail)
+    }
+}
+
 /// What the transport of `f` on `rows` is computed with, as the channels stage of `timer`: its
-/// channel count ([`choose_channels`]) and the tail's clusters ([`tail_clusters`]).
+/// channel count ([`choose_channels`]), the tail's clusters ([`tail_clusters`]) and whether
+/// three channels share one grey tail. Deterministic, so every shard of a bake plans alike.
 pub(crate) fn plan_transport(
     f: &DenseMatrix,
     rows: &PatchLayout,
     options: &BakeOptions,
     timer: &mut Timer<'_>,
-) -> Result<(transport::ChannelChoice, Option<Clusters>), BakeError> {
+) -> Result<TransportPlan, BakeError> {
     timer.run(Stage::Channels, 0, || {
-        Ok((
-            choose_channels(f, rows, options)?,
-            tail_clusters(rows, f, options),
-        ))
+        let colour = choose_channels(f, rows, options)?;
+        let clusters = tail_clusters(rows, f, options);
+        let grey_tail = colour.channels == 3
+            && clusters.is_some()
+            && colour
+                .grey_tail_rel_l2
+                .is_some_and(|e| e <= options.max_grey_error);
+        Ok(TransportPlan {
+            colour,
+            clusters,
+            grey_tail,
+        })
     })
-}
-
-/// How the transport sums all bounces, given [`tail_clusters`]'s answer.
-pub(crate) fn tail_of(clusters: &Option<Clusters>) -> transport::Tail<'_> {
-    match clusters {
-        Some(c) => transport::Tail::Clustered(c),
-        None => transport::Tail::Exact,
-    }
 }
 
 /// Store `t` with the requested codec, as the encode stage of `timer`; also its `E_ind` error.
@@ -676,6 +703,7 @@ pub(crate) struct MetaParts {
     pub form_factors: FormFactorStats,
     pub channels: usize,
     pub grey_rel_l2: f64,
+    pub grey_tail_rel_l2: Option<f64>,
     pub matrix_bytes: u64,
     pub codec_eind_rel_l2: f64,
     pub timings: Vec<StageTiming>,
@@ -704,6 +732,7 @@ pub(crate) fn build_meta(p: MetaParts) -> BakeMeta {
             isolated_patches: ff.isolated,
             channels: p.channels,
             grey_rel_l2: p.grey_rel_l2,
+            grey_tail_rel_l2: p.grey_tail_rel_l2,
             matrix_bytes: p.matrix_bytes,
             codec_eind_rel_l2: p.codec_eind_rel_l2,
             surface_area: p.surface_area,
@@ -767,14 +796,14 @@ fn bake_with(
     let ff = check_form_factors(&f, rows, options.geometry)?;
 
     let albedo: Vec<[f32; 3]> = rows.patches.iter().map(|p| p.albedo).collect();
-    let (colour, clusters) = plan_transport(&f, rows, options, &mut timer)?;
-    let channels = colour.channels;
+    let plan = plan_transport(&f, rows, options, &mut timer)?;
+    let channels = plan.colour.channels;
     let t = timer.run(Stage::Transport, (n * channels) as u64, || {
         transport::transport(
             &f,
             &albedo,
             options.bounces,
-            tail_of(&clusters),
+            plan.tail(),
             channels,
             &advance,
         )
@@ -797,7 +826,8 @@ fn bake_with(
         rays: tally,
         form_factors: ff,
         channels,
-        grey_rel_l2: colour.grey_rel_l2,
+        grey_rel_l2: plan.colour.grey_rel_l2,
+        grey_tail_rel_l2: plan.grey_tail_rel_l2(),
         matrix_bytes: transport.payload.len() as u64,
         codec_eind_rel_l2: codec_err,
         timings: timer.timings,

@@ -211,6 +211,7 @@ pub fn form_factor_shard(
         patches: n,
         channels: 1,
         grey_rel_l2: 0.0,
+        grey_tail_rel_l2: None,
         tool_version: env!("CARGO_PKG_VERSION").to_string(),
         settings: bake::settings(options, tracer),
         keep_form_factors: options.keep_form_factors,
@@ -277,23 +278,18 @@ pub fn transport_shard(
         .iter()
         .map(|p| p.albedo)
         .collect();
-    let (colour, clusters) =
-        bake::plan_transport(&f, first.transport_layout(), &options, &mut timer)?;
-    let channels = colour.channels;
+    let plan = bake::plan_transport(&f, first.transport_layout(), &options, &mut timer)?;
+    let channels = plan.colour.channels;
     let t_rows = timer.run(Stage::Transport, (rows.len() * channels) as u64, || {
-        let mut out = Vec::with_capacity(rows.len() * n * channels);
-        for c in 0..channels {
-            out.extend(transport::transport_rows(
-                &f,
-                &albedo,
-                (c, channels),
-                options.bounces,
-                bake::tail_of(&clusters),
-                rows.clone(),
-                &|k| progress.advance(k),
-            )?);
-        }
-        Ok::<_, transport::TransportError>(out)
+        transport::transport_channel_rows(
+            &f,
+            &albedo,
+            channels,
+            options.bounces,
+            plan.tail(),
+            rows.clone(),
+            &|k| progress.advance(k),
+        )
     });
     let t_rows = t_rows.map_err(BakeError::from)?;
     let form_factor_rows = options
@@ -307,7 +303,8 @@ pub fn transport_shard(
         end_row: rows.end,
         patches: n,
         channels,
-        grey_rel_l2: colour.grey_rel_l2,
+        grey_rel_l2: plan.colour.grey_rel_l2,
+        grey_tail_rel_l2: plan.grey_tail_rel_l2(),
         form_factors: Some(summary),
         rays: members
             .iter()
@@ -347,79 +344,80 @@ pub fn merge(inputs: &[PathBuf], progress: &dyn Progress) -> Result<Baked, Shard
     let n = m0.patches;
     let options = bake::options_of(&m0.settings, m0.keep_form_factors);
     bake::check_codec_options(&options)?;
-    let (t, f, near_field, sky, probes, stats, rays, mut timings, grey_rel_l2) = match m0.phase {
-        Phase::Transport => {
-            let Assembled {
-                rows: t,
-                form_factors: f,
-                near,
-                sky,
-                probes,
-            } = timer.run(Stage::ReadShards, n as u64, || {
-                assemble(&members, m0.channels, m0.keep_form_factors, progress)
-            })?;
-            // gather checked that every shard has the same summary.
-            let stats = m0.form_factors.map(|s| s.stats).ok_or(ShardError::Read {
-                path: members[0].path.clone(),
-                error: FormatError::BadShard("no form-factor statistics".to_string()),
-            })?;
-            let mut timings = m0.inherited_timings.clone();
-            timings.extend(sum_timings(members.iter().map(|m| &m.header.meta.timings)));
-            (
-                t,
-                f,
-                near,
-                sky,
-                probes,
-                stats,
-                m0.rays,
-                timings,
-                m0.grey_rel_l2,
-            )
-        }
-        Phase::FormFactors => {
-            let Assembled {
-                rows: f,
-                near,
-                sky,
-                probes,
-                ..
-            } = timer.run(Stage::ReadShards, n as u64, || {
-                assemble(&members, 1, false, progress)
-            })?;
-            let rows = first.transport_layout();
-            let stats = bake::check_form_factors(&f, rows, first.meta.settings.geometry)?;
-            let albedo: Vec<[f32; 3]> = rows.patches.iter().map(|p| p.albedo).collect();
-            let (colour, clusters) = bake::plan_transport(&f, rows, &options, &mut timer)?;
-            let channels = colour.channels;
-            let t = timer.run(Stage::Transport, (n * channels) as u64, || {
-                transport::transport(
-                    &f,
-                    &albedo,
-                    options.bounces,
-                    bake::tail_of(&clusters),
-                    channels,
-                    &|k| progress.advance(k),
+    let (t, f, near_field, sky, probes, stats, rays, mut timings, (grey_rel_l2, grey_tail_rel_l2)) =
+        match m0.phase {
+            Phase::Transport => {
+                let Assembled {
+                    rows: t,
+                    form_factors: f,
+                    near,
+                    sky,
+                    probes,
+                } = timer.run(Stage::ReadShards, n as u64, || {
+                    assemble(&members, m0.channels, m0.keep_form_factors, progress)
+                })?;
+                // gather checked that every shard has the same summary.
+                let stats = m0.form_factors.map(|s| s.stats).ok_or(ShardError::Read {
+                    path: members[0].path.clone(),
+                    error: FormatError::BadShard("no form-factor statistics".to_string()),
+                })?;
+                let mut timings = m0.inherited_timings.clone();
+                timings.extend(sum_timings(members.iter().map(|m| &m.header.meta.timings)));
+                (
+                    t,
+                    f,
+                    near,
+                    sky,
+                    probes,
+                    stats,
+                    m0.rays,
+                    timings,
+                    (m0.grey_rel_l2, m0.grey_tail_rel_l2),
                 )
-            });
-            let t = t.map_err(BakeError::from)?;
-            let rays = members
-                .iter()
-                .fold(RayTally::default(), |a, m| a + m.header.meta.rays);
-            let timings = sum_timings(members.iter().map(|m| &m.header.meta.timings));
-            (
-                t,
-                m0.keep_form_factors.then_some(f),
-                near,
-                sky,
-                probes,
-                stats,
-                rays,
-                timings,
-                colour.grey_rel_l2,
-            )
-        }
-    };
+            }
+            Phase::FormFactors => {
+                let Assembled {
+                    rows: f,
+                    near,
+                    sky,
+                    probes,
+                    ..
+                } = timer.run(Stage::ReadShards, n as u64, || {
+                    assemble(&members, 1, false, progress)
+                })?;
+                let rows = first.transport_layout();
+                let stats = bake::check_form_factors(&f, rows, first.meta.settings.geometry)?;
+                let albedo: Vec<[f32; 3]> = rows.patches.iter().map(|p| p.albedo).collect();
+                let plan = bake::plan_transport(&f, rows, &options, &mut timer)?;
+                let channels = plan.colour.channels;
+                let t = timer.run(Stage::Transport, (n * channels) as u64, || {
+                    transport::transport(
+                        &f,
+                        &albedo,
+                        options.bounces,
+                        plan.tail(),
+                        channels,
+                        &|k| progress.advance(k),
+                    )
+                });
+                let t = t.map_err(BakeError::from)?;
+                let rays = members
+                    .iter()
+                    .fold(RayTally::default(), |a, m| a + m.header.meta.rays);
+                let timings = sum_timings(members.iter().map(|m| &m.header.meta.timings));
+                (
+                    t,
+                    m0.keep_form_factors.then_some(f),
+                    near,
+                    sky,
+                    probes,
+                    stats,
+                    rays,
+                    timings,
+                    (plan.colour.grey_rel_l2, plan.grey_tail_rel_l2()),
+                )
+            }
+        };
     let (transport, codec_err) =
         bake::encode_timed(&t, first.transport_layout(), &options, &mut timer)?;
     let channels = t.channels;
@@ -440,6 +438,7 @@ pub fn merge(inputs: &[PathBuf], progress: &dyn Progress) -> Result<Baked, Shard
         form_factors: stats,
         channels,
         grey_rel_l2,
+        grey_tail_rel_l2,
         matrix_bytes: transport.payload.len() as u64,
         codec_eind_rel_l2: codec_err,
         timings: sum_timings([&timings]),

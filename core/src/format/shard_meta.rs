@@ -70,6 +70,9 @@ pub struct ShardMeta {
     /// Phase 2: how much one grey channel changes `E_ind` (`BakeStats::grey_rel_l2`).
     #[serde(default)]
     pub grey_rel_l2: f64,
+    /// Phase 2: `BakeStats::grey_tail_rel_l2`.
+    #[serde(default)]
+    pub grey_tail_rel_l2: Option<f64>,
     /// The `bounce-core` version that wrote it: shards of one bake must come from one build.
     pub tool_version: String,
     pub settings: BakeSettings,
