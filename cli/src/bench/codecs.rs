@@ -77,7 +77,7 @@ pub fn run(args: &BenchCodecsArgs) -> Result<()> {
     }
     let exact = baked.transport.decode()?;
     let n = exact.n;
-    let b0 = probe_light_sets(&baked.layout, args.batch);
+    let b0 = probe_light_sets(baked.transport_layout(), args.batch);
     eprintln!(
         "bench codecs: {} ({n} patches, {} channel(s)), batch {}, median of {}",
         args.baked.display(),

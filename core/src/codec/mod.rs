@@ -101,12 +101,30 @@ pub struct Choice {
     pub encoded: EncodedMatrix,
     /// `E_ind` relative L2 error of `encoded` against the exact matrix.
     pub rel_l2: f64,
-    /// Every candidate tried: name, bytes, error.
+    /// Every candidate encoded: name, bytes, error (those that could not be smaller are left
+    /// out).
     pub candidates: Vec<(String, usize, f64)>,
 }
 
-/// The smallest encoding whose `E_ind` error over `b0` stays within `max_error`; the exact
-/// `dense-f32` when none does.
+/// The codecs `--codec auto` weighs, each with the fewest payload bytes it can take for an
+/// `n × n` matrix of `channels` channels (its blocks or values alone, before any exact entries
+/// or headers), in order of that bound. `bc1` is not among them: `bc1-resid` has its blocks
+/// and is more accurate at its bytes (`core/tests/it/codec.rs`), and encoding both cost the
+/// demo's bake 15 s of its 57.
+pub fn auto_candidates(n: usize, channels: usize) -> [(&'static str, usize); 4] {
+    let blocks = (n / 4) * (n / 4) * 8;
+    [
+        // One BC1 block holds sixteen entries of all three colours.
+        (logblock::BC1_RESID, blocks),
+        (logblock::BC4, blocks * channels),
+        (logblock::LOG8, n * n * channels),
+        (dense::DENSE_F16, n * n * channels * 2),
+    ]
+}
+
+/// The smallest encoding among [`auto_candidates`] whose `E_ind` error over `b0` stays within
+/// `max_error`; the exact `dense-f32` when none does. A candidate whose fewest bytes are no
+/// fewer than a fitting one's payload cannot be smaller, and is not encoded.
 pub fn choose(
     exact: &DenseMatrix,
     b0: &[[f32; 3]],
@@ -116,8 +134,14 @@ pub fn choose(
     let exact_op = dense::DenseOp::from(exact.clone());
     let mut best: Option<(EncodedMatrix, f64)> = None;
     let mut candidates = Vec::new();
-    for codec in all() {
-        let codec = configured(codec.name(), sparse_share)?;
+    for (name, fewest) in auto_candidates(exact.n, exact.channels) {
+        if best
+            .as_ref()
+            .is_some_and(|(b, _)| fewest >= b.payload.len())
+        {
+            continue;
+        }
+        let codec = configured(name, sparse_share)?;
         let enc = codec.encode(exact)?;
         let op = decode(&enc)?;
         let err = error::irradiance_errors(&exact_op, op.as_ref(), b0)?.rel_l2;
