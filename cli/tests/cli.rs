@@ -260,12 +260,13 @@ fn bake_and_demo_default_to_the_smallest_codec_within_one_percent() {
 #[test]
 fn bake_with_a_codec_or_auto() {
     let dir = tempfile::tempdir().unwrap();
-    let mut bc1_bytes = 0;
+    let (mut bc1_bytes, mut bc1_err) = (0, 0.0);
     for (codec, want) in [
         ("bc1", &["bc1"][..]),
         ("dense-f16", &["dense-f16"]),
-        // The smallest within 5%: bc1 and bc1-resid take within bytes of each other here.
-        ("auto", &["bc1", "bc1-resid"]),
+        // The smallest within 5% of those auto weighs: bc1-resid, with bc1's blocks (auto
+        // leaves bc1 out: the same bytes give more error).
+        ("auto", &["bc1-resid"]),
     ] {
         let file = dir.path().join(format!("{codec}.bounce"));
         let out = run(bounce()
@@ -278,16 +279,20 @@ fn bake_with_a_codec_or_auto() {
         let got = j["codec"].as_str().unwrap_or_default().to_string();
         assert!(want.contains(&got.as_str()), "--codec {codec}: {got}");
         let bytes = j["matrix_bytes"].as_u64().unwrap();
-        match codec {
-            "bc1" => bc1_bytes = bytes,
-            "auto" => assert!(
-                bytes <= bc1_bytes,
-                "auto {got}: {bytes} > bc1's {bc1_bytes}"
-            ),
-            _ => {}
-        }
         let err = j["stats"]["codec_eind_rel_l2"].as_f64().unwrap();
         assert!(err < 0.05, "{codec}: {err}");
+        match codec {
+            "bc1" => (bc1_bytes, bc1_err) = (bytes, err),
+            "auto" => {
+                // Within a few exact entries of bc1's bytes, and with less error.
+                assert!(
+                    bytes * 100 <= bc1_bytes * 101,
+                    "auto {got}: {bytes} against bc1's {bc1_bytes}"
+                );
+                assert!(err < bc1_err, "auto {got}: {err} against bc1's {bc1_err}");
+            }
+            _ => {}
+        }
         assert_eq!(j["settings"]["codec"], codec);
     }
     let unknown = run(bounce()
