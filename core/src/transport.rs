@@ -741,6 +741,11 @@ fn grey_tail_rows(
             out.extend_from_slice(&b[c]);
         }
     }
+    finite(out)
+}
+
+/// `out`, unless a value in it is not finite: a singular system.
+fn finite(out: Vec<f32>) -> Result<Vec<f32>, TransportError> {
     if out.iter().any(|v| !v.is_finite()) {
         return Err(TransportError::Singular);
     }
@@ -764,10 +769,7 @@ fn clustered_rows(
         let prev = steps.run(&f.data[r.start * n..r.end * n], n, k, out);
         tail::add_tail(out, &prev, rho, clusters, &coarse);
     });
-    if out.iter().any(|v| !v.is_finite()) {
-        return Err(TransportError::Singular);
-    }
-    Ok(out)
+    finite(out)
 }
 
 fn infinite_rows(
@@ -799,10 +801,7 @@ fn infinite_rows(
             }
         }
     });
-    if out.iter().any(|v| !v.is_finite()) {
-        return Err(TransportError::Singular);
-    }
-    Ok(out)
+    finite(out)
 }
 
 #[cfg(test)]

@@ -604,6 +604,25 @@ pub(crate) fn plan_transport(
     })
 }
 
+/// The whole transport of `f` on `rows`, planned ([`plan_transport`]) and computed as the
+/// channels and transport stages of `timer`: what a one-process bake and a merge of form-factor
+/// shards both do.
+pub(crate) fn transport_timed(
+    f: &DenseMatrix,
+    rows: &PatchLayout,
+    options: &BakeOptions,
+    timer: &mut Timer<'_>,
+    advance: &(dyn Fn(u64) + Sync),
+) -> Result<(TransportPlan, DenseMatrix), BakeError> {
+    let albedo: Vec<[f32; 3]> = rows.patches.iter().map(|p| p.albedo).collect();
+    let plan = plan_transport(f, rows, options, timer)?;
+    let channels = plan.colour.channels;
+    let t = timer.run(Stage::Transport, (f.n * channels) as u64, || {
+        transport::transport(f, &albedo, options.bounces, plan.tail(), channels, advance)
+    })?;
+    Ok((plan, t))
+}
+
 /// Store `t` with the requested codec, as the encode stage of `timer`; also its `E_ind` error.
 pub(crate) fn encode_timed(
     t: &DenseMatrix,
@@ -795,19 +814,8 @@ fn bake_with(
     drop(rays);
     let ff = check_form_factors(&f, rows, options.geometry)?;
 
-    let albedo: Vec<[f32; 3]> = rows.patches.iter().map(|p| p.albedo).collect();
-    let plan = plan_transport(&f, rows, options, &mut timer)?;
+    let (plan, t) = transport_timed(&f, rows, options, &mut timer, &advance)?;
     let channels = plan.colour.channels;
-    let t = timer.run(Stage::Transport, (n * channels) as u64, || {
-        transport::transport(
-            &f,
-            &albedo,
-            options.bounces,
-            plan.tail(),
-            channels,
-            &advance,
-        )
-    })?;
 
     let (transport, codec_err) = encode_timed(&t, rows, options, &mut timer)?;
     drop(t);

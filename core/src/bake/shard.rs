@@ -387,20 +387,9 @@ pub fn merge(inputs: &[PathBuf], progress: &dyn Progress) -> Result<Baked, Shard
                 })?;
                 let rows = first.transport_layout();
                 let stats = bake::check_form_factors(&f, rows, first.meta.settings.geometry)?;
-                let albedo: Vec<[f32; 3]> = rows.patches.iter().map(|p| p.albedo).collect();
-                let plan = bake::plan_transport(&f, rows, &options, &mut timer)?;
-                let channels = plan.colour.channels;
-                let t = timer.run(Stage::Transport, (n * channels) as u64, || {
-                    transport::transport(
-                        &f,
-                        &albedo,
-                        options.bounces,
-                        plan.tail(),
-                        channels,
-                        &|k| progress.advance(k),
-                    )
-                });
-                let t = t.map_err(BakeError::from)?;
+                let (plan, t) = bake::transport_timed(&f, rows, &options, &mut timer, &|k| {
+                    progress.advance(k)
+                })?;
                 let rays = members
                     .iter()
                     .fold(RayTally::default(), |a, m| a + m.header.meta.rays);
